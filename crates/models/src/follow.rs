@@ -1,0 +1,88 @@
+//! M_Follow, the baseline: swims at constant speed straight at the closest other agent, never
+//! overshooting it.
+
+use fishprobe_sim::params::{check, ConfigError};
+use fishprobe_sim::{FishMind, FishModel, FishMotion, FishView, SimRng};
+
+fishprobe_sim::documented_params! {
+    /// Parameters of M_Follow (SPEC §6).
+    pub struct FollowParams {
+        /// Constant swimming speed (choice: M_Zone's 6.3 cm/s).
+        pub speed_cm_s: f32 = 6.3; "cm/s",
+    }
+}
+
+impl FollowParams {
+    /// Checks the ranges.
+    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        check::positive(prefix, "speed_cm_s", self.speed_cm_s)
+    }
+}
+
+/// The Follow model.
+#[derive(Debug, Clone)]
+pub struct Follow {
+    p: FollowParams,
+}
+
+impl Follow {
+    /// From validated parameters.
+    pub fn new(p: FollowParams) -> Result<Self, ConfigError> {
+        p.validate("")?;
+        Ok(Self { p })
+    }
+}
+
+impl FishModel for Follow {
+    fn name(&self) -> &str {
+        "Follow"
+    }
+
+    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
+        match v.closest_other() {
+            // Nobody to follow, or already there: stay put.
+            None => FishMotion {
+                heading: v.me.heading,
+                speed: 0.0,
+            },
+            Some((_, d)) if d < 1e-4 => FishMotion {
+                heading: v.me.heading,
+                speed: 0.0,
+            },
+            Some((o, d)) => FishMotion {
+                heading: (o.y - v.me.y).atan2(o.x - v.me.x),
+                speed: self.p.speed_cm_s.min(d / v.dt),
+            },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fishprobe_sim::{AgentState, Sandbox, Tank};
+    use std::sync::Arc;
+
+    #[test]
+    fn reaches_a_still_robot_without_overshooting() {
+        let model = Arc::new(Follow::new(FollowParams::default()).unwrap());
+        let mut sb = Sandbox::new(Tank::default(), 25.0, model, &[[-30.0, -10.0, 2.0]], 1);
+        let robot = AgentState::at(10.0, 20.0, 0.0);
+        sb.set_scripted(&[robot]);
+        let start = sb.fish()[0].distance_to(&robot); // 50 cm
+        let mut prev = start;
+        for frame in 1..=400 {
+            sb.step().unwrap();
+            let d = sb.fish()[0].distance_to(&robot);
+            assert!(d <= prev + 1e-4, "frame {frame}: moved away");
+            // Constant speed: 6.3 cm/s · 0.04 s per frame until arrival.
+            let expected = (start - 6.3 * 0.04 * frame as f32).max(0.0);
+            assert!(
+                (d - expected).abs() < 1e-3,
+                "frame {frame}: {d} vs {expected}"
+            );
+            prev = d;
+        }
+        assert!(prev < 1e-3, "arrived: {prev}");
+    }
+}

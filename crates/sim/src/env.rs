@@ -1,0 +1,590 @@
+//! The Gymnasium-style environment: one robot, `fish_count` fish driven by a [`FishModel`],
+//! the lead-to-goal task, and the 180-float observation.
+//!
+//! `reset(seed)` then `step(action)` until `truncated` (the time limit; the task never
+//! `terminated`s). Observations are written into caller-owned buffers so that stepping never
+//! allocates.
+
+use crate::agent::AgentState;
+use crate::error::SimError;
+use crate::fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_OTHERS};
+use crate::geometry::{Tank, TankParams};
+use crate::observation::{ObservationEncoder, ObservationParams};
+use crate::params::{check, ConfigError};
+use crate::rng::{stream, SimRng};
+use crate::robot::{Robot, RobotParams};
+use crate::task::{GoalEvent, GoalTracker, TaskMode, TaskParams};
+use rand::{Rng, RngExt};
+use std::f32::consts::PI;
+use std::sync::Arc;
+
+crate::documented_params! {
+    /// Everything that defines an environment except the fish model.
+    pub struct EnvConfig {
+        /// Simulation (and tracking) frame rate (paper: 25 Hz).
+        pub frame_rate_hz: f32 = 25.0; "Hz",
+        /// Frames per policy action (paper: the policy acts at 1 Hz, so 25).
+        pub frames_per_action: u32 = 25; "frames",
+        /// Number of fish (paper: 1). The goal counts when any fish enters it.
+        pub fish_count: u32 = 1; "1",
+        /// Training or evaluation task.
+        pub mode: TaskMode = TaskMode::Training; "-",
+        /// The tank.
+        pub tank: TankParams = TankParams::default(); "-",
+        /// The robot's controller.
+        pub robot: RobotParams = RobotParams::default(); "-",
+        /// The task.
+        pub task: TaskParams = TaskParams::default(); "-",
+        /// The observation.
+        pub observation: ObservationParams = ObservationParams::default(); "-",
+    }
+}
+
+impl EnvConfig {
+    /// Checks every field; errors name the dotted field path and the value.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        check::positive("", "frame_rate_hz", self.frame_rate_hz)?;
+        if self.frames_per_action == 0 {
+            return Err(ConfigError::new(
+                "",
+                "frames_per_action",
+                0,
+                "must be at least 1",
+            ));
+        }
+        if !(1..=MAX_OTHERS as u32).contains(&self.fish_count) {
+            return Err(ConfigError::new(
+                "",
+                "fish_count",
+                self.fish_count,
+                &format!("must lie in [1, {MAX_OTHERS}]"),
+            ));
+        }
+        self.tank.validate("tank")?;
+        self.robot.validate("robot")?;
+        self.task.validate("task", &Tank::new(&self.tank))?;
+        self.observation.validate("observation")
+    }
+
+    /// The same configuration in evaluation mode.
+    pub fn evaluation(mut self) -> Self {
+        self.mode = TaskMode::Evaluation;
+        self
+    }
+}
+
+/// A box of real vectors: per-dimension lower and upper bounds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoxSpace {
+    /// Lower bounds.
+    pub low: Vec<f32>,
+    /// Upper bounds.
+    pub high: Vec<f32>,
+}
+
+impl BoxSpace {
+    /// `n` dimensions with the same bounds.
+    pub fn uniform(n: usize, low: f32, high: f32) -> Self {
+        Self {
+            low: vec![low; n],
+            high: vec![high; n],
+        }
+    }
+
+    /// Number of dimensions.
+    pub fn dim(&self) -> usize {
+        self.low.len()
+    }
+
+    /// Whether `x` has the right length and every value is finite and in bounds.
+    pub fn contains(&self, x: &[f32]) -> bool {
+        x.len() == self.dim()
+            && x.iter()
+                .zip(self.low.iter().zip(&self.high))
+                .all(|(v, (l, h))| v.is_finite() && v >= l && v <= h)
+    }
+}
+
+/// What happened during one action.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StepInfo {
+    /// Goals reached during the action's frames.
+    pub goals_reached: u32,
+    /// Frames in which the robot was clipped at a wall.
+    pub robot_wall_contacts: u32,
+    /// Frames in which a fish was clipped at a wall (summed over fish).
+    pub fish_wall_contacts: u32,
+    /// Whether the robot came within the wall-penalty distance.
+    pub robot_near_wall: bool,
+    /// Frame count since the episode start, at the end of the action.
+    pub frame: u32,
+}
+
+/// The result of one `step`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Transition {
+    /// Reward of the action.
+    pub reward: f32,
+    /// The episode reached a terminal state (never, in this task).
+    pub terminated: bool,
+    /// The episode hit its time limit.
+    pub truncated: bool,
+    /// Details.
+    pub info: StepInfo,
+}
+
+/// The Gymnasium contract, allocation-free: observations go into caller buffers.
+pub trait Env {
+    /// Observation bounds.
+    fn observation_space(&self) -> &BoxSpace;
+    /// Action bounds.
+    fn action_space(&self) -> &BoxSpace;
+    /// Actions per episode (time limit).
+    fn max_episode_steps(&self) -> u32;
+    /// Starts an episode. `Some(seed)` re-seeds the environment; `None` continues its stream.
+    fn reset(&mut self, seed: Option<u64>, obs: &mut [f32]) -> Result<(), SimError>;
+    /// Applies one action. NaN or infinite actions are rejected without touching the state;
+    /// finite ones are clipped to the action space.
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Transition, SimError>;
+}
+
+/// Totals of the current episode.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EpisodeSummary {
+    /// Actions taken.
+    pub actions: u32,
+    /// Sum of rewards.
+    pub episode_return: f32,
+    /// Goals reached, with frames.
+    pub goal_events: Vec<GoalEvent>,
+    /// Frames with the robot clipped at a wall.
+    pub robot_wall_contacts: u32,
+    /// Frames with a fish clipped at a wall.
+    pub fish_wall_contacts: u32,
+}
+
+/// A robot command as recorded: the frame at which the action began and the turn applied
+/// (after clipping).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RecordedCommand {
+    /// Frame at which the action began.
+    pub frame: u32,
+    /// Turn angle (rad).
+    pub turn: f32,
+}
+
+/// A recorded episode: poses of every agent at every frame (frame 0 = the start).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Trajectory {
+    /// Frame rate (Hz).
+    pub frame_rate_hz: f32,
+    /// Robot (x, y, heading) per frame.
+    pub robot: Vec<[f32; 3]>,
+    /// Per fish: (x, y, heading) per frame.
+    pub fish: Vec<Vec<[f32; 3]>>,
+    /// Active goal centre per frame.
+    pub active_goal: Vec<[f32; 2]>,
+    /// Robot commands.
+    pub commands: Vec<RecordedCommand>,
+}
+
+/// Explicit start poses (x, y, heading) instead of random ones, e.g. for the approach assay.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StartPoses {
+    /// Robot pose.
+    pub robot: [f32; 3],
+    /// One pose per fish.
+    pub fish: Vec<[f32; 3]>,
+}
+
+/// The RoboFish tank as a reinforcement-learning environment.
+#[derive(Debug, Clone)]
+pub struct TankEnv {
+    cfg: EnvConfig,
+    tank: Tank,
+    dt: f32,
+    model: Arc<dyn FishModel>,
+    encoder: ObservationEncoder,
+    obs_space: BoxSpace,
+    act_space: BoxSpace,
+    robot: Robot,
+    fish: Vec<AgentState>,
+    minds: Vec<FishMind>,
+    fish_rngs: Vec<SimRng>,
+    task_rng: SimRng,
+    reset_rng: SimRng,
+    goals: GoalTracker,
+    frame: u32,
+    prev_bins: Vec<f32>,
+    views: Vec<FishView>,
+    inferred: Vec<f32>,
+    acc: StepInfo,
+    summary: EpisodeSummary,
+    start_poses: Option<StartPoses>,
+    recording: bool,
+    trajectory: Trajectory,
+    live: bool,
+}
+
+impl TankEnv {
+    /// A new environment; validates the configuration. Call `reset` before `step`.
+    pub fn new(cfg: EnvConfig, model: Arc<dyn FishModel>) -> Result<Self, SimError> {
+        cfg.validate()?;
+        let n_fish = cfg.fish_count as usize;
+        let encoder = ObservationEncoder::new(&cfg.observation);
+        let width = model.inference_width();
+        Ok(Self {
+            tank: Tank::new(&cfg.tank),
+            dt: 1.0 / cfg.frame_rate_hz,
+            obs_space: BoxSpace::uniform(encoder.size(), 0.0, 1.0),
+            act_space: BoxSpace::uniform(1, -PI, PI),
+            prev_bins: vec![0.0; 2 * encoder.sectors()],
+            encoder,
+            model,
+            robot: Robot::default(),
+            fish: vec![AgentState::default(); n_fish],
+            minds: vec![FishMind::default(); n_fish],
+            fish_rngs: (0..n_fish as u64).map(|i| stream(0, "fish", i)).collect(),
+            task_rng: stream(0, "task", 0),
+            reset_rng: stream(0, "episodes", 0),
+            goals: GoalTracker {
+                active: [0.0, 0.0],
+                index: 0,
+            },
+            frame: 0,
+            views: vec![FishView::default(); n_fish],
+            inferred: vec![0.0; width * n_fish],
+            acc: StepInfo::default(),
+            summary: EpisodeSummary::default(),
+            start_poses: None,
+            recording: false,
+            trajectory: Trajectory::default(),
+            live: false,
+            cfg,
+        })
+    }
+
+    /// The validated configuration.
+    pub fn config(&self) -> &EnvConfig {
+        &self.cfg
+    }
+    /// The fish model.
+    pub fn model(&self) -> &Arc<dyn FishModel> {
+        &self.model
+    }
+    /// The tank geometry.
+    pub fn tank(&self) -> &Tank {
+        &self.tank
+    }
+    /// The robot.
+    pub fn robot(&self) -> &Robot {
+        &self.robot
+    }
+    /// The fish.
+    pub fn fish(&self) -> &[AgentState] {
+        &self.fish
+    }
+    /// Centre of the active goal.
+    pub fn active_goal(&self) -> [f32; 2] {
+        self.goals.active
+    }
+    /// Frames since the episode start.
+    pub fn frame(&self) -> u32 {
+        self.frame
+    }
+    /// Totals of the current episode.
+    pub fn summary(&self) -> &EpisodeSummary {
+        &self.summary
+    }
+    /// Uses fixed start poses for the following resets (`None`: random again).
+    pub fn set_start_poses(&mut self, poses: Option<StartPoses>) -> Result<(), SimError> {
+        if let Some(p) = &poses {
+            if p.fish.len() != self.fish.len() {
+                return Err(SimError::StartPoses(format!(
+                    "{} fish poses for {} fish",
+                    p.fish.len(),
+                    self.fish.len()
+                )));
+            }
+            let lim = self.tank.half - self.tank.margin;
+            for pose in std::iter::once(&p.robot).chain(&p.fish) {
+                if !pose.iter().all(|v| v.is_finite()) || pose[0].abs() > lim || pose[1].abs() > lim
+                {
+                    return Err(SimError::StartPoses(format!(
+                        "pose {pose:?} is not a finite pose inside the tank"
+                    )));
+                }
+            }
+        }
+        self.start_poses = poses;
+        Ok(())
+    }
+    /// Records every frame of the following episodes (memory is reserved at reset).
+    pub fn set_recording(&mut self, on: bool) {
+        self.recording = on;
+    }
+    /// The recorded current episode, if recording is on.
+    pub fn trajectory(&self) -> Option<&Trajectory> {
+        self.recording.then_some(&self.trajectory)
+    }
+    /// Actions per episode.
+    pub fn episode_actions(&self) -> u32 {
+        self.cfg.task.episode_actions(self.cfg.mode)
+    }
+
+    fn random_pose(&mut self) -> AgentState {
+        let lim = self.tank.half - self.cfg.task.start_wall_clearance_cm;
+        let x = self.task_rng.random_range(-lim..=lim);
+        let y = self.task_rng.random_range(-lim..=lim);
+        let h = self.task_rng.random_range(-PI..PI);
+        AgentState::at(x, y, h)
+    }
+
+    fn reset_state(&mut self, seed: Option<u64>) {
+        if let Some(s) = seed {
+            self.reset_rng = stream(s, "episodes", 0);
+        }
+        let episode_seed = self.reset_rng.next_u64();
+        self.task_rng = stream(episode_seed, "task", 0);
+        for (i, r) in self.fish_rngs.iter_mut().enumerate() {
+            *r = stream(episode_seed, "fish", i as u64);
+        }
+        if let Some(p) = self.start_poses.clone() {
+            self.robot = Robot::at(p.robot[0], p.robot[1], p.robot[2]);
+            for (f, q) in self.fish.iter_mut().zip(&p.fish) {
+                *f = AgentState::at(q[0], q[1], q[2]);
+            }
+        } else {
+            let r = self.random_pose();
+            self.robot = Robot::at(r.x, r.y, r.heading);
+            for i in 0..self.fish.len() {
+                self.fish[i] = self.random_pose();
+            }
+        }
+        for ((f, m), r) in self
+            .fish
+            .iter()
+            .zip(&mut self.minds)
+            .zip(&mut self.fish_rngs)
+        {
+            self.model.begin_episode(f, m, r);
+        }
+        self.goals = GoalTracker::start(
+            self.cfg.mode,
+            &self.cfg.task,
+            &self.tank,
+            &self.fish,
+            &mut self.task_rng,
+        );
+        self.frame = 0;
+        self.summary = EpisodeSummary::default();
+        self.summary.goal_events.reserve(64);
+        if self.recording {
+            let actions = self.episode_actions() as usize;
+            let frames = actions * self.cfg.frames_per_action as usize + 1;
+            let t = &mut self.trajectory;
+            t.frame_rate_hz = self.cfg.frame_rate_hz;
+            t.robot.clear();
+            t.robot.reserve(frames);
+            t.fish.resize_with(self.fish.len(), Vec::new);
+            for f in &mut t.fish {
+                f.clear();
+                f.reserve(frames);
+            }
+            t.active_goal.clear();
+            t.active_goal.reserve(frames);
+            t.commands.clear();
+            t.commands.reserve(actions);
+            self.record_frame();
+        }
+        self.live = true;
+    }
+
+    fn record_frame(&mut self) {
+        let r = &self.robot.state;
+        self.trajectory.robot.push([r.x, r.y, r.heading]);
+        for (track, f) in self.trajectory.fish.iter_mut().zip(&self.fish) {
+            track.push([f.x, f.y, f.heading]);
+        }
+        self.trajectory.active_goal.push(self.goals.active);
+    }
+
+    fn encode(&mut self, first: bool, obs: &mut [f32]) {
+        self.encoder.encode(
+            &self.tank,
+            &self.robot.state,
+            &self.fish,
+            self.goals.active,
+            &mut self.prev_bins,
+            first,
+            obs,
+        );
+    }
+
+    fn check_obs(&self, obs: &[f32]) -> Result<(), SimError> {
+        if obs.len() == self.encoder.size() {
+            Ok(())
+        } else {
+            Err(SimError::ObservationShape {
+                expected: self.encoder.size(),
+                got: obs.len(),
+            })
+        }
+    }
+
+    /// First part of a step: validates and applies the action to the robot's controller.
+    pub(crate) fn begin_action(&mut self, action: &[f32]) -> Result<(), SimError> {
+        if !self.live {
+            return Err(SimError::NeedsReset);
+        }
+        if action.len() != 1 {
+            return Err(SimError::ActionShape {
+                expected: 1,
+                got: action.len(),
+            });
+        }
+        let a = action[0];
+        if !a.is_finite() {
+            return Err(SimError::NonFiniteAction { index: 0, value: a });
+        }
+        let turn = a.clamp(-PI, PI);
+        self.robot.begin_action(turn);
+        if self.recording {
+            self.trajectory.commands.push(RecordedCommand {
+                frame: self.frame,
+                turn,
+            });
+        }
+        self.acc = StepInfo::default();
+        Ok(())
+    }
+
+    /// What each fish perceives at the start of the coming frame (into the env's buffer).
+    pub(crate) fn prepare_views(&mut self) {
+        let time_s = self.frame as f32 * self.dt;
+        let leading = [self.robot.state];
+        for i in 0..self.fish.len() {
+            self.views[i] = FishView::build(i, &self.fish, &leading, self.tank, self.dt, time_s);
+        }
+    }
+
+    /// The views prepared for the coming frame.
+    pub(crate) fn views(&self) -> &[FishView] {
+        &self.views
+    }
+
+    /// One frame, with the views already prepared and (for batched models) `inferred` holding
+    /// `inference_width` floats per fish.
+    pub(crate) fn advance_frame(&mut self, inferred: Option<&[f32]>) -> Result<(), SimError> {
+        let p = &self.cfg;
+        if self.robot.advance(&p.robot, &self.tank, self.dt) {
+            self.acc.robot_wall_contacts += 1;
+        }
+        let width = self.model.inference_width();
+        let inferred = inferred.unwrap_or(&self.inferred);
+        for i in 0..self.fish.len() {
+            let slice = &inferred[i * width..(i + 1) * width];
+            let m: FishMotion = self.model.decide(
+                &self.views[i],
+                slice,
+                &mut self.minds[i],
+                &mut self.fish_rngs[i],
+            );
+            if !(m.heading.is_finite() && m.speed.is_finite()) {
+                self.live = false;
+                return Err(SimError::NonFiniteModelOutput {
+                    model: self.model.name().to_string(),
+                    frame: self.frame,
+                });
+            }
+            if apply_motion(&self.tank, &mut self.fish[i], m, self.dt) {
+                self.acc.fish_wall_contacts += 1;
+            }
+        }
+        self.frame += 1;
+        if let Some(goal) =
+            self.goals
+                .check(p.mode, &p.task, &self.tank, &self.fish, &mut self.task_rng)
+        {
+            self.acc.goals_reached += 1;
+            self.summary.goal_events.push(GoalEvent {
+                frame: self.frame,
+                goal,
+            });
+        }
+        let r = &self.robot.state;
+        if self.tank.wall_distance(r.x, r.y) < p.task.wall_penalty_distance_cm {
+            self.acc.robot_near_wall = true;
+        }
+        if self.recording {
+            self.record_frame();
+        }
+        Ok(())
+    }
+
+    /// Last part of a step: reward, observation, time limit.
+    pub(crate) fn end_action(&mut self, obs: &mut [f32]) -> Transition {
+        let t = &self.cfg.task;
+        let mut reward = t.goal_reward * self.acc.goals_reached as f32;
+        if self.acc.robot_near_wall {
+            reward -= t.wall_penalty;
+        }
+        self.acc.frame = self.frame;
+        self.summary.actions += 1;
+        self.summary.episode_return += reward;
+        self.summary.robot_wall_contacts += self.acc.robot_wall_contacts;
+        self.summary.fish_wall_contacts += self.acc.fish_wall_contacts;
+        self.encode(false, obs);
+        let truncated = self.summary.actions >= self.episode_actions();
+        if truncated {
+            self.live = false;
+        }
+        Transition {
+            reward,
+            terminated: false,
+            truncated,
+            info: self.acc,
+        }
+    }
+
+    /// Runs the frames of one action sequentially (the non-batched path).
+    fn run_frames(&mut self) -> Result<(), SimError> {
+        let width = self.model.inference_width();
+        for _ in 0..self.cfg.frames_per_action {
+            self.prepare_views();
+            if width > 0 {
+                self.model.infer_batch(&self.views, &mut self.inferred);
+            }
+            self.advance_frame(None)?;
+        }
+        Ok(())
+    }
+}
+
+impl Env for TankEnv {
+    fn observation_space(&self) -> &BoxSpace {
+        &self.obs_space
+    }
+
+    fn action_space(&self) -> &BoxSpace {
+        &self.act_space
+    }
+
+    fn max_episode_steps(&self) -> u32 {
+        self.episode_actions()
+    }
+
+    fn reset(&mut self, seed: Option<u64>, obs: &mut [f32]) -> Result<(), SimError> {
+        self.check_obs(obs)?;
+        self.reset_state(seed);
+        self.encode(true, obs);
+        Ok(())
+    }
+
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Transition, SimError> {
+        self.check_obs(obs)?;
+        self.begin_action(action)?;
+        self.run_frames()?;
+        Ok(self.end_action(obs))
+    }
+}

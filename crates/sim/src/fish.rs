@@ -1,0 +1,154 @@
+//! The [`FishModel`] trait: what a fish perceives and how a model turns that into motion.
+//!
+//! A model is stateless and shared (`Arc<dyn FishModel>`) by every environment; what a fish
+//! remembers between frames (its speed, last turn rate, individual traits drawn per episode)
+//! lives in a [`FishMind`] owned by the environment, and its randomness comes from the fish's
+//! own RNG stream. Models that profit from batched inference (a neural network) declare an
+//! `inference_width`: the vector environment then gathers the views of all its environments
+//! each frame, calls [`FishModel::infer_batch`] once, and hands each fish its slice.
+
+use crate::agent::AgentState;
+use crate::geometry::Tank;
+use crate::rng::SimRng;
+
+/// The largest number of other agents one fish perceives (the robot and up to six fish).
+pub const MAX_OTHERS: usize = 7;
+
+/// Everything a fish perceives at the start of a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FishView {
+    /// The fish itself.
+    pub me: AgentState,
+    /// The other agents (robot first, then the other fish); only `n_others` are valid.
+    pub others: [AgentState; MAX_OTHERS],
+    /// How many entries of `others` are valid.
+    pub n_others: u8,
+    /// The tank's geometry.
+    pub tank: Tank,
+    /// Frame duration (s).
+    pub dt: f32,
+    /// Time since the episode started (s).
+    pub time_s: f32,
+}
+
+impl FishView {
+    /// The valid other agents.
+    #[inline]
+    pub fn others(&self) -> &[AgentState] {
+        &self.others[..usize::from(self.n_others)]
+    }
+
+    /// The view of fish `i` of `fish`, seeing first the `leading` agents (the robot, or
+    /// scripted agents), then the other fish, up to [`MAX_OTHERS`].
+    #[inline]
+    pub fn build(
+        i: usize,
+        fish: &[AgentState],
+        leading: &[AgentState],
+        tank: Tank,
+        dt: f32,
+        time_s: f32,
+    ) -> Self {
+        let mut v = FishView {
+            me: fish[i],
+            tank,
+            dt,
+            time_s,
+            ..FishView::default()
+        };
+        let others = leading.iter().chain(
+            fish.iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, f)| f),
+        );
+        let mut n = 0;
+        for (slot, o) in v.others.iter_mut().zip(others) {
+            *slot = *o;
+            n += 1;
+        }
+        v.n_others = n as u8;
+        v
+    }
+
+    /// The closest other agent and its distance, if any.
+    #[inline]
+    pub fn closest_other(&self) -> Option<(&AgentState, f32)> {
+        self.others()
+            .iter()
+            .map(|o| (o, self.me.distance_to(o)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+}
+
+/// A fish's motion for one frame: it turns to `heading`, then moves `speed · dt` along it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FishMotion {
+    /// New heading (rad).
+    pub heading: f32,
+    /// Speed over this frame (cm/s, >= 0).
+    pub speed: f32,
+}
+
+/// What a fish carries from frame to frame, owned by the environment and reset each episode.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FishMind {
+    /// The model's internal speed (cm/s): may differ from the realised one at walls.
+    pub speed: f32,
+    /// The model's last turn rate (rad/s).
+    pub turn_rate: f32,
+    /// Individual traits drawn at the start of an episode (meaning defined by the model).
+    pub traits: [f32; 4],
+    /// Further per-fish memory (meaning defined by the model).
+    pub memory: [f32; 4],
+}
+
+/// A behaviour model of a fish. Implementations live in the `fishprobe-models` crate; a new
+/// model needs nothing from the simulator but this trait.
+pub trait FishModel: Send + Sync + std::fmt::Debug {
+    /// Short name ("Zone", "Force", ...).
+    fn name(&self) -> &str;
+
+    /// Prepares a fish for a new episode (draw individual traits, reset memory).
+    fn begin_episode(&self, me: &AgentState, mind: &mut FishMind, rng: &mut SimRng) {
+        let _ = rng;
+        *mind = FishMind::default();
+        mind.speed = me.speed();
+    }
+
+    /// Floats of batched, deterministic inference per fish and frame (0: none).
+    fn inference_width(&self) -> usize {
+        0
+    }
+
+    /// Batched inference for `views.len()` fish into `out` (`inference_width` floats each).
+    /// Must be a pure function of the views.
+    fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
+        let _ = (views, out);
+    }
+
+    /// The fish's motion for this frame. `inferred` is this fish's slice of `infer_batch`'s
+    /// output (empty when `inference_width` is 0).
+    fn decide(
+        &self,
+        view: &FishView,
+        inferred: &[f32],
+        mind: &mut FishMind,
+        rng: &mut SimRng,
+    ) -> FishMotion;
+}
+
+/// Moves an agent by a fish motion, keeping it inside the tank. Returns whether the move was
+/// clipped (a wall contact).
+#[inline]
+pub fn apply_motion(tank: &Tank, s: &mut AgentState, m: FishMotion, dt: f32) -> bool {
+    s.heading = crate::geometry::wrap_angle(m.heading);
+    let step = m.speed.max(0.0) * dt;
+    let (sin, cos) = s.heading.sin_cos();
+    let (nx, ny, contact) = tank.clip(s.x + step * cos, s.y + step * sin);
+    s.vx = (nx - s.x) / dt;
+    s.vy = (ny - s.y) / dt;
+    s.x = nx;
+    s.y = ny;
+    contact
+}

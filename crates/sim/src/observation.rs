@@ -1,0 +1,188 @@
+//! The policy's observation (SPEC §5): wall raycasts and fish and goal sectors around the
+//! robot, plus the previous action's fish and goal sectors.
+
+use crate::agent::AgentState;
+use crate::geometry::{wrap_angle, Tank};
+use crate::params::{check, ConfigError};
+use std::f32::consts::{PI, TAU};
+
+crate::documented_params! {
+    /// Observation encoding.
+    pub struct ObservationParams {
+        /// Sectors (and wall rays) evenly spaced over 360°, sector i covering
+        /// [-π + i·w, -π + (i+1)·w) relative to the robot's heading; rays point at sector
+        /// centres (paper: 36).
+        pub sectors: u32 = 36; "1",
+        /// Far plane D of the intensity 1 - d/D (choice, the lab's convention: the tank
+        /// diagonal, 141.42 cm).
+        pub far_plane_cm: f32 = 141.421_36; "cm",
+    }
+}
+
+impl ObservationParams {
+    /// Checks the ranges; `prefix` is the field path of this struct.
+    pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        if !(4..=720).contains(&self.sectors) {
+            return Err(ConfigError::new(
+                prefix,
+                "sectors",
+                self.sectors,
+                "must lie in [4, 720]",
+            ));
+        }
+        check::positive(prefix, "far_plane_cm", self.far_plane_cm)
+    }
+
+    /// Length of the observation vector: 5 blocks of `sectors`.
+    pub fn size(&self) -> usize {
+        5 * self.sectors as usize
+    }
+}
+
+/// Encodes observations; holds precomputed ray directions.
+#[derive(Debug, Clone)]
+pub struct ObservationEncoder {
+    n: usize,
+    width: f32,
+    far: f32,
+    /// (cos, sin) of each ray's offset from the heading.
+    rays: Vec<[f32; 2]>,
+}
+
+impl ObservationEncoder {
+    /// From validated parameters.
+    pub fn new(p: &ObservationParams) -> Self {
+        let n = p.sectors as usize;
+        let width = TAU / n as f32;
+        let rays = (0..n)
+            .map(|i| {
+                let a = -PI + (i as f32 + 0.5) * width;
+                [a.cos(), a.sin()]
+            })
+            .collect();
+        Self {
+            n,
+            width,
+            far: p.far_plane_cm,
+            rays,
+        }
+    }
+
+    /// Observation length.
+    pub fn size(&self) -> usize {
+        5 * self.n
+    }
+
+    /// Sectors per block.
+    pub fn sectors(&self) -> usize {
+        self.n
+    }
+
+    /// Sector of a direction given relative to the heading (rad).
+    #[inline]
+    pub fn sector_of(&self, relative: f32) -> usize {
+        let i = ((wrap_angle(relative) + PI) / self.width) as usize;
+        i.min(self.n - 1)
+    }
+
+    #[inline]
+    fn intensity(&self, d: f32) -> f32 {
+        (1.0 - d / self.far).clamp(0.0, 1.0)
+    }
+
+    /// Writes the observation into `out` (length `size()`). `prev` (length 2·sectors) holds the
+    /// previous fish and goal bins and is updated to the current ones; with `first` the
+    /// previous bins are taken equal to the current ones (no motion seen at an episode start).
+    pub fn encode(
+        &self,
+        tank: &Tank,
+        robot: &AgentState,
+        fish: &[AgentState],
+        goal: [f32; 2],
+        prev: &mut [f32],
+        first: bool,
+        out: &mut [f32],
+    ) {
+        let n = self.n;
+        debug_assert_eq!(out.len(), 5 * n);
+        debug_assert_eq!(prev.len(), 2 * n);
+        let (sin_h, cos_h) = robot.heading.sin_cos();
+        let (walls, rest) = out.split_at_mut(n);
+        for (w, r) in walls.iter_mut().zip(&self.rays) {
+            let c = cos_h * r[0] - sin_h * r[1];
+            let s = sin_h * r[0] + cos_h * r[1];
+            *w = self.intensity(tank.raycast(robot.x, robot.y, c, s));
+        }
+        let (current, previous) = rest.split_at_mut(2 * n);
+        current.fill(0.0);
+        for f in fish {
+            self.mark(robot, f.x, f.y, sin_h, cos_h, &mut current[..n]);
+        }
+        self.mark(robot, goal[0], goal[1], sin_h, cos_h, &mut current[n..]);
+        if first {
+            prev.copy_from_slice(current);
+        }
+        previous.copy_from_slice(prev);
+        prev.copy_from_slice(current);
+    }
+
+    #[inline]
+    fn mark(&self, robot: &AgentState, x: f32, y: f32, sin_h: f32, cos_h: f32, bins: &mut [f32]) {
+        let (dx, dy) = (x - robot.x, y - robot.y);
+        // Into the robot's frame: one atan2 instead of atan2 minus heading.
+        let fx = cos_h * dx + sin_h * dy;
+        let fy = -sin_h * dx + cos_h * dy;
+        let i = self.sector_of(fy.atan2(fx));
+        let v = self.intensity((dx * dx + dy * dy).sqrt());
+        if v > bins[i] {
+            bins[i] = v;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hand_computed_observation() {
+        let enc = ObservationEncoder::new(&ObservationParams::default());
+        let tank = Tank::default();
+        // Robot at the centre facing +x; fish 10 cm straight ahead; goal just past 90° left.
+        let robot = AgentState::at(0.0, 0.0, 0.0);
+        let fish = [AgentState::at(10.0, 0.0, 0.0)];
+        let goal = [-2.0, 20.0];
+        let mut prev = vec![0.0; 72];
+        let mut out = vec![0.0; 180];
+        enc.encode(&tank, &robot, &fish, goal, &mut prev, true, &mut out);
+        let d = 141.421_36f32;
+        // Straight ahead is relative angle 0 → sector 18 ([0°, 10°)).
+        assert!((out[36 + 18] - (1.0 - 10.0 / d)).abs() < 1e-6);
+        assert_eq!(out[36..72].iter().filter(|v| **v > 0.0).count(), 1);
+        // Goal at +95.7° → sector 27 ([90°, 100°)).
+        assert!((out[72 + 27] - (1.0 - 404f32.sqrt() / d)).abs() < 1e-6);
+        // Previous bins equal current at an episode start.
+        assert_eq!(&out[108..180], &out[36..108]);
+        // Ray 18 points at +5°: distance to the right wall 50 / cos 5°.
+        let ray = 50.0 / 5f32.to_radians().cos();
+        assert!((out[18] - (1.0 - ray / d)).abs() < 1e-5);
+        // Rays at ±45° ± 5° etc. all within [0, 1].
+        assert!(out.iter().all(|v| (0.0..=1.0).contains(v)));
+
+        // Turn the robot by 90° left: the fish is now at -90° → sector 9.
+        let robot = AgentState::at(0.0, 0.0, PI / 2.0);
+        let before: Vec<f32> = out[36..108].to_vec();
+        enc.encode(&tank, &robot, &fish, goal, &mut prev, false, &mut out);
+        assert!(out[36 + 9] > 0.0);
+        assert_eq!(&out[108..180], &before[..]);
+    }
+
+    #[test]
+    fn sectors_cover_the_circle() {
+        let enc = ObservationEncoder::new(&ObservationParams::default());
+        assert_eq!(enc.sector_of(-PI), 0);
+        assert_eq!(enc.sector_of(PI - 1e-4), 35);
+        assert_eq!(enc.sector_of(0.0), 18);
+        assert_eq!(enc.sector_of(-1e-4), 17);
+    }
+}

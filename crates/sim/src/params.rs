@@ -1,0 +1,192 @@
+//! Documented parameter structs and their validation.
+//!
+//! Every configuration struct of fishprobe is declared with [`documented_params!`], which
+//! writes the struct (serde, `deny_unknown_fields`, missing fields take their default), its
+//! `Default` (the paper's values) and a table of the fields with unit and documentation, so
+//! that `fishprobe models` and the rustdoc show the same text.
+
+use serde::Serialize;
+
+/// One documented field of a parameter struct.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct FieldDoc {
+    /// The field's name as written in config files.
+    pub name: &'static str,
+    /// Its unit ("1" for dimensionless, "-" for a nested section or a switch).
+    pub unit: &'static str,
+    /// What it means, including where the default comes from.
+    pub doc: &'static str,
+}
+
+/// A parameter struct whose fields carry documentation at run time.
+pub trait DocumentedParams: Serialize + Default {
+    /// One entry per field, in declaration order.
+    fn field_docs() -> &'static [FieldDoc];
+}
+
+/// Declares a parameter struct: `pub field: Type = default; "unit"` per field, each with a
+/// doc comment. Generates serde (with `deny_unknown_fields`), `Default` and
+/// [`DocumentedParams`].
+#[macro_export]
+macro_rules! documented_params {
+    (
+        $(#[$smeta:meta])*
+        pub struct $name:ident {
+            $(
+                $(#[doc = $doc:literal])*
+                pub $field:ident : $ty:ty = $default:expr ; $unit:literal
+            ),* $(,)?
+        }
+    ) => {
+        $(#[$smeta])*
+        #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+        #[serde(deny_unknown_fields, default)]
+        pub struct $name {
+            $(
+                $(#[doc = $doc])*
+                #[doc = ""]
+                #[doc = concat!("Unit: ", $unit, ". Default: `", stringify!($default), "`.")]
+                pub $field: $ty,
+            )*
+        }
+        impl Default for $name {
+            fn default() -> Self {
+                Self { $($field: $default),* }
+            }
+        }
+        impl $crate::params::DocumentedParams for $name {
+            fn field_docs() -> &'static [$crate::params::FieldDoc] {
+                &[$($crate::params::FieldDoc {
+                    name: stringify!($field),
+                    unit: $unit,
+                    doc: concat!($($doc, "\n"),*),
+                }),*]
+            }
+        }
+    };
+}
+
+/// A configuration value that is out of its valid range. Names the field (as a dotted path
+/// from the config root) and the offending value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("invalid configuration: `{field}` = {value}: {reason}")]
+pub struct ConfigError {
+    /// Dotted path of the field, e.g. `robot.max_speed_cm_s`.
+    pub field: String,
+    /// The value as given.
+    pub value: String,
+    /// What it must be instead.
+    pub reason: String,
+}
+
+impl ConfigError {
+    /// A new error for `prefix.field`.
+    pub fn new(prefix: &str, field: &str, value: impl std::fmt::Display, reason: &str) -> Self {
+        let field = if prefix.is_empty() {
+            field.to_string()
+        } else {
+            format!("{prefix}.{field}")
+        };
+        Self {
+            field,
+            value: value.to_string(),
+            reason: reason.to_string(),
+        }
+    }
+}
+
+/// Field checks used by the `validate` methods of parameter structs.
+pub mod check {
+    use super::ConfigError;
+
+    /// A finite number (not NaN, not infinite).
+    pub fn finite(prefix: &str, field: &str, v: f32) -> Result<(), ConfigError> {
+        if v.is_finite() {
+            Ok(())
+        } else {
+            Err(ConfigError::new(
+                prefix,
+                field,
+                v,
+                "must be a finite number",
+            ))
+        }
+    }
+
+    /// A finite number > 0.
+    pub fn positive(prefix: &str, field: &str, v: f32) -> Result<(), ConfigError> {
+        finite(prefix, field, v)?;
+        if v > 0.0 {
+            Ok(())
+        } else {
+            Err(ConfigError::new(prefix, field, v, "must be greater than 0"))
+        }
+    }
+
+    /// A finite number >= 0.
+    pub fn non_negative(prefix: &str, field: &str, v: f32) -> Result<(), ConfigError> {
+        finite(prefix, field, v)?;
+        if v >= 0.0 {
+            Ok(())
+        } else {
+            Err(ConfigError::new(prefix, field, v, "must not be negative"))
+        }
+    }
+
+    /// A finite number in `[lo, hi]`.
+    pub fn within(prefix: &str, field: &str, v: f32, lo: f32, hi: f32) -> Result<(), ConfigError> {
+        finite(prefix, field, v)?;
+        if (lo..=hi).contains(&v) {
+            Ok(())
+        } else {
+            Err(ConfigError::new(
+                prefix,
+                field,
+                v,
+                &format!("must lie in [{lo}, {hi}]"),
+            ))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    crate::documented_params! {
+        /// A test struct.
+        pub struct Example {
+            /// Speed of something.
+            pub speed: f32 = 6.3; "cm/s",
+            /// A count.
+            pub count: u32 = 3; "1",
+        }
+    }
+
+    #[test]
+    fn defaults_docs_and_unknown_fields() {
+        let e = Example::default();
+        assert_eq!(e.speed, 6.3);
+        assert_eq!(e.count, 3);
+        let docs = Example::field_docs();
+        assert_eq!(docs[0].name, "speed");
+        assert_eq!(docs[0].unit, "cm/s");
+        assert!(docs[0].doc.contains("Speed of something"));
+        let partial: Example = serde_json::from_str(r#"{"count": 5}"#).unwrap();
+        assert_eq!(partial.speed, 6.3);
+        assert_eq!(partial.count, 5);
+        let err = serde_json::from_str::<Example>(r#"{"sped": 1}"#).unwrap_err();
+        assert!(err.to_string().contains("unknown field `sped`"), "{err}");
+    }
+
+    #[test]
+    fn checks_name_field_and_value() {
+        let e = check::positive("robot", "max_speed_cm_s", 0.0).unwrap_err();
+        assert_eq!(e.field, "robot.max_speed_cm_s");
+        assert!(e.to_string().contains("= 0"), "{e}");
+        assert!(check::finite("", "x", f32::NAN).is_err());
+        assert!(check::non_negative("", "x", -1.0).is_err());
+        assert!(check::within("", "x", 2.0, 0.0, 1.0).is_err());
+        assert!(check::within("", "x", 1.0, 0.0, 1.0).is_ok());
+    }
+}

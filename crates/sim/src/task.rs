@@ -1,0 +1,241 @@
+//! The lead-to-goal task (SPEC §4): goals, episode lengths, reward.
+
+use crate::agent::AgentState;
+use crate::geometry::Tank;
+use crate::params::{check, ConfigError};
+use crate::rng::SimRng;
+use rand::RngExt;
+use serde::{Deserialize, Serialize};
+
+/// Which of the paper's two task variants an environment runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskMode {
+    /// 41-s episodes; a random goal at the start and again each time one is reached.
+    Training,
+    /// 15-min episodes; two fixed goals in opposite corners, switching when reached.
+    Evaluation,
+}
+
+crate::documented_params! {
+    /// Goals, episode lengths and reward (SPEC §4).
+    pub struct TaskParams {
+        /// Goal radius; a goal is reached when the fish's position is inside it (paper: 5 cm).
+        pub goal_radius_cm: f32 = 5.0; "cm",
+        /// Actions (seconds) per training episode (paper: 41 s).
+        pub training_episode_actions: u32 = 41; "actions",
+        /// Actions (seconds) per evaluation episode (paper: 15 min).
+        pub evaluation_episode_actions: u32 = 900; "actions",
+        /// Evaluation goals, visited in this order and alternating when reached (paper: opposite
+        /// corners 30 cm from both walls; choice: (-20, -20) first).
+        pub evaluation_goals: [[f32; 2]; 2] = [[-20.0, -20.0], [20.0, 20.0]]; "cm",
+        /// Training goals are uniform over the tank at least this far from the walls (choice).
+        /// A goal is never placed with a fish already inside it (choice: resampled).
+        pub goal_wall_clearance_cm: f32 = 10.0; "cm",
+        /// Random start poses are uniform at least this far from the walls, headings uniform
+        /// (choice).
+        pub start_wall_clearance_cm: f32 = 5.0; "cm",
+        /// Reward per goal reached (paper: +1).
+        pub goal_reward: f32 = 1.0; "1",
+        /// Penalty subtracted once per action when the robot came near a wall (paper: 0.1).
+        pub wall_penalty: f32 = 0.1; "1",
+        /// Robot-to-wall distance below which the wall penalty applies (paper: 3 cm).
+        pub wall_penalty_distance_cm: f32 = 3.0; "cm",
+    }
+}
+
+impl TaskParams {
+    /// Checks the ranges against the tank; `prefix` is the field path of this struct.
+    pub fn validate(&self, prefix: &str, tank: &Tank) -> Result<(), ConfigError> {
+        check::positive(prefix, "goal_radius_cm", self.goal_radius_cm)?;
+        if self.training_episode_actions == 0 {
+            return Err(ConfigError::new(
+                prefix,
+                "training_episode_actions",
+                0,
+                "must be at least 1",
+            ));
+        }
+        if self.evaluation_episode_actions == 0 {
+            return Err(ConfigError::new(
+                prefix,
+                "evaluation_episode_actions",
+                0,
+                "must be at least 1",
+            ));
+        }
+        let lim = tank.half;
+        for g in &self.evaluation_goals {
+            for &c in g {
+                check::within(prefix, "evaluation_goals", c, -lim, lim)?;
+            }
+        }
+        check::within(
+            prefix,
+            "goal_wall_clearance_cm",
+            self.goal_wall_clearance_cm,
+            0.0,
+            lim * 0.9,
+        )?;
+        check::within(
+            prefix,
+            "start_wall_clearance_cm",
+            self.start_wall_clearance_cm,
+            tank.margin,
+            lim * 0.9,
+        )?;
+        check::finite(prefix, "goal_reward", self.goal_reward)?;
+        check::finite(prefix, "wall_penalty", self.wall_penalty)?;
+        check::non_negative(
+            prefix,
+            "wall_penalty_distance_cm",
+            self.wall_penalty_distance_cm,
+        )
+    }
+
+    /// Episode length in actions for a mode.
+    pub fn episode_actions(&self, mode: TaskMode) -> u32 {
+        match mode {
+            TaskMode::Training => self.training_episode_actions,
+            TaskMode::Evaluation => self.evaluation_episode_actions,
+        }
+    }
+}
+
+/// A goal reached: at which frame, which goal.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GoalEvent {
+    /// Frame (counted from the episode start) at whose end the fish was inside the goal.
+    pub frame: u32,
+    /// Goal centre (cm).
+    pub goal: [f32; 2],
+}
+
+/// The active goal and its switching logic.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GoalTracker {
+    /// Centre of the active goal (cm).
+    pub active: [f32; 2],
+    /// Index into the evaluation goals (evaluation mode).
+    pub index: usize,
+}
+
+impl GoalTracker {
+    /// The first goal of an episode.
+    pub fn start(
+        mode: TaskMode,
+        p: &TaskParams,
+        tank: &Tank,
+        fish: &[AgentState],
+        rng: &mut SimRng,
+    ) -> Self {
+        match mode {
+            TaskMode::Evaluation => Self {
+                active: p.evaluation_goals[0],
+                index: 0,
+            },
+            TaskMode::Training => Self {
+                active: random_goal(p, tank, fish, rng),
+                index: 0,
+            },
+        }
+    }
+
+    /// Checks whether a fish is inside the active goal; if so, moves the goal on and returns
+    /// the goal that was reached.
+    #[inline]
+    pub fn check(
+        &mut self,
+        mode: TaskMode,
+        p: &TaskParams,
+        tank: &Tank,
+        fish: &[AgentState],
+        rng: &mut SimRng,
+    ) -> Option<[f32; 2]> {
+        let r2 = p.goal_radius_cm * p.goal_radius_cm;
+        let [gx, gy] = self.active;
+        let inside = fish
+            .iter()
+            .any(|f| (f.x - gx) * (f.x - gx) + (f.y - gy) * (f.y - gy) < r2);
+        if !inside {
+            return None;
+        }
+        let reached = self.active;
+        match mode {
+            TaskMode::Evaluation => {
+                self.index = (self.index + 1) % p.evaluation_goals.len();
+                self.active = p.evaluation_goals[self.index];
+            }
+            TaskMode::Training => self.active = random_goal(p, tank, fish, rng),
+        }
+        Some(reached)
+    }
+}
+
+/// Uniform over the tank less the clearance, never with a fish inside (up to 64 tries, after
+/// which the last draw stands: only possible in a tank barely larger than a goal).
+fn random_goal(p: &TaskParams, tank: &Tank, fish: &[AgentState], rng: &mut SimRng) -> [f32; 2] {
+    let lim = tank.half - p.goal_wall_clearance_cm;
+    let r2 = p.goal_radius_cm * p.goal_radius_cm;
+    let mut g = [0.0, 0.0];
+    for _ in 0..64 {
+        g = [rng.random_range(-lim..=lim), rng.random_range(-lim..=lim)];
+        if fish
+            .iter()
+            .all(|f| (f.x - g[0]).powi(2) + (f.y - g[1]).powi(2) >= r2)
+        {
+            break;
+        }
+    }
+    g
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::stream;
+
+    #[test]
+    fn evaluation_goals_alternate_when_reached() {
+        let p = TaskParams::default();
+        let tank = Tank::default();
+        let mut rng = stream(1, "t", 0);
+        let far = [AgentState::at(0.0, 0.0, 0.0)];
+        let mut g = GoalTracker::start(TaskMode::Evaluation, &p, &tank, &far, &mut rng);
+        assert_eq!(g.active, [-20.0, -20.0]);
+        assert_eq!(
+            g.check(TaskMode::Evaluation, &p, &tank, &far, &mut rng),
+            None
+        );
+        let at_first = [AgentState::at(-18.0, -21.0, 0.0)];
+        assert_eq!(
+            g.check(TaskMode::Evaluation, &p, &tank, &at_first, &mut rng),
+            Some([-20.0, -20.0])
+        );
+        assert_eq!(g.active, [20.0, 20.0]);
+        let at_second = [AgentState::at(20.0, 24.9, 0.0)];
+        assert!(g
+            .check(TaskMode::Evaluation, &p, &tank, &at_second, &mut rng)
+            .is_some());
+        assert_eq!(g.active, [-20.0, -20.0]);
+        // Exactly on the rim is outside ("enters" the open disc).
+        let rim = [AgentState::at(-15.0, -20.0, 0.0)];
+        assert_eq!(
+            g.check(TaskMode::Evaluation, &p, &tank, &rim, &mut rng),
+            None
+        );
+    }
+
+    #[test]
+    fn training_goals_keep_clearance_and_avoid_the_fish() {
+        let p = TaskParams::default();
+        let tank = Tank::default();
+        let mut rng = stream(2, "t", 0);
+        let fish = [AgentState::at(0.0, 0.0, 0.0)];
+        for _ in 0..2000 {
+            let g = random_goal(&p, &tank, &fish, &mut rng);
+            assert!(g[0].abs() <= 40.0 && g[1].abs() <= 40.0);
+            assert!((g[0].powi(2) + g[1].powi(2)).sqrt() >= 5.0);
+        }
+    }
+}

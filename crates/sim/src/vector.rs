@@ -1,0 +1,223 @@
+//! Many environments stepped together, in parallel across cores.
+//!
+//! Autoreset: [`AutoresetMode::SameStep`] (Gymnasium's `SAME_STEP`): when an episode ends in
+//! `step`, the environment is reset at once; the returned observation row is the first of the
+//! new episode, the last observation of the old one is in [`VecEnv::final_observations`], and
+//! its totals in [`VecEnv::finished_episodes`]. Environment `i` is seeded from the master seed
+//! by label, and consumes only its own random streams, so results do not depend on the number
+//! of threads.
+
+use crate::env::{Env, EnvConfig, EpisodeSummary, TankEnv, Transition};
+use crate::error::SimError;
+use crate::fish::{FishModel, FishView};
+use crate::rng::derive_seed;
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// How a vector environment starts new episodes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutoresetMode {
+    /// Reset inside the `step` that ended the episode (Gymnasium `SAME_STEP`).
+    SameStep,
+}
+
+/// `n` copies of [`TankEnv`] with contiguous observation buffers.
+#[derive(Debug)]
+pub struct VecEnv {
+    envs: Vec<TankEnv>,
+    obs_dim: usize,
+    obs: Vec<f32>,
+    final_obs: Vec<f32>,
+    transitions: Vec<Transition>,
+    finished: Vec<Option<EpisodeSummary>>,
+    errors: Vec<Option<SimError>>,
+    views: Vec<FishView>,
+    inferred: Vec<f32>,
+}
+
+impl VecEnv {
+    /// The autoreset behaviour.
+    pub const AUTORESET: AutoresetMode = AutoresetMode::SameStep;
+
+    /// `n` environments sharing one model.
+    pub fn new(cfg: EnvConfig, model: Arc<dyn FishModel>, n: usize) -> Result<Self, SimError> {
+        if n == 0 {
+            return Err(SimError::Config(crate::params::ConfigError::new(
+                "",
+                "num_envs",
+                0,
+                "must be at least 1",
+            )));
+        }
+        let first = TankEnv::new(cfg, model.clone())?;
+        let obs_dim = first.observation_space().dim();
+        let fish = first.fish().len();
+        let width = model.inference_width();
+        let mut envs = Vec::with_capacity(n);
+        envs.push(first);
+        while envs.len() < n {
+            envs.push(envs[0].clone());
+        }
+        Ok(Self {
+            envs,
+            obs_dim,
+            obs: vec![0.0; n * obs_dim],
+            final_obs: vec![0.0; n * obs_dim],
+            transitions: vec![Transition::default(); n],
+            finished: vec![None; n],
+            errors: vec![None; n],
+            views: vec![FishView::default(); n * fish],
+            inferred: vec![0.0; n * fish * width],
+        })
+    }
+
+    /// Number of environments.
+    pub fn num_envs(&self) -> usize {
+        self.envs.len()
+    }
+    /// Observation length of one environment.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+    /// The environments.
+    pub fn envs(&self) -> &[TankEnv] {
+        &self.envs
+    }
+    /// Mutable access, e.g. to switch on recording.
+    pub fn envs_mut(&mut self) -> &mut [TankEnv] {
+        &mut self.envs
+    }
+    /// Current observations, `num_envs x obs_dim`, row-major.
+    pub fn observations(&self) -> &[f32] {
+        &self.obs
+    }
+    /// For environments whose episode ended in the last step: its last observation.
+    pub fn final_observations(&self) -> &[f32] {
+        &self.final_obs
+    }
+    /// The last step's transitions.
+    pub fn transitions(&self) -> &[Transition] {
+        &self.transitions
+    }
+    /// Totals of the episodes that ended in the last step (`None` elsewhere).
+    pub fn finished_episodes(&self) -> &[Option<EpisodeSummary>] {
+        &self.finished
+    }
+
+    /// Resets every environment; environment `i` gets seed `derive_seed(seed, "env", i)`.
+    pub fn reset(&mut self, seed: u64) -> Result<&[f32], SimError> {
+        let d = self.obs_dim;
+        self.envs
+            .par_iter_mut()
+            .zip(self.obs.par_chunks_mut(d))
+            .enumerate()
+            .try_for_each(|(i, (env, o))| env.reset(Some(derive_seed(seed, "env", i as u64)), o))?;
+        self.finished.iter_mut().for_each(|f| *f = None);
+        Ok(&self.obs)
+    }
+
+    /// One action per environment (`actions.len() == num_envs`). All actions are checked
+    /// before any environment moves, so a bad action leaves every environment untouched.
+    pub fn step(&mut self, actions: &[f32]) -> Result<(), SimError> {
+        let n = self.envs.len();
+        if actions.len() != n {
+            return Err(SimError::ActionShape {
+                expected: n,
+                got: actions.len(),
+            });
+        }
+        if let Some((index, &value)) = actions.iter().enumerate().find(|(_, a)| !a.is_finite()) {
+            return Err(SimError::NonFiniteAction { index, value });
+        }
+        let batched = self.envs[0].model().inference_width() > 0;
+        if batched {
+            self.step_lockstep(actions)?;
+        } else {
+            self.step_independent(actions);
+        }
+        match self.errors.iter_mut().find_map(Option::take) {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Rule-based models: every environment runs its whole action on one core.
+    fn step_independent(&mut self, actions: &[f32]) {
+        let d = self.obs_dim;
+        self.envs
+            .par_iter_mut()
+            .zip(self.obs.par_chunks_mut(d))
+            .zip(self.final_obs.par_chunks_mut(d))
+            .zip(actions.par_chunks(1))
+            .zip(self.transitions.par_iter_mut())
+            .zip(self.finished.par_iter_mut())
+            .zip(self.errors.par_iter_mut())
+            .for_each(|((((((env, o), fo), a), tr), fin), err)| {
+                *fin = None;
+                match env.step(a, o) {
+                    Ok(t) => {
+                        *tr = t;
+                        if let Err(e) = Self::autoreset(env, t, o, fo, fin) {
+                            *err = Some(e);
+                        }
+                    }
+                    Err(e) => *err = Some(e),
+                }
+            });
+    }
+
+    /// Batched models: all environments advance frame by frame together, and the model's
+    /// inference runs once per frame over every fish of every environment.
+    fn step_lockstep(&mut self, actions: &[f32]) -> Result<(), SimError> {
+        let d = self.obs_dim;
+        self.envs
+            .par_iter_mut()
+            .zip(actions.par_chunks(1))
+            .try_for_each(|(env, a)| env.begin_action(a))?;
+        let frames = self.envs[0].config().frames_per_action;
+        let model = self.envs[0].model().clone();
+        let fish = self.envs[0].fish().len();
+        let width = model.inference_width();
+        for _ in 0..frames {
+            self.envs
+                .par_iter_mut()
+                .zip(self.views.par_chunks_mut(fish))
+                .for_each(|(env, v)| {
+                    env.prepare_views();
+                    v.copy_from_slice(env.views());
+                });
+            model.infer_batch(&self.views, &mut self.inferred);
+            self.envs
+                .par_iter_mut()
+                .zip(self.inferred.par_chunks(fish * width))
+                .try_for_each(|(env, inf)| env.advance_frame(Some(inf)))?;
+        }
+        self.envs
+            .par_iter_mut()
+            .zip(self.obs.par_chunks_mut(d))
+            .zip(self.final_obs.par_chunks_mut(d))
+            .zip(self.transitions.par_iter_mut())
+            .zip(self.finished.par_iter_mut())
+            .try_for_each(|((((env, o), fo), tr), fin)| {
+                *fin = None;
+                let t = env.end_action(o);
+                *tr = t;
+                Self::autoreset(env, t, o, fo, fin)
+            })
+    }
+
+    fn autoreset(
+        env: &mut TankEnv,
+        t: Transition,
+        obs: &mut [f32],
+        final_obs: &mut [f32],
+        finished: &mut Option<EpisodeSummary>,
+    ) -> Result<(), SimError> {
+        if t.terminated || t.truncated {
+            final_obs.copy_from_slice(obs);
+            *finished = Some(env.summary().clone());
+            env.reset(None, obs)?;
+        }
+        Ok(())
+    }
+}

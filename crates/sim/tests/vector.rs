@@ -1,0 +1,136 @@
+//! The vector environment: autoreset, the batched (lockstep) path, bad actions.
+
+use fishprobe_sim::{
+    Env, EnvConfig, FishMind, FishModel, FishMotion, FishView, SimError, SimRng, TankEnv, VecEnv,
+};
+use rand_distr::{Distribution, StandardNormal};
+use std::sync::Arc;
+
+/// Swims toward the robot with noise; the direction comes from "inference" when batched.
+#[derive(Debug)]
+struct Chaser {
+    batched: bool,
+}
+
+impl FishModel for Chaser {
+    fn name(&self) -> &str {
+        "Chaser"
+    }
+    fn inference_width(&self) -> usize {
+        if self.batched {
+            1
+        } else {
+            0
+        }
+    }
+    fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
+        for (v, o) in views.iter().zip(out) {
+            *o = direction(v);
+        }
+    }
+    fn decide(
+        &self,
+        v: &FishView,
+        inferred: &[f32],
+        _: &mut FishMind,
+        rng: &mut SimRng,
+    ) -> FishMotion {
+        let dir = if self.batched {
+            inferred[0]
+        } else {
+            direction(v)
+        };
+        let noise: f32 = StandardNormal.sample(rng);
+        FishMotion {
+            heading: dir + 0.3 * noise,
+            speed: 6.0,
+        }
+    }
+}
+
+fn direction(v: &FishView) -> f32 {
+    let r = v.others()[0];
+    (r.y - v.me.y).atan2(r.x - v.me.x)
+}
+
+fn actions(t: usize, n: usize) -> Vec<f32> {
+    (0..n)
+        .map(|i| ((t * 5 + i * 11) % 17) as f32 * 0.35 - 2.8)
+        .collect()
+}
+
+#[test]
+fn lockstep_batched_path_equals_sequential_envs() {
+    let n = 4;
+    let mut vec = VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: true }), n).unwrap();
+    vec.reset(5).unwrap();
+    let mut singles: Vec<TankEnv> = (0..n)
+        .map(|_| TankEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false })).unwrap())
+        .collect();
+    let mut obs = vec![vec![0.0; 180]; n];
+    for (i, (e, o)) in singles.iter_mut().zip(&mut obs).enumerate() {
+        e.reset(Some(fishprobe_sim::derive_seed(5, "env", i as u64)), o)
+            .unwrap();
+    }
+    for t in 0..90 {
+        let a = actions(t, n);
+        vec.step(&a).unwrap();
+        for i in 0..n {
+            let tr = singles[i].step(&a[i..i + 1], &mut obs[i]).unwrap();
+            assert_eq!(tr, vec.transitions()[i], "step {t} env {i}");
+            if tr.truncated {
+                assert_eq!(
+                    &vec.final_observations()[i * 180..(i + 1) * 180],
+                    &obs[i][..]
+                );
+                singles[i].reset(None, &mut obs[i]).unwrap();
+            }
+            assert_eq!(
+                &vec.observations()[i * 180..(i + 1) * 180],
+                &obs[i][..],
+                "step {t} env {i}"
+            );
+        }
+    }
+}
+
+#[test]
+fn autoreset_reports_finished_episodes() {
+    let mut vec =
+        VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 3).unwrap();
+    vec.reset(1).unwrap();
+    for t in 0..41 {
+        vec.step(&actions(t, 3)).unwrap();
+        let done = vec.transitions().iter().all(|tr| tr.truncated);
+        assert_eq!(done, t == 40);
+        assert_eq!(vec.finished_episodes().iter().all(Option::is_some), t == 40);
+    }
+    for f in vec.finished_episodes().iter().flatten() {
+        assert_eq!(f.actions, 41);
+    }
+    // The new episodes have begun: a further step is fine.
+    vec.step(&actions(0, 3)).unwrap();
+    assert!(vec.finished_episodes().iter().all(Option::is_none));
+}
+
+#[test]
+fn bad_actions_are_rejected_before_anything_moves() {
+    let mut vec =
+        VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 3).unwrap();
+    vec.reset(1).unwrap();
+    let before = vec.observations().to_vec();
+    let err = vec.step(&[0.0, f32::NAN, 0.0]).unwrap_err();
+    assert!(
+        matches!(err, SimError::NonFiniteAction { index: 1, value } if value.is_nan()),
+        "{err}"
+    );
+    assert_eq!(vec.observations(), &before[..]);
+    assert!(matches!(
+        vec.step(&[0.0; 2]),
+        Err(SimError::ActionShape {
+            expected: 3,
+            got: 2
+        })
+    ));
+    assert!(VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 0).is_err());
+}
