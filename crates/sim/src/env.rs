@@ -9,7 +9,7 @@ use crate::agent::AgentState;
 use crate::error::SimError;
 use crate::fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_OTHERS};
 use crate::geometry::{Tank, TankParams};
-use crate::observation::{ObservationEncoder, ObservationParams};
+use crate::observation::{ObservationEncoder, ObservationParams, Scene};
 use crate::params::{check, ConfigError};
 use crate::rng::{stream, SimRng};
 use crate::robot::{Robot, RobotParams};
@@ -410,15 +410,13 @@ impl TankEnv {
     }
 
     fn encode(&mut self, first: bool, obs: &mut [f32]) {
-        self.encoder.encode(
-            &self.tank,
-            &self.robot.state,
-            &self.fish,
-            self.goals.active,
-            &mut self.prev_bins,
-            first,
-            obs,
-        );
+        let scene = Scene {
+            tank: &self.tank,
+            robot: &self.robot.state,
+            fish: &self.fish,
+            goal: self.goals.active,
+        };
+        self.encoder.encode(scene, &mut self.prev_bins, first, obs);
     }
 
     fn check_obs(&self, obs: &[f32]) -> Result<(), SimError> {

@@ -50,7 +50,7 @@ pub use env::{
 pub use error::SimError;
 pub use fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_OTHERS};
 pub use geometry::{wrap_angle, Tank, TankParams};
-pub use observation::{ObservationEncoder, ObservationParams};
+pub use observation::{ObservationEncoder, ObservationParams, Scene};
 pub use params::{ConfigError, DocumentedParams, FieldDoc};
 pub use rng::{derive_seed, stream, SimRng};
 pub use robot::{Robot, RobotParams};

@@ -39,6 +39,19 @@ impl ObservationParams {
     }
 }
 
+/// What the robot observes: the tank, itself, the fish and the active goal.
+#[derive(Debug, Clone, Copy)]
+pub struct Scene<'a> {
+    /// Tank geometry.
+    pub tank: &'a Tank,
+    /// The robot.
+    pub robot: &'a AgentState,
+    /// The fish.
+    pub fish: &'a [AgentState],
+    /// Centre of the active goal (cm).
+    pub goal: [f32; 2],
+}
+
 /// Encodes observations; holds precomputed ray directions.
 #[derive(Debug, Clone)]
 pub struct ObservationEncoder {
@@ -93,16 +106,13 @@ impl ObservationEncoder {
     /// Writes the observation into `out` (length `size()`). `prev` (length 2·sectors) holds the
     /// previous fish and goal bins and is updated to the current ones; with `first` the
     /// previous bins are taken equal to the current ones (no motion seen at an episode start).
-    pub fn encode(
-        &self,
-        tank: &Tank,
-        robot: &AgentState,
-        fish: &[AgentState],
-        goal: [f32; 2],
-        prev: &mut [f32],
-        first: bool,
-        out: &mut [f32],
-    ) {
+    pub fn encode(&self, scene: Scene<'_>, prev: &mut [f32], first: bool, out: &mut [f32]) {
+        let Scene {
+            tank,
+            robot,
+            fish,
+            goal,
+        } = scene;
         let n = self.n;
         debug_assert_eq!(out.len(), 5 * n);
         debug_assert_eq!(prev.len(), 2 * n);
@@ -154,7 +164,13 @@ mod tests {
         let goal = [-2.0, 20.0];
         let mut prev = vec![0.0; 72];
         let mut out = vec![0.0; 180];
-        enc.encode(&tank, &robot, &fish, goal, &mut prev, true, &mut out);
+        let scene = |robot| Scene {
+            tank: &tank,
+            robot,
+            fish: &fish,
+            goal,
+        };
+        enc.encode(scene(&robot), &mut prev, true, &mut out);
         let d = 141.421_36f32;
         // Straight ahead is relative angle 0 → sector 18 ([0°, 10°)).
         assert!((out[36 + 18] - (1.0 - 10.0 / d)).abs() < 1e-6);
@@ -172,7 +188,7 @@ mod tests {
         // Turn the robot by 90° left: the fish is now at -90° → sector 9.
         let robot = AgentState::at(0.0, 0.0, PI / 2.0);
         let before: Vec<f32> = out[36..108].to_vec();
-        enc.encode(&tank, &robot, &fish, goal, &mut prev, false, &mut out);
+        enc.encode(scene(&robot), &mut prev, false, &mut out);
         assert!(out[36 + 9] > 0.0);
         assert_eq!(&out[108..180], &before[..]);
     }

@@ -18,6 +18,13 @@ pub struct FieldDoc {
     pub doc: &'static str,
 }
 
+impl FieldDoc {
+    /// The documentation as one line of text.
+    pub fn text(&self) -> String {
+        self.doc.split_whitespace().collect::<Vec<_>>().join(" ")
+    }
+}
+
 /// A parameter struct whose fields carry documentation at run time.
 pub trait DocumentedParams: Serialize + Default {
     /// One entry per field, in declaration order.

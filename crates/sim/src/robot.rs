@@ -199,7 +199,7 @@ mod tests {
     fn never_exceeds_limits() {
         let p = RobotParams::default();
         let mut r = Robot::at(0.0, 0.0, 0.0);
-        let turns = [3.1f32, -3.1, 0.0, 0.0, 1.5, -2.5, 0.0, 3.14159, 0.2, -0.2];
+        let turns = [3.1f32, -3.1, 0.0, 0.0, 1.5, -2.5, 0.0, PI, 0.2, -0.2];
         for (i, t) in turns.iter().cycle().take(60).enumerate() {
             let (v, w, a) = run_action(&mut r, *t, 25);
             assert!(v <= p.max_speed_cm_s + 1e-3, "action {i}: speed {v}");

@@ -1,0 +1,196 @@
+//! `fishprobe bench`: throughput on this machine, printed with the machine's description so
+//! numbers can be compared.
+
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use fishprobe_models::ModelSpec;
+use fishprobe_sim::{stream, Env, EnvConfig, TankEnv, VecEnv};
+use rand::RngExt;
+use serde::Serialize;
+use std::f32::consts::PI;
+use std::fmt::Write;
+use std::time::Instant;
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    what: BenchWhat,
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchWhat {
+    /// Simulation throughput per rule-based model: the robot under random 1 Hz commands,
+    /// observation encoded once per action; one core, then all cores.
+    Sim {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Seconds of measurement per model and mode.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Environments in the all-cores run (default: 32 per core).
+        #[arg(long)]
+        envs: Option<usize>,
+    },
+}
+
+/// One measured configuration.
+#[derive(Debug, Serialize)]
+struct SimBench {
+    model: String,
+    threads: usize,
+    envs: usize,
+    policy_steps_per_s: f64,
+    frames_per_s: f64,
+    frames_per_s_per_core: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct Machine {
+    cores: usize,
+    cpu: String,
+    os: &'static str,
+    arch: &'static str,
+}
+
+fn machine() -> Machine {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown".into());
+    Machine {
+        cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        cpu,
+        os: std::env::consts::OS,
+        arch: std::env::consts::ARCH,
+    }
+}
+
+pub fn run(a: BenchArgs) -> Result<()> {
+    match a.what {
+        BenchWhat::Sim {
+            json,
+            seconds,
+            envs,
+        } => bench_sim(json, seconds, envs),
+    }
+}
+
+fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {
+    if !(seconds.is_finite() && seconds > 0.0) {
+        anyhow::bail!("--seconds must be a positive number, got {seconds}");
+    }
+    let m = machine();
+    let n_envs = envs.unwrap_or(32 * m.cores).max(1);
+    let cfg = EnvConfig::default();
+    let frames_per_action = f64::from(cfg.frames_per_action);
+    let mut rows = Vec::new();
+    for name in ModelSpec::RULE_BASED {
+        let model = ModelSpec::by_name(name)?.build()?;
+
+        // One core: a single environment stepped in this thread.
+        let mut env = TankEnv::new(cfg.clone(), model.clone())?;
+        let mut obs = vec![0.0; env.observation_space().dim()];
+        let mut rng = stream(0, "bench-actions", 0);
+        env.reset(Some(1), &mut obs)?;
+        let (steps, secs) = timed(seconds, || {
+            for _ in 0..64 {
+                let t = env.step(&[rng.random_range(-PI..=PI)], &mut obs)?;
+                if t.truncated {
+                    env.reset(None, &mut obs)?;
+                }
+            }
+            Ok(64)
+        })
+        .with_context(|| format!("single-core run of {name}"))?;
+        rows.push(row(name, 1, 1, steps, secs, frames_per_action));
+
+        // All cores: a vector environment on the global thread pool.
+        let mut venv = VecEnv::new(cfg.clone(), model, n_envs)?;
+        venv.reset(2)?;
+        let mut actions = vec![0.0f32; n_envs];
+        let (steps, secs) = timed(seconds, || {
+            for a in actions.iter_mut() {
+                *a = rng.random_range(-PI..=PI);
+            }
+            venv.step(&actions)?;
+            Ok(n_envs as u64)
+        })
+        .with_context(|| format!("all-core run of {name}"))?;
+        rows.push(row(
+            name,
+            rayon::current_num_threads(),
+            n_envs,
+            steps,
+            secs,
+            frames_per_action,
+        ));
+    }
+    let mut text = String::new();
+    if json {
+        let out = serde_json::json!({ "bench": "sim", "machine": m, "results": rows,
+            "command": "fishprobe bench sim --json" });
+        text = serde_json::to_string_pretty(&out)? + "\n";
+    } else {
+        writeln!(
+            text,
+            "fishprobe bench sim — {} cores, {} ({} {}); {:.1} s per measurement",
+            m.cores, m.cpu, m.os, m.arch, seconds
+        )?;
+        writeln!(
+            text,
+            "{:<8} {:>7} {:>6} {:>16} {:>14} {:>18}",
+            "model", "threads", "envs", "policy steps/s", "frames/s", "frames/s per core"
+        )?;
+        for r in &rows {
+            writeln!(
+                text,
+                "{:<8} {:>7} {:>6} {:>16.0} {:>14.0} {:>18.0}",
+                r.model,
+                r.threads,
+                r.envs,
+                r.policy_steps_per_s,
+                r.frames_per_s,
+                r.frames_per_s_per_core
+            )?;
+        }
+    }
+    emit(&text)
+}
+
+fn row(model: &str, threads: usize, envs: usize, steps: u64, secs: f64, fpa: f64) -> SimBench {
+    let sps = steps as f64 / secs;
+    SimBench {
+        model: model.to_string(),
+        threads,
+        envs,
+        policy_steps_per_s: sps,
+        frames_per_s: sps * fpa,
+        frames_per_s_per_core: sps * fpa / threads as f64,
+    }
+}
+
+/// Calls `chunk` (which returns the policy steps it made) after a short warm-up until
+/// `seconds` have passed; returns (steps, elapsed seconds).
+fn timed(
+    seconds: f64,
+    mut chunk: impl FnMut() -> Result<u64, fishprobe_sim::SimError>,
+) -> Result<(u64, f64)> {
+    let warm = Instant::now();
+    while warm.elapsed().as_secs_f64() < seconds * 0.1 {
+        chunk()?;
+    }
+    let start = Instant::now();
+    let mut steps = 0;
+    while start.elapsed().as_secs_f64() < seconds {
+        steps += chunk()?;
+    }
+    Ok((steps, start.elapsed().as_secs_f64()))
+}

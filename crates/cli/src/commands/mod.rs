@@ -1,0 +1,54 @@
+//! Subcommands.
+
+mod bench;
+mod config;
+mod models;
+
+use clap::{Parser, Subcommand};
+
+/// fishprobe: test models of fish behaviour by the robots they teach (Hocke et al. 2026).
+///
+/// Simulates the 1 x 1 m RoboFish tank with a robot fish and a fish driven by a candidate
+/// behaviour model.
+#[derive(Debug, Parser)]
+#[command(name = "fishprobe", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// List the fish models with their parameters, units and defaults.
+    Models(models::ModelsArgs),
+    /// Measure how fast fishprobe runs on this machine.
+    Bench(bench::BenchArgs),
+    /// Show the default simulation settings, or check a settings file.
+    Config(config::ConfigArgs),
+}
+
+/// Writes a command's output to stdout. A closed pipe (`fishprobe models | head`) ends the
+/// output quietly instead of failing.
+pub fn emit(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
+}
+
+/// Parameters as JSON numbers as written (f32 through `to_value` would print 6.3 as
+/// 6.300000190734863).
+pub fn params_json<T: serde::Serialize>(p: &T) -> anyhow::Result<serde_json::Value> {
+    Ok(serde_json::from_str(&serde_json::to_string(p)?)?)
+}
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Models(a) => models::run(a),
+        Command::Bench(a) => bench::run(a),
+        Command::Config(a) => config::run(a),
+    }
+}

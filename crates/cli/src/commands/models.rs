@@ -1,0 +1,153 @@
+//! `fishprobe models`: every fish model with its parameters, and optionally its measured
+//! motion statistics beside the real guppies'.
+
+use anyhow::{Context, Result};
+use clap::Args;
+use fishprobe_models::measure::{measure, Condition, Measurement};
+use fishprobe_models::ModelSpec;
+use rayon::prelude::*;
+use serde_json::{json, Value};
+use std::fmt::Write;
+
+use super::{emit, params_json};
+
+#[derive(Debug, Args)]
+pub struct ModelsArgs {
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Also simulate each model and report its speed, turn-rate and wall-distance
+    /// distributions (solitary, and with a randomly driven robot).
+    #[arg(long)]
+    measure: bool,
+    /// Episodes per model and condition for --measure.
+    #[arg(long, default_value_t = 8)]
+    episodes: u32,
+    /// Minutes per episode for --measure.
+    #[arg(long, default_value_t = 6.0)]
+    minutes: f32,
+    /// Master seed for --measure.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+/// Real guppy pairs, 48 training recordings (../shared/data/README.md).
+const REAL_GUPPIES: &str =
+    "real guppy pairs (data README): speed mean 6.0, median 5.3, p90 11.9 cm/s; \
+paused (<0.5 cm/s) 0-45 % per fish; wall distance mean 13.1, median 11.1 cm; IID median 5.3 cm";
+
+pub fn run(a: ModelsArgs) -> Result<()> {
+    let specs: Vec<ModelSpec> = ModelSpec::NAMES
+        .iter()
+        .map(|n| ModelSpec::by_name(n))
+        .collect::<Result<_, _>>()?;
+    let measurements = if a.measure {
+        if !(a.minutes.is_finite() && a.minutes > 0.0) || a.episodes == 0 {
+            anyhow::bail!("--minutes must be > 0 and --episodes at least 1");
+        }
+        let jobs: Vec<(&ModelSpec, Condition)> = specs
+            .iter()
+            .filter(|s| s.name() != "Stationary")
+            .flat_map(|s| [(s, Condition::Solitary), (s, Condition::RandomRobot)])
+            .collect();
+        jobs.par_iter()
+            .map(|(s, c)| {
+                measure(s, *c, a.episodes, a.minutes, a.seed)
+                    .with_context(|| format!("measuring {}", s.name()))
+            })
+            .collect::<Result<Vec<_>>>()?
+    } else {
+        Vec::new()
+    };
+    let mut text = String::new();
+    if a.json {
+        let models: Vec<Value> = specs.iter().map(model_json).collect::<Result<_>>()?;
+        let out = json!({ "models": models, "measurements": params_json(&measurements)? });
+        text = serde_json::to_string_pretty(&out)? + "\n";
+    } else {
+        for s in &specs {
+            write_model(&mut text, s)?;
+        }
+        if !measurements.is_empty() {
+            write_measurements(&mut text, &measurements, &a)?;
+        }
+    }
+    emit(&text)
+}
+
+fn model_json(s: &ModelSpec) -> Result<Value> {
+    let mut params = params_json(s)?;
+    if let Some(m) = params.as_object_mut() {
+        m.remove("model");
+    }
+    Ok(json!({
+        "name": s.name(),
+        "summary": s.summary(),
+        "params": params,
+        "fields": s.field_docs().iter()
+            .map(|f| json!({ "name": f.name, "unit": f.unit, "doc": f.text() }))
+            .collect::<Vec<_>>(),
+    }))
+}
+
+fn write_model(out: &mut String, s: &ModelSpec) -> Result<()> {
+    writeln!(out, "{} — {}", s.name(), s.summary())?;
+    let values = params_json(s)?;
+    for f in s.field_docs() {
+        let v = values.get(f.name).map(Value::to_string).unwrap_or_default();
+        writeln!(out, "  {:<26} {:>9} {:<10} {}", f.name, v, f.unit, f.text())?;
+    }
+    if s.field_docs().is_empty() {
+        writeln!(out, "  (no parameters)")?;
+    }
+    writeln!(out)?;
+    Ok(())
+}
+
+fn write_measurements(out: &mut String, ms: &[Measurement], a: &ModelsArgs) -> Result<()> {
+    writeln!(
+        out,
+        "Measured: {} episodes x {} min per model and condition, seed {} (25 Hz; speed and turn rate from consecutive frames)",
+        a.episodes, a.minutes, a.seed
+    )?;
+    writeln!(
+        out,
+        "{:<8} {:<13} {:>27} {:>7} {:>17} {:>17} {:>10} {:>8}",
+        "model",
+        "condition",
+        "speed mean/median/p90 cm/s",
+        "paused",
+        "|turn| med/p90",
+        "wall dist mean/med",
+        "IID median",
+        "contacts"
+    )?;
+    for m in ms {
+        let cond = match m.condition {
+            Condition::Solitary => "solitary",
+            Condition::RandomRobot => "random robot",
+        };
+        writeln!(
+            out,
+            "{:<8} {:<13} {:>9.1} {:>8.1} {:>8.1} {:>6.0}% {:>8.2} {:>8.2} {:>8.1} {:>8.1} {:>10} {:>8.2}",
+            m.model,
+            cond,
+            m.speed.mean,
+            m.speed.median,
+            m.speed.p90,
+            100.0 * m.pause_fraction,
+            m.turn_rate.median,
+            m.turn_rate.p90,
+            m.wall_distance.mean,
+            m.wall_distance.median,
+            m.robot_distance.map(|d| format!("{:.1}", d.median)).unwrap_or_else(|| "-".into()),
+            m.wall_contacts_per_min,
+        )?;
+    }
+    writeln!(
+        out,
+        "(contacts: wall-clipped frames per minute; rad/s for turn rates)"
+    )?;
+    writeln!(out, "Reference, {REAL_GUPPIES}")?;
+    Ok(())
+}

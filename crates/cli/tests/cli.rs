@@ -1,0 +1,169 @@
+//! End-to-end tests of the `fishprobe` binary with tiny budgets.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn fishprobe(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(args)
+        .output()
+        .expect("the fishprobe binary runs")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn temp_file(name: &str, text: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fishprobe-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("the temp dir is writable");
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("the temp dir is writable");
+    p
+}
+
+#[test]
+fn help_lists_the_subcommands() {
+    let o = fishprobe(&["--help"]);
+    assert!(o.status.success());
+    for cmd in ["models", "bench", "config"] {
+        assert!(stdout(&o).contains(cmd), "{}", stdout(&o));
+    }
+}
+
+#[test]
+fn models_lists_every_model_with_published_defaults() {
+    let o = fishprobe(&["models"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    for needle in [
+        "Follow",
+        "Zone",
+        "Force",
+        "Stationary",
+        "wall_repulsion_strength",
+        "40.51",
+        "8.39",
+    ] {
+        assert!(text.contains(needle), "missing {needle}");
+    }
+    let o = fishprobe(&["models", "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let zone = &v["models"][1];
+    assert_eq!(zone["name"], "Zone");
+    assert_eq!(zone["params"]["speed_cm_s"], 6.3);
+    assert_eq!(zone["params"]["zone_convention"], "widths");
+    let force = &v["models"][2];
+    assert_eq!(force["params"]["wall_outward_angle_factor"], -0.7);
+    assert_eq!(force["params"]["noise_convention"], "per_second");
+    assert!(force["fields"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|f| !f["doc"].as_str().unwrap().is_empty()));
+}
+
+#[test]
+fn models_measure_reports_distributions() {
+    let o = fishprobe(&[
+        "models",
+        "--measure",
+        "--json",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let ms = v["measurements"].as_array().unwrap();
+    assert_eq!(ms.len(), 6, "3 models x 2 conditions");
+    let zone_alone = ms
+        .iter()
+        .find(|m| m["model"] == "Zone" && m["condition"] == "solitary")
+        .unwrap();
+    let mean_speed = zone_alone["speed"]["mean"].as_f64().unwrap();
+    assert!((mean_speed - 6.3).abs() < 0.3, "{mean_speed}");
+    let bad = fishprobe(&["models", "--measure", "--minutes=-1"]);
+    assert!(!bad.status.success());
+    assert!(stderr(&bad).contains("--minutes"), "{}", stderr(&bad));
+}
+
+#[test]
+fn bench_sim_prints_throughput_and_machine() {
+    let o = fishprobe(&["bench", "sim", "--json", "--seconds", "0.05", "--envs", "4"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["machine"]["cores"].as_u64().unwrap() >= 1);
+    let rows = v["results"].as_array().unwrap();
+    assert_eq!(rows.len(), 6);
+    for r in rows {
+        assert!(r["frames_per_s"].as_f64().unwrap() > 1000.0, "{r}");
+        let ratio = r["frames_per_s"].as_f64().unwrap() / r["policy_steps_per_s"].as_f64().unwrap();
+        assert!((ratio - 25.0).abs() < 1e-6);
+    }
+    let text = fishprobe(&["bench", "sim", "--seconds", "0.05", "--envs", "2"]);
+    assert!(stdout(&text).contains("frames/s per core"));
+}
+
+#[test]
+fn config_show_round_trips_through_check() {
+    for (flag, ext) in [("--toml", "toml"), ("--json", "json")] {
+        let args: Vec<&str> = if flag == "--toml" {
+            vec!["config", "show", "--toml"]
+        } else {
+            vec!["config", "show"]
+        };
+        let shown = fishprobe(&args);
+        assert!(shown.status.success());
+        let p = temp_file(&format!("default.{ext}"), &stdout(&shown));
+        let checked = fishprobe(&["config", "check", p.to_str().unwrap()]);
+        assert!(checked.status.success(), "{}", stderr(&checked));
+        assert!(stdout(&checked).contains("valid (Zone fish, training mode)"));
+    }
+}
+
+#[test]
+fn bad_settings_name_the_field_and_value() {
+    let cases = [
+        (
+            "zero.toml",
+            "[env.robot]\nmax_speed_cm_s = 0.0\n",
+            "robot.max_speed_cm_s` = 0",
+        ),
+        (
+            "nan.toml",
+            "[env.task]\ngoal_radius_cm = nan\n",
+            "task.goal_radius_cm` = NaN",
+        ),
+        (
+            "neg.toml",
+            "[fish]\nmodel = \"Zone\"\nrepulsion_zone_cm = -2\n",
+            "Zone.repulsion_zone_cm` = -2",
+        ),
+        (
+            "unknown.json",
+            r#"{"env": {"robot": {"max_sped": 3}}}"#,
+            "unknown field `max_sped`",
+        ),
+        ("model.toml", "[fish]\nmodel = \"Couzin\"\n", "Couzin"),
+        ("garbage.json", "not json", "not valid settings JSON"),
+    ];
+    for (name, text, needle) in cases {
+        let p = temp_file(name, text);
+        let o = fishprobe(&["config", "check", p.to_str().unwrap()]);
+        assert!(!o.status.success(), "{name} was accepted");
+        assert!(stderr(&o).contains(needle), "{name}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"), "{name}: {}", stderr(&o));
+    }
+    let missing = fishprobe(&["config", "check", "/nonexistent/settings.toml"]);
+    assert!(
+        stderr(&missing).contains("cannot read settings file"),
+        "{}",
+        stderr(&missing)
+    );
+}
