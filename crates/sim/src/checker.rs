@@ -45,6 +45,16 @@ fn check_space(name: &str, s: &BoxSpace) -> Result<(), CheckFailure> {
     )
 }
 
+/// A uniform random action in the space.
+fn random_action(rng: &mut crate::rng::SimRng, space: &BoxSpace) -> Vec<f32> {
+    space
+        .low
+        .iter()
+        .zip(&space.high)
+        .map(|(l, h)| rng.random_range(*l..=*h))
+        .collect()
+}
+
 /// One episode with seeded random actions: (observations, rewards) concatenated.
 fn rollout<E: Env>(
     env: &mut E,
@@ -64,13 +74,7 @@ fn rollout<E: Env>(
     let mut rng = stream(seed, "checker-actions", 0);
     let max = env.max_episode_steps();
     for t in 0..steps.min(max) {
-        let a: Vec<f32> = act
-            .low
-            .iter()
-            .zip(&act.high)
-            .map(|(l, h)| rng.random_range(*l..=*h))
-            .collect();
-        let tr = env.step(&a, &mut obs)?;
+        let tr = env.step(&random_action(&mut rng, &act), &mut obs)?;
         ensure(obs_space.contains(&obs), || {
             format!("step {t}: observation outside the space")
         })?;
@@ -160,13 +164,7 @@ pub fn check_env<E: Env>(
         let mut all = obs.clone();
         let mut rewards = Vec::new();
         for _ in 0..r1.len().min(3) {
-            let a: Vec<f32> = act
-                .low
-                .iter()
-                .zip(&act.high)
-                .map(|(l, h)| rng.random_range(*l..=*h))
-                .collect();
-            rewards.push(env.step(&a, &mut obs)?.reward);
+            rewards.push(env.step(&random_action(&mut rng, &act), &mut obs)?.reward);
             all.extend_from_slice(&obs);
         }
         (all, rewards)
