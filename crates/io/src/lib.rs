@@ -1,0 +1,44 @@
+//! Trial files: every rollout, simulated or live, is one robofish.io 1.0 HDF5 file that the
+//! lab's Python tools open, plus a `/fishprobe` group with the task (SPEC §10). Also reads the
+//! lab's pre-2020 layout and converts it.
+//!
+//! ```no_run
+//! use fishprobe_io::{read_trial, write_trial};
+//!
+//! let trial = read_trial("Q12I_Robotracker.hdf5".as_ref())?;
+//! println!("{} Hz, {:.0} s", trial.frame_rate_hz, trial.duration_s());
+//! for fish in trial.fish() {
+//!     println!("{}: {:.1} % untracked", fish.name, 100.0 * fish.nan_fraction());
+//! }
+//! write_trial("copy.hdf5".as_ref(), &trial)?;
+//! # Ok::<(), fishprobe_io::IoError>(())
+//! ```
+//!
+//! This is the only crate of fishprobe that touches HDF5, and inside it only the `backend`
+//! module names the HDF5 implementation (see its docs for the choice).
+
+pub mod attr;
+pub mod backend;
+pub mod error;
+pub mod legacy;
+pub mod robofish;
+pub mod trial;
+
+pub use attr::Attr;
+pub use error::IoError;
+pub use legacy::read_legacy;
+pub use robofish::{read_trial, write_atomically, write_trial};
+pub use trial::{
+    heading_from_motion, Category, Entity, TaskRecord, TrialFile, TrialKind, TrialMeta,
+};
+
+/// The shared real tracking data, for tests and examples: `$FISHPROBE_DATA` when set (whether
+/// or not it exists, so that a test finding it missing fails), else `../shared/data` beside
+/// the workspace when present, else `None`.
+pub fn shared_data_dir() -> Option<std::path::PathBuf> {
+    if let Some(d) = std::env::var_os("FISHPROBE_DATA") {
+        return Some(std::path::PathBuf::from(d));
+    }
+    let beside = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    beside.is_dir().then_some(beside)
+}
