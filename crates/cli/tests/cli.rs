@@ -167,3 +167,169 @@ fn bad_settings_name_the_field_and_value() {
         stderr(&missing)
     );
 }
+
+fn out_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fishprobe-cli-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("the temp dir is writable");
+    d
+}
+
+#[test]
+fn simulate_writes_a_trial_that_inspect_reads() {
+    let d = out_dir("sim");
+    let f = d.join("follow.hdf5");
+    let o = fishprobe(&[
+        "simulate",
+        "--model",
+        "Follow",
+        "--robot",
+        "goals",
+        "--minutes",
+        "2",
+        "--seed",
+        "3",
+        "--out",
+        f.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("3001 frames"), "{}", stdout(&o));
+    let o = fishprobe(&["inspect", "--json", f.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let file = &v["files"][0];
+    assert_eq!(file["frame_rate_hz"], 25.0);
+    assert_eq!(file["entities"].as_array().unwrap().len(), 2);
+    let task = &file["task"];
+    assert_eq!(task["kind"], "sim");
+    assert_eq!(task["policy"], "scripted:goals");
+    assert_eq!(task["fish_model"], "Follow");
+    // A Follow fish trails the goal-to-goal robot into the goals.
+    assert!(task["goals_reached"].as_u64().unwrap() >= 5, "{task}");
+}
+
+#[test]
+fn simulate_is_deterministic_per_seed() {
+    let d = out_dir("det");
+    let run = |name: &str, seed: &str| {
+        let p = d.join(name);
+        let o = fishprobe(&[
+            "simulate",
+            "--model",
+            "Force",
+            "--robot",
+            "circle",
+            "--minutes",
+            "1",
+            "--seed",
+            seed,
+            "--out",
+            p.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        std::fs::read(p).unwrap()
+    };
+    let a = run("a.hdf5", "9");
+    assert_eq!(a, run("b.hdf5", "9"), "same seed, different file");
+    assert_ne!(a, run("c.hdf5", "10"), "different seed, same file");
+}
+
+#[test]
+fn simulate_rejects_bad_arguments_before_work() {
+    let d = out_dir("bad");
+    let f = d.join("x.hdf5");
+    let f = f.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--robot", "fly"], "unknown --robot `fly`"),
+        (vec!["--model", "Couzin"], "unknown fish model `Couzin`"),
+        (
+            vec!["--minutes", "0"],
+            "--minutes must be a positive number",
+        ),
+    ] {
+        let mut all = vec!["simulate", "--out", f];
+        all.extend(args);
+        let o = fishprobe(&all);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(needle), "{}", stderr(&o));
+    }
+    assert!(!std::path::Path::new(f).exists());
+}
+
+#[test]
+fn inspect_reports_bad_files_and_continues() {
+    let d = out_dir("insp");
+    let good = d.join("good.hdf5");
+    assert!(fishprobe(&[
+        "simulate",
+        "--minutes",
+        "0.1",
+        "--out",
+        good.to_str().unwrap()
+    ])
+    .status
+    .success());
+    let bad = temp_file("bad.hdf5", "not hdf5 at all");
+    let o = fishprobe(&["inspect", bad.to_str().unwrap(), good.to_str().unwrap()]);
+    assert!(
+        !o.status.success(),
+        "a failed file makes the exit code non-zero"
+    );
+    assert!(
+        stderr(&o).contains("bad.hdf5: not an HDF5 file"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(
+        stdout(&o).contains("good.hdf5"),
+        "continued with the next file: {}",
+        stdout(&o)
+    );
+}
+
+#[test]
+fn import_legacy_converts_the_validation_split() {
+    let Some(data) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return;
+    };
+    let d = out_dir("legacy");
+    let input = data.join("guppy-pairs/legacy/validation");
+    let o = fishprobe(&[
+        "import-legacy",
+        input.to_str().unwrap(),
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("converted 5 of 5"), "{}", stdout(&o));
+    for entry in std::fs::read_dir(&d).unwrap() {
+        let p = entry.unwrap().path();
+        let ours = fishprobe_io::read_trial(&p).unwrap();
+        let theirs = fishprobe_io::read_trial(
+            &data
+                .join("guppy-pairs/robofish-io")
+                .join(p.file_name().unwrap()),
+        )
+        .unwrap();
+        for (a, b) in ours.entities.iter().zip(&theirs.entities) {
+            assert!(a
+                .positions
+                .iter()
+                .flatten()
+                .zip(b.positions.iter().flatten())
+                .all(|(x, y)| x.to_bits() == y.to_bits()));
+        }
+    }
+    let o = fishprobe(&[
+        "import-legacy",
+        "/nonexistent/file.hdf5",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("/nonexistent/file.hdf5"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -187,7 +187,9 @@ pub struct TaskRecord {
     pub goal_radius_cm: f32,
     /// The goals of the trial, in order of first activation (cm).
     pub goals: Vec<[f32; 2]>,
-    /// Index into `goals` of the active goal per frame (-1: none).
+    /// Index into `goals` of the active goal at the end of each frame (-1: none). A goal
+    /// reached in frame t switches it, so at a frame in `goal_frames` this is already the
+    /// next goal; the goal reached is the one active at frame t - 1.
     pub active_goal: Vec<i32>,
     /// Frames at which a goal was reached.
     pub goal_frames: Vec<u64>,

@@ -13,6 +13,7 @@ use crate::observation::{ObservationEncoder, ObservationParams, Scene};
 use crate::params::{check, ConfigError};
 use crate::rng::{stream, SimRng};
 use crate::robot::{Robot, RobotParams};
+use crate::script::{advance_scripted, RobotScript, ScriptParams};
 use crate::task::{GoalEvent, GoalTracker, TaskMode, TaskParams};
 use rand::{Rng, RngExt};
 use std::f32::consts::PI;
@@ -474,8 +475,28 @@ impl TankEnv {
     /// One frame, with the views already prepared and (for batched models) `inferred` holding
     /// `inference_width` floats per fish.
     pub(crate) fn advance_frame(&mut self, inferred: Option<&[f32]>) -> Result<(), SimError> {
+        self.advance_frame_with(inferred, None)
+    }
+
+    /// One frame; the robot follows `script` instead of its controller when given.
+    fn advance_frame_with(
+        &mut self,
+        inferred: Option<&[f32]>,
+        script: Option<(RobotScript, &ScriptParams)>,
+    ) -> Result<(), SimError> {
         let p = &self.cfg;
-        if self.robot.advance(&p.robot, &self.tank, self.dt) {
+        let contact = match script {
+            None => self.robot.advance(&p.robot, &self.tank, self.dt),
+            Some((s, sp)) => advance_scripted(
+                &mut self.robot,
+                s,
+                sp,
+                self.goals.active,
+                &self.tank,
+                self.dt,
+            ),
+        };
+        if contact {
             self.acc.robot_wall_contacts += 1;
         }
         let width = self.model.inference_width();
@@ -546,16 +567,34 @@ impl TankEnv {
     }
 
     /// Runs the frames of one action sequentially (the non-batched path).
-    fn run_frames(&mut self) -> Result<(), SimError> {
+    fn run_frames(&mut self, script: Option<(RobotScript, &ScriptParams)>) -> Result<(), SimError> {
         let width = self.model.inference_width();
         for _ in 0..self.cfg.frames_per_action {
             self.prepare_views();
             if width > 0 {
                 self.model.infer_batch(&self.views, &mut self.inferred);
             }
-            self.advance_frame(None)?;
+            self.advance_frame_with(None, script)?;
         }
         Ok(())
+    }
+
+    /// One action period (`frames_per_action` frames) with a scripted robot instead of the
+    /// controller; reward and observation as in `step`. No command is recorded.
+    pub fn step_scripted(
+        &mut self,
+        script: RobotScript,
+        params: &ScriptParams,
+        obs: &mut [f32],
+    ) -> Result<Transition, SimError> {
+        self.check_obs(obs)?;
+        if !self.live {
+            return Err(SimError::NeedsReset);
+        }
+        params.validate("script")?;
+        self.acc = StepInfo::default();
+        self.run_frames(Some((script, params)))?;
+        Ok(self.end_action(obs))
     }
 }
 
@@ -582,7 +621,7 @@ impl Env for TankEnv {
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Transition, SimError> {
         self.check_obs(obs)?;
         self.begin_action(action)?;
-        self.run_frames()?;
+        self.run_frames(None)?;
         Ok(self.end_action(obs))
     }
 }

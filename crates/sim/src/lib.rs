@@ -38,6 +38,7 @@ pub mod params;
 pub mod rng;
 pub mod robot;
 pub mod sandbox;
+pub mod script;
 pub mod task;
 pub mod vector;
 
@@ -55,5 +56,6 @@ pub use params::{ConfigError, DocumentedParams, FieldDoc};
 pub use rng::{derive_seed, stream, SimRng};
 pub use robot::{Robot, RobotParams};
 pub use sandbox::Sandbox;
+pub use script::{RobotScript, ScriptParams};
 pub use task::{GoalEvent, GoalTracker, TaskMode, TaskParams};
 pub use vector::{AutoresetMode, VecEnv};

@@ -2,7 +2,10 @@
 
 mod bench;
 mod config;
+mod import_legacy;
+mod inspect;
 mod models;
+mod simulate;
 
 use clap::{Parser, Subcommand};
 
@@ -25,6 +28,12 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Show the default simulation settings, or check a settings file.
     Config(config::ConfigArgs),
+    /// Simulate one evaluation trial with a scripted robot and write it as a trial file.
+    Simulate(simulate::SimulateArgs),
+    /// Show what trial files hold (any robofish.io file, or the legacy layout).
+    Inspect(inspect::InspectArgs),
+    /// Convert the lab's pre-2020 files to robofish.io 1.0.
+    ImportLegacy(import_legacy::ImportLegacyArgs),
 }
 
 /// Writes a command's output to stdout. A closed pipe (`fishprobe models | head`) ends the
@@ -50,5 +59,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Models(a) => models::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Config(a) => config::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Inspect(a) => inspect::run(a),
+        Command::ImportLegacy(a) => import_legacy::run(a),
     }
 }
