@@ -25,9 +25,9 @@ fn format_err(path: &Path, what: impl Into<String>) -> IoError {
 
 /// Opens an HDF5 file for reading.
 pub fn open(path: &Path) -> Result<H5Group, IoError> {
-    let bytes = std::fs::read(path).map_err(|source| IoError::Read {
+    let bytes = std::fs::read(path).map_err(|reason| IoError::Read {
         path: path.to_path_buf(),
-        source,
+        reason,
     })?;
     if !hdf5_pure::is_hdf5_bytes(&bytes) {
         return Err(IoError::NotHdf5 {

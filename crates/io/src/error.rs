@@ -6,12 +6,14 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
     /// The file cannot be read at all.
-    #[error("{}: cannot read: {source}", path.display())]
+    // The OS error is part of the message, not a chained source, so that `{:#}` in the CLI
+    // does not print it twice.
+    #[error("{}: cannot read: {reason}", path.display())]
     Read {
         /// The file.
         path: PathBuf,
         /// The OS error.
-        source: std::io::Error,
+        reason: std::io::Error,
     },
     /// The file is not HDF5.
     #[error("{}: not an HDF5 file (no HDF5 signature)", path.display())]
