@@ -105,6 +105,13 @@ fn convert_attr(v: AttrValue) -> Option<Attr> {
     })
 }
 
+/// Keeps the attributes of kinds fishprobe understands (a reader must skip the others).
+fn convert_attrs(raw: std::collections::HashMap<String, AttrValue>) -> BTreeMap<String, Attr> {
+    raw.into_iter()
+        .filter_map(|(k, v)| convert_attr(v).map(|a| (k, a)))
+        .collect()
+}
+
 impl H5Group {
     /// The file this group belongs to.
     pub fn file(&self) -> &Path {
@@ -122,10 +129,7 @@ impl H5Group {
             .g
             .attrs()
             .map_err(|e| format_err(&self.path, format!("attributes of {}: {e}", self.name)))?;
-        Ok(raw
-            .into_iter()
-            .filter_map(|(k, v)| convert_attr(v).map(|a| (k, a)))
-            .collect())
+        Ok(convert_attrs(raw))
     }
 
     /// Names of the subgroups, sorted.
@@ -202,11 +206,7 @@ impl H5Dataset {
 
     /// Attributes of kinds fishprobe understands.
     pub fn attrs(&self) -> Result<BTreeMap<String, Attr>, IoError> {
-        let raw = self.d.attrs().map_err(|e| self.err(e))?;
-        Ok(raw
-            .into_iter()
-            .filter_map(|(k, v)| convert_attr(v).map(|a| (k, a)))
-            .collect())
+        Ok(convert_attrs(self.d.attrs().map_err(|e| self.err(e))?))
     }
 
     /// Numeric contents as f32 (any float or integer type; other types are an error).
