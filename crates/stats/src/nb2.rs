@@ -211,11 +211,8 @@ pub fn fit_nb2(
             break;
         }
     }
-    let gmax = g
-        .iter()
-        .zip(std::iter::once(1.0).cycle())
-        .fold(0.0f64, |m, (v, _)| m.max(v.abs()));
-    if !(gmax < 1e-4 * n as f64) {
+    let gmax = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if gmax.is_nan() || gmax >= 1e-4 * n as f64 {
         return Err(StatsError::NoConvergence(format!(
             "nb2: no convergence (gradient {gmax:e})"
         )));
