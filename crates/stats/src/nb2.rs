@@ -6,6 +6,11 @@
 //! G/(G-1) · (N-1)/(N-K), K = number of parameters including α; Wald intervals and p-values
 //! from the normal distribution.
 //!
+//! When the dispersion's maximum-likelihood estimate lies on its boundary α = 0 (counts no
+//! more variable than Poisson), NB2 reduces to the Poisson model: that is fitted instead and
+//! α is reported as 0 with an undefined standard error (statsmodels ends at α ≈ 1e-8 with the
+//! same coefficients).
+//!
 //! Per observation, with μ = exp(xβ) and r = 1/α:
 //! ℓ = lnΓ(y+r) - lnΓ(r) - lnΓ(y+1) + r ln(r/(r+μ)) + y ln(μ/(r+μ)).
 
@@ -132,6 +137,119 @@ fn totals(y: &[f64], x: &[f64], beta: &[f64], alpha: f64) -> (f64, Vec<f64>, Vec
     (ll, g, h)
 }
 
+/// Below this the dispersion is taken to be at its boundary, 0.
+const ALPHA_BOUNDARY: f64 = 1e-6;
+
+/// Poisson regression (NB2 at α = 0), same covariance conventions (K = number of β).
+fn fit_poisson(
+    y: &[f64],
+    x: &[f64],
+    k: usize,
+    clusters: Option<&[usize]>,
+) -> Result<Nb2Fit, StatsError> {
+    let n = y.len();
+    let ybar = y.iter().sum::<f64>() / n as f64;
+    let mut beta = vec![0.0; k];
+    if x.chunks(k).all(|r| r[0] == x[0]) {
+        beta[0] = ybar.ln() / x[0];
+    }
+    let eval = |beta: &[f64]| {
+        let (mut ll, mut g, mut h) = (0.0, vec![0.0; k], vec![0.0; k * k]);
+        for (i, &yi) in y.iter().enumerate() {
+            let row = &x[i * k..(i + 1) * k];
+            let mu = row.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>().exp();
+            ll += yi * mu.ln() - mu - ln_gamma(yi + 1.0);
+            for a in 0..k {
+                g[a] += (yi - mu) * row[a];
+                for b in 0..k {
+                    h[a * k + b] -= mu * row[a] * row[b];
+                }
+            }
+        }
+        (ll, g, h)
+    };
+    let (mut ll, mut g, mut h) = eval(&beta);
+    let mut iterations = 0;
+    for it in 0..100 {
+        iterations = it + 1;
+        let inv = invert(&h, k)
+            .ok_or_else(|| StatsError::NoConvergence("poisson: singular Hessian".into()))?;
+        let step: Vec<f64> = (0..k)
+            .map(|i| -(0..k).map(|j| inv[i * k + j] * g[j]).sum::<f64>())
+            .collect();
+        let mut t = 1.0;
+        let mut accepted = false;
+        for _ in 0..40 {
+            let nb: Vec<f64> = beta.iter().zip(&step).map(|(b, s)| b + t * s).collect();
+            let (nl, ng, nh) = eval(&nb);
+            if nl.is_finite() && nl >= ll - 1e-12 * ll.abs() {
+                (beta, ll, g, h) = (nb, nl, ng, nh);
+                accepted = true;
+                break;
+            }
+            t *= 0.5;
+        }
+        if !accepted || step.iter().all(|s| (t * s).abs() < 1e-12) {
+            break;
+        }
+    }
+    let h_inv = invert(&h, k).ok_or_else(|| {
+        StatsError::NoConvergence("poisson: singular Hessian at the optimum".into())
+    })?;
+    let cov_b: Vec<f64> = match clusters {
+        None => h_inv.iter().map(|v| -v).collect(),
+        Some(c) => {
+            let n_groups = c.iter().max().map_or(0, |m| m + 1);
+            let mut sums = vec![0.0; n_groups * k];
+            for i in 0..n {
+                let row = &x[i * k..(i + 1) * k];
+                let mu = row.iter().zip(&beta).map(|(a, b)| a * b).sum::<f64>().exp();
+                for a in 0..k {
+                    sums[c[i] * k + a] += (y[i] - mu) * row[a];
+                }
+            }
+            let used: Vec<usize> = (0..n_groups).filter(|g| c.contains(g)).collect();
+            let gn = used.len() as f64;
+            if gn < 2.0 {
+                return Err(StatsError::Undefined(
+                    "clustered errors need at least two clusters".into(),
+                ));
+            }
+            let mut meat = vec![0.0; k * k];
+            for &gi in &used {
+                let sg = &sums[gi * k..(gi + 1) * k];
+                for a in 0..k {
+                    for b in 0..k {
+                        meat[a * k + b] += sg[a] * sg[b];
+                    }
+                }
+            }
+            let factor = gn / (gn - 1.0) * ((n as f64 - 1.0) / (n as f64 - k as f64));
+            matmul(&matmul(&h_inv, &meat, k), &h_inv, k)
+                .into_iter()
+                .map(|v| v * factor)
+                .collect()
+        }
+    };
+    let p = k + 1;
+    let mut cov = vec![f64::NAN; p * p];
+    for a in 0..k {
+        for b in 0..k {
+            cov[a * p + b] = cov_b[a * k + b];
+        }
+    }
+    let mut params = beta;
+    params.push(0.0);
+    let se = (0..p).map(|i| cov[i * p + i].sqrt()).collect();
+    Ok(Nb2Fit {
+        params,
+        cov,
+        se,
+        llf: ll,
+        iterations,
+    })
+}
+
 /// Fits NB2 to counts `y` with design matrix `x` (row-major, n x k, include the intercept
 /// column yourself). `clusters[i]` is observation i's cluster id for robust standard errors
 /// (`None`: the usual inverse-Hessian covariance).
@@ -207,14 +325,17 @@ pub fn fit_nb2(
             t *= 0.5;
         }
         let max_step = step.iter().fold(0.0f64, |m, s| m.max((t * s).abs()));
-        if !accepted || max_step < 1e-10 {
+        if !accepted || max_step < 1e-10 || alpha < ALPHA_BOUNDARY {
             break;
         }
+    }
+    if alpha < ALPHA_BOUNDARY {
+        return fit_poisson(y, x, k, clusters);
     }
     let gmax = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     if gmax.is_nan() || gmax >= 1e-4 * n as f64 {
         return Err(StatsError::NoConvergence(format!(
-            "nb2: no convergence (gradient {gmax:e})"
+            "nb2: no convergence (gradient {gmax:e}); the maximum-likelihood estimate may not exist, e.g. when one covariate value has only zero counts"
         )));
     }
     let Some(h_inv) = invert(&h, p) else {

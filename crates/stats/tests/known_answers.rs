@@ -116,3 +116,29 @@ fn nb2_rejects_bad_input() {
     assert!(fit_nb2(&[1.5, 2.0], &[1.0, 1.0], 1, None).is_err());
     assert!(fit_nb2(&[1.0, 2.0, 3.0], &[1.0, 1.0], 1, None).is_err());
 }
+
+/// Under-dispersed counts: the dispersion MLE is at α = 0 and the fit is Poisson, as
+/// statsmodels `Poisson(y, X).fit(cov_type="cluster", cov_kwds={"groups": g})` gives
+/// (statsmodels' NegativeBinomial ends at α = 2.3e-8 with the same coefficients).
+#[test]
+fn nb2_at_the_dispersion_boundary_is_poisson() {
+    let y = [
+        7.0, 7.0, 6.0, 7.0, 8.0, 7.0, 7.0, 6.0, 7.0, 7.0, 8.0, 6.0, 7.0, 7.0, 7.0, 6.0, 7.0, 8.0,
+        7.0, 7.0, 6.0, 6.0, 7.0, 7.0,
+    ];
+    let x: Vec<f64> = (0..24).flat_map(|i| [1.0, f64::from(i % 2)]).collect();
+    let clusters: Vec<usize> = (0..24).map(|i| i / 2).collect();
+    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let params = [1.945_910_149_055_313_2, -0.036_367_644_170_874_88];
+    let bse = [0.025_427_143_126_560_03, 0.037_219_824_264_710_315];
+    for j in 0..2 {
+        assert!(
+            rel(fit.params[j], params[j]) < 1e-6,
+            "param {j}: {}",
+            fit.params[j]
+        );
+        assert!(rel(fit.se[j], bse[j]) < 1e-6, "se {j}: {}", fit.se[j]);
+    }
+    assert_eq!(fit.params[2], 0.0);
+    assert!(fit.se[2].is_nan());
+}

@@ -19,8 +19,33 @@ pub struct BenchArgs {
     what: BenchWhat,
 }
 
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum StudySizeArg {
+    /// The paper's study: 4 policies x (50 sim + 18 real), 4 x 4 x 50 sim-to-sim, 6 x 4 x 50
+    /// stability, 4 x 10 approach episodes; 15-minute trials (about 2,100 files).
+    Paper,
+    /// A small study for tests: 2 policies, 2-minute trials.
+    Small,
+}
+
 #[derive(Debug, Subcommand)]
 enum BenchWhat {
+    /// The whole analysis of a paper-sized study of synthetic trials (scripted robots), file
+    /// reading included, with the paper's replicate counts.
+    Stats {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Keep the generated study here (reused when it already holds one).
+        #[arg(long)]
+        dir: Option<std::path::PathBuf>,
+        /// Study size.
+        #[arg(long, value_enum, default_value = "paper")]
+        size: StudySizeArg,
+        /// Seed of the generated trials and of the resampling.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
     /// Simulation throughput per rule-based model: the robot under random 1 Hz commands,
     /// observation encoded once per action; one core, then all cores.
     Sim {
@@ -80,7 +105,86 @@ pub fn run(a: BenchArgs) -> Result<()> {
             seconds,
             envs,
         } => bench_sim(json, seconds, envs),
+        BenchWhat::Stats {
+            json,
+            dir,
+            size,
+            seed,
+        } => bench_stats(json, dir, size, seed),
     }
+}
+
+fn bench_stats(
+    json: bool,
+    dir: Option<std::path::PathBuf>,
+    size: StudySizeArg,
+    seed: u64,
+) -> Result<()> {
+    use super::synth::{generate, StudySize};
+    let size = match size {
+        StudySizeArg::Paper => StudySize::PAPER,
+        StudySizeArg::Small => StudySize {
+            policies: 2,
+            own: 8,
+            cross: 5,
+            real: 6,
+            stability: (3, 4),
+            approach: 2,
+            minutes: 2.0,
+        },
+    };
+    let temporary = dir.is_none();
+    let dir = dir.unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("fishprobe-bench-stats-{}", std::process::id()))
+    });
+    let t0 = Instant::now();
+    let generated = if dir.join("rollouts").is_dir() {
+        0
+    } else {
+        generate(&dir, size, seed)
+            .with_context(|| format!("generating a study in {}", dir.display()))?
+    };
+    let generation_s = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let cfg = fishprobe_analysis::AnalysisConfig::default();
+    let results = fishprobe_analysis::analyze_dir(&dir, &cfg, seed)?;
+    fishprobe_analysis::write_results(&dir.join("analysis"), &results)?;
+    let analysis_s = t1.elapsed().as_secs_f64();
+    let files = walk_count(&dir);
+    if temporary {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    let m = machine();
+    let text = if json {
+        serde_json::to_string_pretty(&serde_json::json!({
+            "bench": "stats", "machine": m, "trial_files": files, "generated": generated,
+            "generation_s": generation_s, "analysis_s": analysis_s,
+            "skipped": results.skipped.len(), "command": "fishprobe bench stats --json",
+        }))? + "\n"
+    } else {
+        format!(
+            "fishprobe bench stats — {} cores, {} ({} {})\n{files} trial files ({} generated in {generation_s:.1} s)\nanalysis (reading, metrics, every test at the paper's replicate counts, writing): {analysis_s:.1} s\n",
+            m.cores, m.cpu, m.os, m.arch, generated
+        )
+    };
+    emit(&text)
+}
+
+/// Trial files under a directory (the analysis output excluded).
+fn walk_count(dir: &std::path::Path) -> usize {
+    let Ok(rd) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    rd.filter_map(Result::ok)
+        .map(|e| e.path())
+        .map(|p| {
+            if p.is_dir() {
+                walk_count(&p)
+            } else {
+                usize::from(p.extension().is_some_and(|x| x == "hdf5"))
+            }
+        })
+        .sum()
 }
 
 fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {

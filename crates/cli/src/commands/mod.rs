@@ -1,11 +1,13 @@
 //! Subcommands.
 
+mod analyze;
 mod bench;
 mod config;
 mod import_legacy;
 mod inspect;
 mod models;
 mod simulate;
+pub(crate) mod synth;
 
 use clap::{Parser, Subcommand};
 
@@ -34,6 +36,8 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Convert the lab's pre-2020 files to robofish.io 1.0.
     ImportLegacy(import_legacy::ImportLegacyArgs),
+    /// Analyse a study directory: every measure and test of the paper (SPEC §8).
+    Analyze(analyze::AnalyzeArgs),
 }
 
 /// Writes a command's output to stdout. A closed pipe (`fishprobe models | head`) ends the
@@ -53,6 +57,18 @@ pub fn params_json<T: serde::Serialize>(p: &T) -> anyhow::Result<serde_json::Val
     Ok(serde_json::from_str(&serde_json::to_string(p)?)?)
 }
 
+/// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
+pub fn with_jobs<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> anyhow::Result<T> {
+    match jobs {
+        None => Ok(f()),
+        Some(0) => anyhow::bail!("--jobs must be at least 1"),
+        Some(n) => Ok(rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()?
+            .install(f)),
+    }
+}
+
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
@@ -62,5 +78,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Inspect(a) => inspect::run(a),
         Command::ImportLegacy(a) => import_legacy::run(a),
+        Command::Analyze(a) => analyze::run(a),
     }
 }

@@ -1,0 +1,93 @@
+//! The approach assay (SPEC §8): the robot starts in a corner, a stationary fish and the goal
+//! sit to its left and right; does the policy go to the fish first? Per policy, over all
+//! frames of all its episodes: the minimum and mean robot-fish distance, and the fraction of
+//! frames in which the robot is closer to the fish than to the goal.
+
+use crate::config::AnalysisConfig;
+use crate::results::{Approach, Results, Skipped};
+use crate::study::Study;
+use fishprobe_io::read_trial;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// One approach episode: the policy it names, and per frame (robot-fish, robot-goal) distance.
+type Episode = (Option<String>, Vec<(f64, f64)>);
+
+/// Reads one approach episode.
+fn episode(path: &Path, cfg: &AnalysisConfig) -> Result<Episode, String> {
+    let t = read_trial(path).map_err(|e| e.to_string())?;
+    let robot = t.robot().ok_or("trial without a robot entity")?;
+    let fish = t.fish().next().ok_or("trial without a fish entity")?;
+    let goal = t
+        .task
+        .as_ref()
+        .and_then(|k| k.goals.first().copied())
+        .unwrap_or(cfg.approach_goal);
+    let start = t
+        .task
+        .as_ref()
+        .map_or(0, |k| k.control_start_frame as usize);
+    let frames = robot.frames().min(fish.frames());
+    let d = (start..frames)
+        .map(|i| {
+            let (r, f) = (robot.positions[i], fish.positions[i]);
+            let iid = f64::from(((r[0] - f[0]).powi(2) + (r[1] - f[1]).powi(2)).sqrt());
+            let dg = f64::from(((r[0] - goal[0]).powi(2) + (r[1] - goal[1]).powi(2)).sqrt());
+            (iid, dg)
+        })
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .collect::<Vec<_>>();
+    if d.is_empty() {
+        return Err("no frame with both robot and fish tracked".into());
+    }
+    Ok((t.task.as_ref().map(|k| k.policy.clone()), d))
+}
+
+/// Fills `res.approach` from `STUDY/approach_test`.
+pub fn approach(
+    res: &mut Results,
+    study: &Study,
+    skipped: &mut Vec<Skipped>,
+    cfg: &AnalysisConfig,
+) {
+    let mut per: BTreeMap<String, (Vec<(f64, f64)>, usize)> = BTreeMap::new();
+    for (dir_policy, files) in &study.approach {
+        for f in files {
+            match episode(f, cfg) {
+                Ok((file_policy, d)) => {
+                    let policy = if dir_policy.is_empty() {
+                        file_policy.unwrap_or_default()
+                    } else {
+                        dir_policy.clone()
+                    };
+                    if policy.is_empty() {
+                        skipped.push(Skipped {
+                            what: f.display().to_string(),
+                            reason: "approach file names no policy".into(),
+                        });
+                        continue;
+                    }
+                    let e = per.entry(policy).or_default();
+                    e.0.extend(d);
+                    e.1 += 1;
+                }
+                Err(reason) => skipped.push(Skipped {
+                    what: f.display().to_string(),
+                    reason,
+                }),
+            }
+        }
+    }
+    for (p, (d, episodes)) in per {
+        let n = d.len() as f64;
+        res.approach.insert(
+            p,
+            Approach {
+                min_iid: d.iter().map(|x| x.0).fold(f64::INFINITY, f64::min),
+                mean_iid: d.iter().map(|x| x.0).sum::<f64>() / n,
+                frac_closer_to_fish: d.iter().filter(|x| x.0 < x.1).count() as f64 / n,
+                episodes,
+            },
+        );
+    }
+}

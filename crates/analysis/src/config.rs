@@ -1,0 +1,78 @@
+//! The analysis settings: SPEC §8's published values as defaults.
+
+use fishprobe_sim::params::{check, ConfigError};
+
+fishprobe_sim::documented_params! {
+    /// How the study is analysed.
+    pub struct AnalysisConfig {
+        /// Sim trials per policy in the sim-to-real comparison: the first N files by name of
+        /// `<P>__<P>` (paper: 18; the same directory may also hold the 50 sim-to-sim episodes).
+        pub sim_trials: usize = 18; "trials",
+        /// Percentile-bootstrap replicates for the sim-to-real goal gap (paper: 5000).
+        pub bootstrap_reps: usize = 5000; "replicates",
+        /// Permutations of the one-sided permutation tests (paper: 100,000).
+        pub permutations: usize = 100_000; "permutations",
+        /// Two-way cluster-bootstrap replicates of the per-metric gaps (paper: 5000).
+        pub cluster_bootstrap_reps: usize = 5000; "replicates",
+        /// Bootstrap replicates per sim-to-sim cell (paper: 5000).
+        pub sim_to_sim_reps: usize = 5000; "replicates",
+        /// Episode-bootstrap replicates of the stability ratio (paper: 2000).
+        pub stability_bootstrap_reps: usize = 2000; "replicates",
+        /// Permutations of the stability ratio (paper: 5000).
+        pub stability_permutations: usize = 5000; "permutations",
+        /// Confidence level of every interval (paper: 95 %).
+        pub ci_level: f64 = 0.95; "1",
+        /// Goal radius used when goal events must be recomputed from a track (paper: 5 cm).
+        pub goal_radius_cm: f32 = 5.0; "cm",
+        /// Evaluation goals, in order, for recomputing goal events (paper: opposite corners;
+        /// choice: (-20, -20) first).
+        pub goals: [[f32; 2]; 2] = [[-20.0, -20.0], [20.0, 20.0]]; "cm",
+        /// Minutes of control analysed for goals per minute (paper: 15 bins of 1 min).
+        pub minutes: usize = 15; "min",
+        /// Approach assay: the goal's position when a file does not record it (choice:
+        /// (20, -20), see SPEC §8).
+        pub approach_goal: [f32; 2] = [20.0, -20.0]; "cm",
+    }
+}
+
+impl AnalysisConfig {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        for (name, v) in [
+            ("sim_trials", self.sim_trials),
+            ("bootstrap_reps", self.bootstrap_reps),
+            ("permutations", self.permutations),
+            ("cluster_bootstrap_reps", self.cluster_bootstrap_reps),
+            ("sim_to_sim_reps", self.sim_to_sim_reps),
+            ("stability_bootstrap_reps", self.stability_bootstrap_reps),
+            ("stability_permutations", self.stability_permutations),
+            ("minutes", self.minutes),
+        ] {
+            if v == 0 {
+                return Err(ConfigError::new("analysis", name, 0, "must be at least 1"));
+            }
+        }
+        if !(self.ci_level > 0.0 && self.ci_level < 1.0) {
+            return Err(ConfigError::new(
+                "analysis",
+                "ci_level",
+                self.ci_level,
+                "must lie in (0, 1)",
+            ));
+        }
+        check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)
+    }
+
+    /// Small replicate counts for quick looks and tests (the statistics are the same).
+    pub fn quick() -> Self {
+        Self {
+            bootstrap_reps: 500,
+            permutations: 2000,
+            cluster_bootstrap_reps: 300,
+            sim_to_sim_reps: 500,
+            stability_bootstrap_reps: 300,
+            stability_permutations: 500,
+            ..Self::default()
+        }
+    }
+}

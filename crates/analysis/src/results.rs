@@ -1,0 +1,511 @@
+//! The results of an analysis: `results.json` (shape documented in the README), one CSV per
+//! section, and a Markdown summary.
+
+use crate::config::AnalysisConfig;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Per-trial goals of one policy.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GoalsPair {
+    /// Sim trials (the first `sim_trials` files of `<P>__<P>`).
+    pub sim: Vec<u32>,
+    /// Reality-arm trials.
+    pub real: Vec<u32>,
+}
+
+/// The sim-to-real gap in goals reached.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GoalGap {
+    /// 1-Wasserstein distance between sim and real goals.
+    pub w: f64,
+    /// Percentile-bootstrap interval.
+    pub ci: [f64; 2],
+    /// One-sided permutation p.
+    pub p: f64,
+    /// Cliff's δ = P(sim > real) - P(sim < real).
+    pub cliffs_delta: f64,
+    /// Its magnitude label.
+    pub magnitude: &'static str,
+    /// Sim trials.
+    pub n_sim: usize,
+    /// Real trials.
+    pub n_real: usize,
+}
+
+/// The sim-to-real gap in one per-frame metric.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MetricGap {
+    /// Median of the sim x real matrix of per-trial W1.
+    pub median: f64,
+    /// Two-way cluster-bootstrap interval.
+    pub ci: [f64; 2],
+    /// Min-max normalised across policies within the metric.
+    pub normalized: f64,
+    /// Rank within the metric (1 = smallest gap; ties share the average rank).
+    pub rank: f64,
+}
+
+/// One sim-to-sim cell.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SimToSimCell {
+    /// Median of the bootstrap distribution of W1.
+    pub median: f64,
+    /// Its percentile interval.
+    pub ci: [f64; 2],
+    /// Holm-adjusted permutation p against the diagonal (`null` on the diagonal).
+    pub p_holm: Option<f64>,
+}
+
+/// Kruskal-Wallis across rollout models.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct KruskalOut {
+    /// Tie-corrected H.
+    pub h: f64,
+    /// χ² p-value.
+    pub p: f64,
+}
+
+/// A negative-binomial trend of goals per minute.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Trend {
+    /// exp(β) per minute.
+    pub rate_ratio: f64,
+    /// Wald interval of exp(β).
+    pub ci: [f64; 2],
+    /// Wald p of β.
+    pub p: f64,
+    /// NB2 dispersion α.
+    pub alpha: f64,
+}
+
+/// Mean and sample s.d.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MeanSd {
+    /// Mean.
+    pub mean: f64,
+    /// Sample standard deviation (n - 1); null below two values.
+    pub sd: f64,
+    /// Trials with a value.
+    pub n: usize,
+}
+
+/// Time to goal, sim and real.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TimeToGoal {
+    /// Sim trials.
+    pub sim: Option<MeanSd>,
+    /// Reality-arm trials.
+    pub real: Option<MeanSd>,
+}
+
+/// The approach assay of one policy.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Approach {
+    /// Minimum robot-fish distance over all frames of all episodes (cm).
+    pub min_iid: f64,
+    /// Mean robot-fish distance over all frames (cm).
+    pub mean_iid: f64,
+    /// Fraction of frames in which the robot is closer to the fish than to the goal.
+    pub frac_closer_to_fish: f64,
+    /// Episodes.
+    pub episodes: usize,
+}
+
+/// Retraining stability.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StabilityOut {
+    /// σ²_between / σ²_within.
+    pub r: f64,
+    /// Bootstrap interval.
+    pub ci: [f64; 2],
+    /// Permutation p.
+    pub p: f64,
+}
+
+/// Something left out, and why.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Skipped {
+    /// A file or a condition.
+    pub what: String,
+    /// Why.
+    pub reason: String,
+}
+
+/// Everything `fishprobe analyze` computes. Sections whose inputs are absent are left out.
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct Results {
+    /// "Real" or "VirtualLab" (virtual-lab results are never real).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reality: Option<String>,
+    /// Per-trial goals.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub goals: BTreeMap<String, GoalsPair>,
+    /// Sim-to-real gap in goals.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub sim_to_real: BTreeMap<String, GoalGap>,
+    /// Per-metric gaps: metric → policy → gap.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub metric_gaps: BTreeMap<String, BTreeMap<String, MetricGap>>,
+    /// Mean rank over the nine metrics.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub mean_ranks: BTreeMap<String, f64>,
+    /// Policy → rollout model → cell.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub sim_to_sim: BTreeMap<String, BTreeMap<String, SimToSimCell>>,
+    /// Policy → Kruskal-Wallis across rollout models.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub kruskal: BTreeMap<String, KruskalOut>,
+    /// "sim" | "real" → policy | "total" → trend.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub temporal: BTreeMap<String, BTreeMap<String, Trend>>,
+    /// Policy → time to goal.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub time_to_goal: BTreeMap<String, TimeToGoal>,
+    /// Policy → approach assay.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub approach: BTreeMap<String, Approach>,
+    /// Retraining stability.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stability: Option<StabilityOut>,
+    /// What was left out.
+    pub skipped: Vec<Skipped>,
+    /// Master seed of the resampling.
+    pub seed: u64,
+    /// The settings used.
+    pub config: AnalysisConfig,
+}
+
+fn csv_escape(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn table(header: &[&str], rows: Vec<Vec<String>>) -> String {
+    let mut out = header.join(",") + "\n";
+    for r in rows {
+        out += &r
+            .iter()
+            .map(|c| csv_escape(c))
+            .collect::<Vec<_>>()
+            .join(",");
+        out.push('\n');
+    }
+    out
+}
+
+fn f(x: f64) -> String {
+    if x.is_finite() {
+        format!("{x}")
+    } else {
+        String::new()
+    }
+}
+
+impl Results {
+    /// One CSV table per present section: (file name, contents).
+    pub fn csv_tables(&self) -> Vec<(&'static str, String)> {
+        let mut out = Vec::new();
+        if !self.goals.is_empty() {
+            let rows = self
+                .goals
+                .iter()
+                .flat_map(|(p, g)| {
+                    let sim = g.sim.iter().enumerate().map(move |(i, v)| {
+                        vec![p.clone(), "sim".into(), i.to_string(), v.to_string()]
+                    });
+                    let real = g.real.iter().enumerate().map(move |(i, v)| {
+                        vec![p.clone(), "real".into(), i.to_string(), v.to_string()]
+                    });
+                    sim.chain(real)
+                })
+                .collect();
+            out.push((
+                "goals.csv",
+                table(&["policy", "arm", "trial", "goals_reached"], rows),
+            ));
+        }
+        if !self.sim_to_real.is_empty() {
+            let rows = self
+                .sim_to_real
+                .iter()
+                .map(|(p, g)| {
+                    vec![
+                        p.clone(),
+                        f(g.w),
+                        f(g.ci[0]),
+                        f(g.ci[1]),
+                        f(g.p),
+                        f(g.cliffs_delta),
+                        g.magnitude.into(),
+                        g.n_sim.to_string(),
+                        g.n_real.to_string(),
+                    ]
+                })
+                .collect();
+            out.push((
+                "sim_to_real.csv",
+                table(
+                    &[
+                        "policy",
+                        "w",
+                        "ci_low",
+                        "ci_high",
+                        "p",
+                        "cliffs_delta",
+                        "magnitude",
+                        "n_sim",
+                        "n_real",
+                    ],
+                    rows,
+                ),
+            ));
+        }
+        if !self.metric_gaps.is_empty() {
+            let rows = self
+                .metric_gaps
+                .iter()
+                .flat_map(|(m, per)| {
+                    per.iter().map(move |(p, g)| {
+                        vec![
+                            m.clone(),
+                            p.clone(),
+                            f(g.median),
+                            f(g.ci[0]),
+                            f(g.ci[1]),
+                            f(g.normalized),
+                            f(g.rank),
+                        ]
+                    })
+                })
+                .collect();
+            out.push((
+                "metric_gaps.csv",
+                table(
+                    &[
+                        "metric",
+                        "policy",
+                        "median_w",
+                        "ci_low",
+                        "ci_high",
+                        "normalized",
+                        "rank",
+                    ],
+                    rows,
+                ),
+            ));
+            let rows = self
+                .mean_ranks
+                .iter()
+                .map(|(p, r)| vec![p.clone(), f(*r)])
+                .collect();
+            out.push(("mean_ranks.csv", table(&["policy", "mean_rank"], rows)));
+        }
+        if !self.sim_to_sim.is_empty() {
+            let rows = self
+                .sim_to_sim
+                .iter()
+                .flat_map(|(p, per)| {
+                    per.iter().map(move |(m, c)| {
+                        vec![
+                            p.clone(),
+                            m.clone(),
+                            f(c.median),
+                            f(c.ci[0]),
+                            f(c.ci[1]),
+                            c.p_holm.map(f).unwrap_or_default(),
+                        ]
+                    })
+                })
+                .collect();
+            out.push((
+                "sim_to_sim.csv",
+                table(
+                    &[
+                        "policy",
+                        "rollout_model",
+                        "median_w",
+                        "ci_low",
+                        "ci_high",
+                        "p_holm",
+                    ],
+                    rows,
+                ),
+            ));
+            let rows = self
+                .kruskal
+                .iter()
+                .map(|(p, k)| vec![p.clone(), f(k.h), f(k.p)])
+                .collect();
+            out.push(("kruskal.csv", table(&["policy", "h", "p"], rows)));
+        }
+        if !self.temporal.is_empty() {
+            let rows = self
+                .temporal
+                .iter()
+                .flat_map(|(arm, per)| {
+                    per.iter().map(move |(p, t)| {
+                        vec![
+                            arm.clone(),
+                            p.clone(),
+                            f(t.rate_ratio),
+                            f(t.ci[0]),
+                            f(t.ci[1]),
+                            f(t.p),
+                            f(t.alpha),
+                        ]
+                    })
+                })
+                .collect();
+            out.push((
+                "temporal.csv",
+                table(
+                    &[
+                        "arm",
+                        "policy",
+                        "rate_ratio",
+                        "ci_low",
+                        "ci_high",
+                        "p",
+                        "alpha",
+                    ],
+                    rows,
+                ),
+            ));
+        }
+        if !self.time_to_goal.is_empty() {
+            let cell = |m: &Option<MeanSd>| {
+                m.as_ref()
+                    .map_or([String::new(), String::new(), "0".into()], |m| {
+                        [f(m.mean), f(m.sd), m.n.to_string()]
+                    })
+            };
+            let rows = self
+                .time_to_goal
+                .iter()
+                .map(|(p, t)| {
+                    let mut r = vec![p.clone()];
+                    r.extend(cell(&t.sim));
+                    r.extend(cell(&t.real));
+                    r
+                })
+                .collect();
+            out.push((
+                "time_to_goal.csv",
+                table(
+                    &[
+                        "policy",
+                        "sim_mean_s",
+                        "sim_sd_s",
+                        "sim_n",
+                        "real_mean_s",
+                        "real_sd_s",
+                        "real_n",
+                    ],
+                    rows,
+                ),
+            ));
+        }
+        if !self.approach.is_empty() {
+            let rows = self
+                .approach
+                .iter()
+                .map(|(p, a)| {
+                    vec![
+                        p.clone(),
+                        f(a.min_iid),
+                        f(a.mean_iid),
+                        f(a.frac_closer_to_fish),
+                        a.episodes.to_string(),
+                    ]
+                })
+                .collect();
+            out.push((
+                "approach.csv",
+                table(
+                    &[
+                        "policy",
+                        "min_iid_cm",
+                        "mean_iid_cm",
+                        "frac_closer_to_fish",
+                        "episodes",
+                    ],
+                    rows,
+                ),
+            ));
+        }
+        if let Some(s) = &self.stability {
+            out.push((
+                "stability.csv",
+                table(
+                    &["r", "ci_low", "ci_high", "p"],
+                    vec![vec![f(s.r), f(s.ci[0]), f(s.ci[1]), f(s.p)]],
+                ),
+            ));
+        }
+        out
+    }
+
+    /// A short Markdown summary for terminals and lab notebooks.
+    pub fn summary_markdown(&self) -> String {
+        let mut s = String::from("# fishprobe analysis\n\n");
+        match self.reality.as_deref() {
+            Some("VirtualLab") => {
+                s += "**Reality arm: VIRTUAL LAB.** These are not live-fish results.\n\n"
+            }
+            Some(r) => s += &format!("Reality arm: {r}.\n\n"),
+            None => s += "No reality arm (no `<P>__Real` or `<P>__VirtualLab` trials).\n\n",
+        }
+        if !self.sim_to_real.is_empty() {
+            s += "## Sim-to-real gap, goals reached\n\n| policy | sim mean | real mean | W | 95 % CI | p | Cliff's δ |\n|---|---|---|---|---|---|---|\n";
+            for (p, g) in &self.sim_to_real {
+                let mean = |v: &[u32]| {
+                    v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len().max(1) as f64
+                };
+                let pair = &self.goals[p];
+                s += &format!(
+                    "| {p} | {:.1} | {:.1} | {:.2} | [{:.2}, {:.2}] | {:.4} | {:.2} ({}) |\n",
+                    mean(&pair.sim),
+                    mean(&pair.real),
+                    g.w,
+                    g.ci[0],
+                    g.ci[1],
+                    g.p,
+                    g.cliffs_delta,
+                    g.magnitude
+                );
+            }
+            s.push('\n');
+        }
+        if !self.mean_ranks.is_empty() {
+            s += "## Per-metric gaps: mean rank over the nine metrics (1 = closest to reality)\n\n| policy | mean rank |\n|---|---|\n";
+            for (p, r) in &self.mean_ranks {
+                s += &format!("| {p} | {r:.2} |\n");
+            }
+            s.push('\n');
+        }
+        if !self.kruskal.is_empty() {
+            s += "## Sim-to-sim: Kruskal-Wallis across rollout models\n\n| policy | H | p |\n|---|---|---|\n";
+            for (p, k) in &self.kruskal {
+                s += &format!("| {p} | {:.2} | {:.2e} |\n", k.h, k.p);
+            }
+            s.push('\n');
+        }
+        if let Some(st) = &self.stability {
+            s += &format!(
+                "## Retraining stability\n\nR = {:.2} [{:.2}, {:.2}], p = {:.4}\n\n",
+                st.r, st.ci[0], st.ci[1], st.p
+            );
+        }
+        if !self.skipped.is_empty() {
+            s += &format!("## Skipped ({})\n\n", self.skipped.len());
+            for k in &self.skipped {
+                s += &format!("- {}: {}\n", k.what, k.reason);
+            }
+        }
+        s
+    }
+}

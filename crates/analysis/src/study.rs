@@ -1,0 +1,134 @@
+//! The study directory, laid out like the paper's public archive:
+//!
+//! ```text
+//! STUDY/rollouts/<Policy>__<RolloutModel>/*.hdf5   e.g. Zone__Zone, Zone__Force, Zone__Real
+//! STUDY/approach_test/<Policy>/*.hdf5             (or files naming their policy)
+//! STUDY/stability/<Model>/<seed>/*.hdf5
+//! ```
+//!
+//! `Real` marks live trials; `VirtualLab` marks virtual-lab trials, used as the reality arm
+//! when a policy has no `Real` trials. A bare rollouts directory (holding the condition
+//! directories itself) is accepted too.
+
+use crate::error::AnalysisError;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The rollout model names that mean "not a simulation".
+pub const REALITY_ARMS: [&str; 2] = ["Real", "VirtualLab"];
+
+/// The files of a study, by condition.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Study {
+    /// (policy, rollout model) → trial files, sorted by name.
+    pub rollouts: BTreeMap<(String, String), Vec<PathBuf>>,
+    /// Approach-assay files: policy (from the directory; empty when it must come from the
+    /// file) → files.
+    pub approach: BTreeMap<String, Vec<PathBuf>>,
+    /// Retraining stability: model → seed → files.
+    pub stability: BTreeMap<String, BTreeMap<String, Vec<PathBuf>>>,
+}
+
+fn trial_files(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
+        .collect();
+    v.sort();
+    v
+}
+
+fn subdirs(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    v.sort();
+    v
+}
+
+fn name_of(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+impl Study {
+    /// Discovers the layout under `root`.
+    pub fn discover(root: &Path) -> Result<Self, AnalysisError> {
+        if !root.is_dir() {
+            return Err(AnalysisError::Layout {
+                path: root.to_path_buf(),
+                what: "is not a directory".into(),
+            });
+        }
+        let rollouts_dir = if root.join("rollouts").is_dir() {
+            root.join("rollouts")
+        } else {
+            root.to_path_buf()
+        };
+        let mut s = Study::default();
+        for d in subdirs(&rollouts_dir) {
+            let name = name_of(&d);
+            if let Some((policy, model)) = name.split_once("__") {
+                if !policy.is_empty() && !model.is_empty() {
+                    s.rollouts
+                        .insert((policy.to_string(), model.to_string()), trial_files(&d));
+                }
+            }
+        }
+        let approach = root.join("approach_test");
+        if approach.is_dir() {
+            let loose = trial_files(&approach);
+            if !loose.is_empty() {
+                s.approach.insert(String::new(), loose);
+            }
+            for d in subdirs(&approach) {
+                s.approach.insert(name_of(&d), trial_files(&d));
+            }
+        }
+        let stability = root.join("stability");
+        if stability.is_dir() {
+            for m in subdirs(&stability) {
+                let seeds: BTreeMap<String, Vec<PathBuf>> = subdirs(&m)
+                    .into_iter()
+                    .map(|d| (name_of(&d), trial_files(&d)))
+                    .collect();
+                s.stability.insert(name_of(&m), seeds);
+            }
+        }
+        if s.rollouts.is_empty() && s.approach.is_empty() && s.stability.is_empty() {
+            return Err(AnalysisError::Layout {
+                path: root.to_path_buf(),
+                what: "no rollouts/<Policy>__<Model>/ directories (nor approach_test/ or stability/) found".into(),
+            });
+        }
+        Ok(s)
+    }
+
+    /// Policies with a sim condition on their own model, sorted.
+    pub fn policies(&self) -> Vec<String> {
+        let mut v: Vec<String> = self
+            .rollouts
+            .keys()
+            .filter(|(p, m)| p == m)
+            .map(|(p, _)| p.clone())
+            .collect();
+        v.dedup();
+        v
+    }
+
+    /// The reality arm of the study: "Real" if any policy has real trials, else "VirtualLab"
+    /// if any has virtual-lab trials.
+    pub fn reality(&self) -> Option<&'static str> {
+        REALITY_ARMS.into_iter().find(|arm| {
+            self.rollouts
+                .iter()
+                .any(|((_, m), files)| m == arm && !files.is_empty())
+        })
+    }
+}

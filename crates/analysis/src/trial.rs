@@ -1,0 +1,228 @@
+//! One trial's numbers: goal events, time to goal, goals per minute, and the nine per-frame
+//! metrics of SPEC §8 over the control phase.
+//!
+//! Goal events come from the file's `/fishprobe` group when present; otherwise they are
+//! recomputed from the fish track and the evaluation task (first goal active at the start of
+//! control, a goal reached when the fish is inside its radius, the next one active from that
+//! frame). Files at other frame rates (the 20 Hz robot-fish recordings) are analysed at their
+//! own rate: differences are multiplied by the file's rate, so speeds and turn rates keep
+//! their units, and goals per minute are binned in seconds.
+
+use crate::config::AnalysisConfig;
+use fishprobe_io::{read_trial, Entity, TrialFile, TrialKind};
+use fishprobe_sim::wrap_angle;
+use std::path::{Path, PathBuf};
+
+/// The nine per-frame metrics, in the order of [`TrialData::metrics`].
+pub const METRICS: [&str; 9] = [
+    "iid",
+    "iid_change",
+    "alignment",
+    "fish_speed",
+    "fish_turn",
+    "fish_goal_distance",
+    "fish_faces_robot",
+    "wall_distance",
+    "wall_alignment",
+];
+
+/// What the analysis needs of one trial.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialData {
+    /// The file.
+    pub path: PathBuf,
+    /// Kind recorded in the file, if any.
+    pub kind: Option<TrialKind>,
+    /// Policy recorded in the file, if any.
+    pub policy: Option<String>,
+    /// Goals reached during control.
+    pub goals_reached: u32,
+    /// Mean time from a goal becoming active to reaching it (s); `None` without goals.
+    pub time_to_goal_s: Option<f64>,
+    /// Goals per minute of control: one bin per complete minute of control the trial has, at
+    /// most `AnalysisConfig::minutes` (a shorter trial is not padded with empty minutes).
+    pub goals_per_minute: Vec<u32>,
+    /// The nine metrics' per-frame values (finite, sorted ascending), when requested.
+    pub metrics: Option<Vec<Vec<f64>>>,
+}
+
+/// Robot and one fish of a trial, checked.
+fn agents(t: &TrialFile) -> Result<(&Entity, &Entity), String> {
+    let robot = t.robot().ok_or("trial without a robot entity")?;
+    let mut fish = t.fish();
+    let f = fish.next().ok_or("trial without a fish entity")?;
+    if fish.next().is_some() {
+        return Err("trial with more than one fish (the task metrics assume one)".into());
+    }
+    if f.positions
+        .iter()
+        .all(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        return Err(format!("fish track `{}` is all NaN", f.name));
+    }
+    if robot
+        .positions
+        .iter()
+        .all(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        return Err(format!("robot track `{}` is all NaN", robot.name));
+    }
+    Ok((robot, f))
+}
+
+/// The goal active during each frame and the frames at which goals were reached (both from
+/// `control_start` on).
+fn goal_timeline(
+    t: &TrialFile,
+    fish: &Entity,
+    control_start: usize,
+    frames: usize,
+    cfg: &AnalysisConfig,
+) -> (Vec<[f32; 2]>, Vec<usize>) {
+    if let Some(task) = &t.task {
+        if !task.goals.is_empty() && task.active_goal.len() >= frames.min(1) {
+            let goal_at = |i: usize| -> [f32; 2] {
+                let idx = task.active_goal.get(i).copied().unwrap_or(-1);
+                usize::try_from(idx)
+                    .ok()
+                    .and_then(|k| task.goals.get(k).copied())
+                    .unwrap_or(task.goals[0])
+            };
+            // active_goal[t] is the goal at the end of frame t; during frame t it is t - 1's.
+            let active = (0..frames).map(|i| goal_at(i.saturating_sub(1))).collect();
+            let events = task
+                .goal_frames
+                .iter()
+                .filter_map(|&f| usize::try_from(f).ok())
+                .filter(|&f| f >= control_start && f < frames)
+                .collect();
+            return (active, events);
+        }
+    }
+    let radius = t
+        .task
+        .as_ref()
+        .map_or(cfg.goal_radius_cm, |k| k.goal_radius_cm);
+    let r2 = radius * radius;
+    let mut k = 0usize;
+    let mut active = vec![cfg.goals[0]; frames];
+    let mut events = Vec::new();
+    for (i, slot) in active.iter_mut().enumerate().skip(control_start) {
+        let g = cfg.goals[k % cfg.goals.len()];
+        *slot = g;
+        let p = fish.positions[i];
+        if (p[0] - g[0]).powi(2) + (p[1] - g[1]).powi(2) < r2 {
+            events.push(i);
+            k += 1;
+        }
+    }
+    (active, events)
+}
+
+/// Loads a trial and computes its numbers (`with_metrics`: also the per-frame metrics).
+pub fn load_trial(
+    path: &Path,
+    cfg: &AnalysisConfig,
+    with_metrics: bool,
+) -> Result<TrialData, String> {
+    let t = read_trial(path).map_err(|e| e.to_string())?;
+    let (robot, fish) = agents(&t)?;
+    let frames = robot.frames().min(fish.frames());
+    let rate = f64::from(t.frame_rate_hz);
+    let control_start = t
+        .task
+        .as_ref()
+        .map_or(0, |k| k.control_start_frame as usize)
+        .min(frames);
+    let (active, events) = goal_timeline(&t, fish, control_start, frames, cfg);
+
+    let control_minutes = ((frames - control_start) as f64 / rate / 60.0 + 1e-9).floor() as usize;
+    let mut goals_per_minute = vec![0u32; cfg.minutes.min(control_minutes)];
+    let mut waits = Vec::with_capacity(events.len());
+    let mut activated = control_start;
+    for &e in &events {
+        let minute = ((e - control_start) as f64 / rate / 60.0) as usize;
+        if let Some(b) = goals_per_minute.get_mut(minute) {
+            *b += 1;
+        }
+        waits.push((e - activated) as f64 / rate);
+        activated = e;
+    }
+    let metrics =
+        with_metrics.then(|| per_frame_metrics(&t, robot, fish, &active, control_start, frames));
+    Ok(TrialData {
+        path: path.to_path_buf(),
+        kind: t.task.as_ref().map(|k| k.kind),
+        policy: t.task.as_ref().map(|k| k.policy.clone()),
+        goals_reached: events.len() as u32,
+        time_to_goal_s: (!waits.is_empty()).then(|| waits.iter().sum::<f64>() / waits.len() as f64),
+        goals_per_minute,
+        metrics,
+    })
+}
+
+/// Recorded headings, falling back to heading from motion for an entity whose orientations
+/// are all missing.
+fn headings(e: &Entity) -> Vec<f32> {
+    let h = e.headings();
+    if h.iter().all(|v| v.is_nan()) {
+        e.headings_from_motion(0.1)
+    } else {
+        h
+    }
+}
+
+fn per_frame_metrics(
+    t: &TrialFile,
+    robot: &Entity,
+    fish: &Entity,
+    active: &[[f32; 2]],
+    start: usize,
+    frames: usize,
+) -> Vec<Vec<f64>> {
+    let rate = f64::from(t.frame_rate_hz);
+    let (hx, hy) = (
+        f64::from(t.world_size_cm[0]) / 2.0,
+        f64::from(t.world_size_cm[1]) / 2.0,
+    );
+    let hr = headings(robot);
+    let hf = headings(fish);
+    let p = |e: &Entity, i: usize| [f64::from(e.positions[i][0]), f64::from(e.positions[i][1])];
+    let iid_at = |i: usize| {
+        let (a, b) = (p(robot, i), p(fish, i));
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+    };
+    let n = frames.saturating_sub(start);
+    let mut m: Vec<Vec<f64>> = (0..9).map(|_| Vec::with_capacity(n)).collect();
+    for i in start..frames {
+        let (r, f) = (p(robot, i), p(fish, i));
+        let (th_r, th_f) = (f64::from(hr[i]), f64::from(hf[i]));
+        let iid = iid_at(i);
+        m[0].push(iid);
+        if i + 1 < frames {
+            m[1].push((iid_at(i + 1) - iid) * rate);
+            let f2 = p(fish, i + 1);
+            m[3].push(((f2[0] - f[0]).powi(2) + (f2[1] - f[1]).powi(2)).sqrt() * rate);
+            m[4].push(f64::from(wrap_angle(hf[i + 1] - hf[i])) * rate);
+        }
+        m[2].push((th_r - th_f).cos());
+        let g = active[i];
+        m[5].push(((f[0] - f64::from(g[0])).powi(2) + (f[1] - f64::from(g[1])).powi(2)).sqrt());
+        if iid > 1e-9 {
+            m[6].push((th_f.cos() * (r[0] - f[0]) + th_f.sin() * (r[1] - f[1])) / iid);
+        }
+        let (dx, dy) = (hx - f[0].abs(), hy - f[1].abs());
+        m[7].push(dx.min(dy));
+        // |ê_f · t|: along a left/right wall t = (0, 1), along a top/bottom wall t = (1, 0).
+        m[8].push(if dx <= dy {
+            th_f.sin().abs()
+        } else {
+            th_f.cos().abs()
+        });
+    }
+    for v in &mut m {
+        v.retain(|x| x.is_finite());
+        v.sort_unstable_by(f64::total_cmp);
+    }
+    m
+}

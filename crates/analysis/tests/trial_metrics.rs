@@ -1,0 +1,94 @@
+//! Hand-computed goal events, times and per-frame metrics on tiny constructed trials.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+use fishprobe_analysis::{load_trial, AnalysisConfig, METRICS};
+use fishprobe_io::{write_trial, Category, Entity, TrialFile};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+fn entity(name: &str, label: &str, poses: &[[f32; 3]]) -> Entity {
+    Entity {
+        name: name.into(),
+        category: Category::from_label(label),
+        category_label: label.into(),
+        positions: poses.iter().map(|p| [p[0], p[1]]).collect(),
+        orientations: poses.iter().map(|p| [p[2].cos(), p[2].sin()]).collect(),
+        attributes: BTreeMap::new(),
+    }
+}
+
+fn write(name: &str, robot: &[[f32; 3]], fish: &[[f32; 3]], rate: f32) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fishprobe-analysis-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    let t = TrialFile {
+        world_size_cm: [100.0, 100.0],
+        frame_rate_hz: rate,
+        entities: vec![
+            entity("robot", "robot", robot),
+            entity("fish_1", "fish", fish),
+        ],
+        attributes: BTreeMap::new(),
+        task: None,
+    };
+    write_trial(&p, &t).unwrap();
+    p
+}
+
+#[test]
+fn per_frame_metrics_by_hand() {
+    // Robot still at the centre facing +x; fish from (10, 0) swimming +x at 1 cm per frame.
+    let robot = vec![[0.0, 0.0, 0.0]; 5];
+    let fish: Vec<[f32; 3]> = (0..5).map(|k| [10.0 + k as f32, 0.0, 0.0]).collect();
+    let p = write("line.hdf5", &robot, &fish, 25.0);
+    let t = load_trial(&p, &AnalysisConfig::default(), true).unwrap();
+    let m = t.metrics.unwrap();
+    let get = |name: &str| &m[METRICS.iter().position(|x| *x == name).unwrap()];
+    assert_eq!(get("iid"), &vec![10.0, 11.0, 12.0, 13.0, 14.0]);
+    // Forward differences: T - 1 values, times the rate.
+    assert_eq!(get("iid_change"), &vec![25.0; 4]);
+    assert_eq!(get("fish_speed"), &vec![25.0; 4]);
+    assert_eq!(get("fish_turn"), &vec![0.0; 4]);
+    assert_eq!(get("alignment"), &vec![1.0; 5]);
+    // The fish faces away from the robot.
+    assert_eq!(get("fish_faces_robot"), &vec![-1.0; 5]);
+    // Nearest wall is the right one, 50 - x; swimming along x is perpendicular to it.
+    assert_eq!(get("wall_distance"), &vec![36.0, 37.0, 38.0, 39.0, 40.0]);
+    assert!(get("wall_alignment").iter().all(|v| v.abs() < 1e-6));
+    // Distance to the first goal (-20, -20) from (10, 0): sqrt(900 + 400).
+    assert!((get("fish_goal_distance")[0] - 1300f64.sqrt()).abs() < 1e-4);
+}
+
+#[test]
+fn goal_events_are_recomputed_without_a_task() {
+    // At 25 Hz: the fish waits 1 s, is at the first goal at frame 25, then at the second at
+    // frame 100. Times to goal: 1 s and 3 s; both in minute 0.
+    let mut fish = vec![[0.0f32, 0.0, 0.0]; 125];
+    for f in fish.iter_mut().take(100).skip(25) {
+        *f = [-19.0, -21.0, 0.0];
+    }
+    for f in fish.iter_mut().skip(100) {
+        *f = [22.0, 19.0, 0.0];
+    }
+    let robot = vec![[0.0, 10.0, 0.0]; 125];
+    let p = write("goals.hdf5", &robot, &fish, 25.0);
+    let t = load_trial(&p, &AnalysisConfig::default(), false).unwrap();
+    assert_eq!(t.goals_reached, 2);
+    assert!((t.time_to_goal_s.unwrap() - 2.0).abs() < 1e-9);
+    assert_eq!(t.goals_per_minute[0], 2);
+    assert!(t.metrics.is_none());
+    // At 20 Hz the same frames are later in seconds: 1.25 s and 3.75 s.
+    let p20 = write("goals20.hdf5", &robot, &fish, 20.0);
+    let t20 = load_trial(&p20, &AnalysisConfig::default(), false).unwrap();
+    assert!((t20.time_to_goal_s.unwrap() - 2.5).abs() < 1e-9);
+}
+
+#[test]
+fn unusable_trials_say_why() {
+    let robot = vec![[0.0, 0.0, 0.0]; 5];
+    let nan = vec![[f32::NAN, f32::NAN, 0.0]; 5];
+    let p = write("nan.hdf5", &robot, &nan, 25.0);
+    let e = load_trial(&p, &AnalysisConfig::default(), true).unwrap_err();
+    assert!(e.contains("all NaN"), "{e}");
+}

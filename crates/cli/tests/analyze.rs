@@ -1,0 +1,208 @@
+//! End-to-end tests of `fishprobe analyze` on small synthetic studies.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+use fishprobe_io::{read_trial, write_trial};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn fishprobe(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fishprobe-analyze-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A small synthetic study (2 policies, 2-minute trials).
+fn small_study(tag: &str) -> PathBuf {
+    let d = dir(tag);
+    let o = fishprobe(&[
+        "bench",
+        "stats",
+        "--size",
+        "small",
+        "--dir",
+        d.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    d
+}
+
+fn analyze(study: &Path, out: &Path, jobs: &str) -> serde_json::Value {
+    let o = fishprobe(&[
+        "analyze",
+        study.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quick",
+        "--jobs",
+        jobs,
+        "--sim-trials",
+        "6",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn every_section_is_computed_and_threads_do_not_matter() {
+    let s = small_study("full");
+    let r1 = analyze(&s, &s.join("a1"), "1");
+    analyze(&s, &s.join("a2"), "2");
+    let bytes = |p: &str| std::fs::read(s.join(p).join("results.json")).unwrap();
+    assert_eq!(
+        bytes("a1"),
+        bytes("a2"),
+        "results depend on the number of threads"
+    );
+    assert_eq!(r1["reality"], "Real");
+    for p in ["Follow", "Zone"] {
+        assert_eq!(r1["goals"][p]["sim"].as_array().unwrap().len(), 6);
+        assert_eq!(r1["goals"][p]["real"].as_array().unwrap().len(), 6);
+        let g = &r1["sim_to_real"][p];
+        for k in ["w", "p", "cliffs_delta"] {
+            assert!(g[k].is_number(), "{p} {k}: {g}");
+        }
+        assert!(g["ci"][0].as_f64().unwrap() <= g["ci"][1].as_f64().unwrap());
+        assert!(r1["sim_to_sim"][p][p]["p_holm"].is_null());
+        assert!(r1["kruskal"][p]["h"].is_number());
+        assert!(r1["approach"][p]["min_iid"].is_number());
+        assert!(r1["time_to_goal"][p]["sim"].is_object() || r1["time_to_goal"][p]["sim"].is_null());
+    }
+    assert_eq!(r1["metric_gaps"].as_object().unwrap().len(), 9);
+    assert!(r1["temporal"]["sim"]["total"]["rate_ratio"].is_number());
+    assert!(r1["stability"]["r"].is_number());
+    // Only what is undefined is skipped: in 2-minute trials the scripted robot leads no Zone
+    // fish to a goal, and a trend of all-zero counts does not exist.
+    for s in r1["skipped"].as_array().unwrap() {
+        assert!(
+            s["reason"]
+                .as_str()
+                .unwrap()
+                .contains("all counts are zero"),
+            "{s}"
+        );
+    }
+    for f in [
+        "goals.csv",
+        "sim_to_real.csv",
+        "metric_gaps.csv",
+        "mean_ranks.csv",
+        "sim_to_sim.csv",
+        "kruskal.csv",
+        "temporal.csv",
+        "time_to_goal.csv",
+        "approach.csv",
+        "stability.csv",
+        "summary.md",
+    ] {
+        assert!(s.join("a1").join(f).is_file(), "{f} missing");
+    }
+}
+
+#[test]
+fn bad_input_is_skipped_with_reasons_and_the_rest_analysed() {
+    let s = small_study("bad");
+    let roll = s.join("rollouts");
+    // A trial without a fish: the robot only.
+    let good = roll.join("Follow__Follow/Follow__Follow_000.hdf5");
+    let mut t = read_trial(&good).unwrap();
+    t.entities.retain(|e| e.name == "robot");
+    write_trial(&roll.join("Follow__Follow/zz_nofish.hdf5"), &t).unwrap();
+    // A NaN-only fish in a real trial.
+    let mut t = read_trial(&roll.join("Zone__Real/Zone__Real_000.hdf5")).unwrap();
+    for e in &mut t.entities {
+        if e.name == "fish_1" {
+            e.positions.iter_mut().for_each(|p| *p = [f32::NAN; 2]);
+        }
+    }
+    write_trial(&roll.join("Zone__Real/zz_nan.hdf5"), &t).unwrap();
+    // An empty condition, and a policy with sim trials but no real ones.
+    std::fs::create_dir_all(roll.join("Zone__Empty")).unwrap();
+    std::fs::create_dir_all(roll.join("Extra__Extra")).unwrap();
+    std::fs::copy(&good, roll.join("Extra__Extra/e.hdf5")).unwrap();
+    // Not HDF5 at all.
+    std::fs::write(roll.join("Follow__Real/broken.hdf5"), "garbage").unwrap();
+    let r = analyze(&s, &s.join("out"), "2");
+    let skipped = r["skipped"].to_string();
+    for needle in [
+        "zz_nofish.hdf5",
+        "without a fish",
+        "zz_nan.hdf5",
+        "all NaN",
+        "Zone__Empty",
+        "Extra__Real",
+        "no Real trials",
+        "broken.hdf5",
+        "not an HDF5 file",
+    ] {
+        assert!(skipped.contains(needle), "{needle} not in {skipped}");
+    }
+    // The valid trials are still analysed: 6 real trials of Zone remain (zz_nan sorts last).
+    assert_eq!(r["goals"]["Zone"]["real"].as_array().unwrap().len(), 6);
+    assert!(r["sim_to_real"]["Follow"]["w"].is_number());
+}
+
+#[test]
+fn a_virtual_lab_arm_is_labelled_virtual() {
+    let s = small_study("virtual");
+    for p in ["Follow", "Zone"] {
+        std::fs::rename(
+            s.join(format!("rollouts/{p}__Real")),
+            s.join(format!("rollouts/{p}__VirtualLab")),
+        )
+        .unwrap();
+    }
+    let r = analyze(&s, &s.join("out"), "2");
+    assert_eq!(r["reality"], "VirtualLab");
+    let summary = std::fs::read_to_string(s.join("out/summary.md")).unwrap();
+    assert!(
+        summary.contains("VIRTUAL LAB") && summary.contains("not live-fish results"),
+        "{summary}"
+    );
+}
+
+#[test]
+fn real_robot_fish_recordings_serve_as_the_reality_arm() {
+    let Some(data) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return;
+    };
+    let s = small_study("real");
+    let real = s.join("rollouts/Follow__Real");
+    std::fs::remove_dir_all(&real).unwrap();
+    std::fs::create_dir_all(&real).unwrap();
+    for f in std::fs::read_dir(data.join("robot-fish")).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, real.join(f.file_name().unwrap())).unwrap();
+    }
+    let r = analyze(&s, &s.join("out"), "2");
+    // 20 Hz, no /fishprobe group: goals recomputed from the fish track, metrics at 20 Hz.
+    assert_eq!(r["goals"]["Follow"]["real"].as_array().unwrap().len(), 2);
+    assert!(r["metric_gaps"]["fish_speed"]["Follow"]["median"].is_number());
+    assert!(
+        !r["skipped"].to_string().contains("Robotracker"),
+        "{}",
+        r["skipped"]
+    );
+}
+
+#[test]
+fn a_directory_without_a_study_is_an_error() {
+    let d = dir("nostudy");
+    let o = fishprobe(&["analyze", d.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("no rollouts/<Policy>__<Model>/"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
