@@ -136,10 +136,11 @@ pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
     let all = models();
     let used = &all[..size.policies.clamp(1, all.len())];
     let mut jobs = Vec::new();
-    let mut add = |path: PathBuf, policy: &str, model: ModelSpec, kind, minutes, approach| {
-        let s = derive_seed(seed, &path.to_string_lossy(), 0);
+    // Seeds come from the path inside the study, so a study is the same wherever it is made.
+    let mut add = |rel: String, policy: &str, model: ModelSpec, kind, minutes, approach| {
+        let s = derive_seed(seed, &rel, 0);
         jobs.push(Job {
-            path,
+            path: dir.join(rel),
             policy: policy.into(),
             model,
             kind,
@@ -153,7 +154,7 @@ pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
             let n = if p == m { size.own } else { size.cross };
             for e in 0..n {
                 add(
-                    dir.join(format!("rollouts/{p}__{m}/{p}__{m}_{e:03}.hdf5")),
+                    format!("rollouts/{p}__{m}/{p}__{m}_{e:03}.hdf5"),
                     p,
                     spec.clone(),
                     TrialKind::Sim,
@@ -164,7 +165,7 @@ pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
         }
         for e in 0..size.real {
             add(
-                dir.join(format!("rollouts/{p}__Real/{p}__Real_{e:03}.hdf5")),
+                format!("rollouts/{p}__Real/{p}__Real_{e:03}.hdf5"),
                 p,
                 reality_model(),
                 TrialKind::Sim,
@@ -174,7 +175,7 @@ pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
         }
         for e in 0..size.approach {
             add(
-                dir.join(format!("approach_test/{p}/{p}_{e:03}.hdf5")),
+                format!("approach_test/{p}/{p}_{e:03}.hdf5"),
                 p,
                 ModelSpec::by_name("Stationary")?,
                 TrialKind::Sim,
@@ -187,7 +188,7 @@ pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
         for s in 0..size.stability.0 {
             for e in 0..size.stability.1 {
                 add(
-                    dir.join(format!("stability/{m}/{s}/{m}_{s}_{e:03}.hdf5")),
+                    format!("stability/{m}/{s}/{m}_{s}_{e:03}.hdf5"),
                     m,
                     spec.clone(),
                     TrialKind::Sim,
