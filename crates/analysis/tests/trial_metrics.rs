@@ -63,25 +63,33 @@ fn per_frame_metrics_by_hand() {
 #[test]
 fn goal_events_are_recomputed_without_a_task() {
     // At 25 Hz: the fish waits 1 s, is at the first goal at frame 25, then at the second at
-    // frame 100. Times to goal: 1 s and 3 s; both in minute 0.
-    let mut fish = vec![[0.0f32, 0.0, 0.0]; 125];
+    // frame 100, and stays there. Times to goal: 1 s and 3 s; both in minute 0, the trial's one
+    // complete minute (61 s).
+    let mut fish = vec![[0.0f32, 0.0, 0.0]; 1525];
     for f in fish.iter_mut().take(100).skip(25) {
         *f = [-19.0, -21.0, 0.0];
     }
     for f in fish.iter_mut().skip(100) {
         *f = [22.0, 19.0, 0.0];
     }
-    let robot = vec![[0.0, 10.0, 0.0]; 125];
+    let robot = vec![[0.0, 10.0, 0.0]; 1525];
     let p = write("goals.hdf5", &robot, &fish, 25.0);
     let t = load_trial(&p, &AnalysisConfig::default(), false).unwrap();
     assert_eq!(t.goals_reached, 2);
     assert!((t.time_to_goal_s.unwrap() - 2.0).abs() < 1e-9);
-    assert_eq!(t.goals_per_minute[0], 2);
+    assert_eq!(t.goals_per_minute, vec![2]);
     assert!(t.metrics.is_none());
     // At 20 Hz the same frames are later in seconds: 1.25 s and 3.75 s.
     let p20 = write("goals20.hdf5", &robot, &fish, 20.0);
     let t20 = load_trial(&p20, &AnalysisConfig::default(), false).unwrap();
     assert!((t20.time_to_goal_s.unwrap() - 2.5).abs() < 1e-9);
+    // 1525 frames at 20 Hz are 76 s: still one complete minute. A 5-s trial has none.
+    assert_eq!(t20.goals_per_minute, vec![2]);
+    let short = write("short.hdf5", &robot[..125], &fish[..125], 25.0);
+    assert!(load_trial(&short, &AnalysisConfig::default(), false)
+        .unwrap()
+        .goals_per_minute
+        .is_empty());
 }
 
 #[test]
