@@ -2,23 +2,11 @@
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
+mod common;
+
+use common::{fishprobe, fresh_dir as dir};
 use fishprobe_io::{read_trial, write_trial};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn fishprobe(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fishprobe"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fishprobe-analyze-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// A small synthetic study (2 policies, 2-minute trials).
 fn small_study(tag: &str) -> PathBuf {

@@ -1,22 +1,9 @@
 //! End-to-end tests of the `fishprobe` binary with tiny budgets.
 
+mod common;
+
+use common::{fishprobe, fresh_dir, stderr, stdout};
 use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn fishprobe(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_fishprobe"))
-        .args(args)
-        .output()
-        .expect("the fishprobe binary runs")
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 fn temp_file(name: &str, text: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("fishprobe-cli-{}", std::process::id()));
@@ -168,15 +155,9 @@ fn bad_settings_name_the_field_and_value() {
     );
 }
 
-fn out_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fishprobe-cli-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).expect("the temp dir is writable");
-    d
-}
-
 #[test]
 fn simulate_writes_a_trial_that_inspect_reads() {
-    let d = out_dir("sim");
+    let d = fresh_dir("sim");
     let f = d.join("follow.hdf5");
     let o = fishprobe(&[
         "simulate",
@@ -209,7 +190,7 @@ fn simulate_writes_a_trial_that_inspect_reads() {
 
 #[test]
 fn simulate_is_deterministic_per_seed() {
-    let d = out_dir("det");
+    let d = fresh_dir("det");
     let run = |name: &str, seed: &str| {
         let p = d.join(name);
         let o = fishprobe(&[
@@ -235,7 +216,7 @@ fn simulate_is_deterministic_per_seed() {
 
 #[test]
 fn simulate_rejects_bad_arguments_before_work() {
-    let d = out_dir("bad");
+    let d = fresh_dir("bad");
     let f = d.join("x.hdf5");
     let f = f.to_str().unwrap();
     for (args, needle) in [
@@ -257,7 +238,7 @@ fn simulate_rejects_bad_arguments_before_work() {
 
 #[test]
 fn inspect_reports_bad_files_and_continues() {
-    let d = out_dir("insp");
+    let d = fresh_dir("insp");
     let good = d.join("good.hdf5");
     assert!(fishprobe(&[
         "simulate",
@@ -292,7 +273,7 @@ fn import_legacy_converts_the_validation_split() {
         eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
         return;
     };
-    let d = out_dir("legacy");
+    let d = fresh_dir("legacy");
     let input = data.join("guppy-pairs/legacy/validation");
     let o = fishprobe(&[
         "import-legacy",

@@ -60,11 +60,6 @@ impl Nb2Fit {
     }
 }
 
-/// Per-observation log-likelihood, score (β.., α) and Hessian contributions.
-struct Obs {
-    ll: f64,
-}
-
 fn obs_terms(
     y: f64,
     xrow: &[f64],
@@ -73,7 +68,7 @@ fn obs_terms(
     grad: &mut [f64],
     hess: &mut [f64],
     want_hess: bool,
-) -> Obs {
+) -> f64 {
     let k = beta.len();
     let p = k + 1;
     let eta: f64 = xrow.iter().zip(beta).map(|(x, b)| x * b).sum();
@@ -111,11 +106,14 @@ fn obs_terms(
         }
         hess[k * p + k] = haa;
     }
-    Obs { ll }
+    ll
 }
 
-/// Total log-likelihood, gradient and Hessian at (β, α).
-fn totals(y: &[f64], x: &[f64], beta: &[f64], alpha: f64) -> (f64, Vec<f64>, Vec<f64>) {
+/// Log-likelihood, gradient and Hessian of a parameter vector.
+type Objective = (f64, Vec<f64>, Vec<f64>);
+
+/// Total log-likelihood, gradient and Hessian of NB2 at (β, α).
+fn nb2_totals(y: &[f64], x: &[f64], beta: &[f64], alpha: f64) -> Objective {
     let k = beta.len();
     let p = k + 1;
     let (mut ll, mut g, mut h) = (0.0, vec![0.0; p], vec![0.0; p * p]);
@@ -129,114 +127,173 @@ fn totals(y: &[f64], x: &[f64], beta: &[f64], alpha: f64) -> (f64, Vec<f64>, Vec
             &mut gi,
             &mut hi,
             true,
-        )
-        .ll;
+        );
         g.iter_mut().zip(&gi).for_each(|(a, b)| *a += b);
         h.iter_mut().zip(&hi).for_each(|(a, b)| *a += b);
     }
     (ll, g, h)
 }
 
+/// Poisson log-likelihood, gradient and Hessian at β (NB2 at α = 0).
+fn poisson_totals(y: &[f64], x: &[f64], beta: &[f64]) -> Objective {
+    let k = beta.len();
+    let (mut ll, mut g, mut h) = (0.0, vec![0.0; k], vec![0.0; k * k]);
+    for (i, &yi) in y.iter().enumerate() {
+        let row = &x[i * k..(i + 1) * k];
+        let mu = row.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>().exp();
+        ll += yi * mu.ln() - mu - ln_gamma(yi + 1.0);
+        for a in 0..k {
+            g[a] += (yi - mu) * row[a];
+            for b in 0..k {
+                h[a * k + b] -= mu * row[a] * row[b];
+            }
+        }
+    }
+    (ll, g, h)
+}
+
+/// Newton's method with step halving (the objective never decreases), from `theta` until the
+/// step is negligible, no step improves, or `stop` says so. Returns θ, the objective there and
+/// the iterations used.
+fn maximize(
+    mut theta: Vec<f64>,
+    eval: impl Fn(&[f64]) -> Objective,
+    stop: impl Fn(&[f64]) -> bool,
+) -> Result<(Vec<f64>, Objective, usize), StatsError> {
+    let p = theta.len();
+    let mut cur = eval(&theta);
+    let mut iterations = 0;
+    for it in 0..200 {
+        iterations = it + 1;
+        let Some(inv) = invert(&cur.2, p) else {
+            return Err(StatsError::NoConvergence(
+                "singular Hessian (collinear design?)".into(),
+            ));
+        };
+        let step: Vec<f64> = (0..p)
+            .map(|i| -(0..p).map(|j| inv[i * p + j] * cur.1[j]).sum::<f64>())
+            .collect();
+        let mut t = 1.0;
+        let mut accepted = false;
+        for _ in 0..40 {
+            let next: Vec<f64> = theta.iter().zip(&step).map(|(a, s)| a + t * s).collect();
+            let cand = eval(&next);
+            if cand.0.is_finite() && cand.0 >= cur.0 - 1e-12 * cur.0.abs() {
+                theta = next;
+                cur = cand;
+                accepted = true;
+                break;
+            }
+            t *= 0.5;
+        }
+        let max_step = step.iter().fold(0.0f64, |m, s| m.max((t * s).abs()));
+        if !accepted || max_step < 1e-10 || stop(&theta) {
+            break;
+        }
+    }
+    Ok((theta, cur, iterations))
+}
+
+/// The cluster-robust sandwich H⁻¹ (Σ_g s_g s_gᵀ) H⁻¹ · G/(G-1) · (N-1)/(N-K), with
+/// `score(i, out)` writing observation i's score (K values).
+fn clustered_cov(
+    h_inv: &[f64],
+    p: usize,
+    n: usize,
+    clusters: &[usize],
+    score: impl Fn(usize, &mut [f64]),
+) -> Result<Vec<f64>, StatsError> {
+    if clusters.len() != n {
+        return Err(StatsError::Undefined(format!(
+            "{} cluster ids for {n} observations",
+            clusters.len()
+        )));
+    }
+    let n_groups = clusters.iter().max().map_or(0, |m| m + 1);
+    let mut sums = vec![0.0; n_groups * p];
+    let mut si = vec![0.0; p];
+    for (i, &c) in clusters.iter().enumerate() {
+        score(i, &mut si);
+        sums[c * p..(c + 1) * p]
+            .iter_mut()
+            .zip(&si)
+            .for_each(|(a, b)| *a += b);
+    }
+    let used: Vec<usize> = (0..n_groups).filter(|c| clusters.contains(c)).collect();
+    let g = used.len() as f64;
+    if g < 2.0 {
+        return Err(StatsError::Undefined(
+            "clustered errors need at least two clusters".into(),
+        ));
+    }
+    let mut meat = vec![0.0; p * p];
+    for &c in &used {
+        let s = &sums[c * p..(c + 1) * p];
+        for i in 0..p {
+            for j in 0..p {
+                meat[i * p + j] += s[i] * s[j];
+            }
+        }
+    }
+    let factor = g / (g - 1.0) * ((n as f64 - 1.0) / (n as f64 - p as f64));
+    Ok(matmul(&matmul(h_inv, &meat, p), h_inv, p)
+        .into_iter()
+        .map(|v| v * factor)
+        .collect())
+}
+
+/// Covariance of an optimum: -H⁻¹, or the clustered sandwich.
+fn covariance(
+    h: &[f64],
+    p: usize,
+    n: usize,
+    clusters: Option<&[usize]>,
+    score: impl Fn(usize, &mut [f64]),
+) -> Result<Vec<f64>, StatsError> {
+    let h_inv = invert(h, p)
+        .ok_or_else(|| StatsError::NoConvergence("singular Hessian at the optimum".into()))?;
+    match clusters {
+        None => Ok(h_inv.iter().map(|v| -v).collect()),
+        Some(c) => clustered_cov(&h_inv, p, n, c, score),
+    }
+}
+
 /// Below this the dispersion is taken to be at its boundary, 0.
 const ALPHA_BOUNDARY: f64 = 1e-6;
 
-/// Poisson regression (NB2 at α = 0), same covariance conventions (K = number of β).
+/// Starting coefficients: the intercept at ln(mean y) when the first column is constant.
+fn start_beta(x: &[f64], k: usize, ybar: f64) -> Vec<f64> {
+    let mut beta = vec![0.0; k];
+    if x.chunks(k).all(|r| r[0] == x[0]) {
+        beta[0] = ybar.ln() / x[0];
+    }
+    beta
+}
+
+/// Poisson regression (NB2 at α = 0); α is reported as 0 with an undefined standard error.
 fn fit_poisson(
     y: &[f64],
     x: &[f64],
     k: usize,
     clusters: Option<&[usize]>,
 ) -> Result<Nb2Fit, StatsError> {
-    let n = y.len();
-    let ybar = y.iter().sum::<f64>() / n as f64;
-    let mut beta = vec![0.0; k];
-    if x.chunks(k).all(|r| r[0] == x[0]) {
-        beta[0] = ybar.ln() / x[0];
-    }
-    let eval = |beta: &[f64]| {
-        let (mut ll, mut g, mut h) = (0.0, vec![0.0; k], vec![0.0; k * k]);
-        for (i, &yi) in y.iter().enumerate() {
-            let row = &x[i * k..(i + 1) * k];
-            let mu = row.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>().exp();
-            ll += yi * mu.ln() - mu - ln_gamma(yi + 1.0);
-            for a in 0..k {
-                g[a] += (yi - mu) * row[a];
-                for b in 0..k {
-                    h[a * k + b] -= mu * row[a] * row[b];
-                }
-            }
-        }
-        (ll, g, h)
-    };
-    let (mut ll, mut g, mut h) = eval(&beta);
-    let mut iterations = 0;
-    for it in 0..100 {
-        iterations = it + 1;
-        let inv = invert(&h, k)
-            .ok_or_else(|| StatsError::NoConvergence("poisson: singular Hessian".into()))?;
-        let step: Vec<f64> = (0..k)
-            .map(|i| -(0..k).map(|j| inv[i * k + j] * g[j]).sum::<f64>())
-            .collect();
-        let mut t = 1.0;
-        let mut accepted = false;
-        for _ in 0..40 {
-            let nb: Vec<f64> = beta.iter().zip(&step).map(|(b, s)| b + t * s).collect();
-            let (nl, ng, nh) = eval(&nb);
-            if nl.is_finite() && nl >= ll - 1e-12 * ll.abs() {
-                (beta, ll, g, h) = (nb, nl, ng, nh);
-                accepted = true;
-                break;
-            }
-            t *= 0.5;
-        }
-        if !accepted || step.iter().all(|s| (t * s).abs() < 1e-12) {
-            break;
-        }
-    }
-    let h_inv = invert(&h, k).ok_or_else(|| {
-        StatsError::NoConvergence("poisson: singular Hessian at the optimum".into())
+    let ybar = y.iter().sum::<f64>() / y.len() as f64;
+    let (beta, (llf, _, h), iterations) = maximize(
+        start_beta(x, k, ybar),
+        |b| poisson_totals(y, x, b),
+        |_| false,
+    )?;
+    let cov_b = covariance(&h, k, y.len(), clusters, |i, out| {
+        let row = &x[i * k..(i + 1) * k];
+        let mu = row.iter().zip(&beta).map(|(a, b)| a * b).sum::<f64>().exp();
+        out.iter_mut()
+            .zip(row)
+            .for_each(|(o, r)| *o = (y[i] - mu) * r);
     })?;
-    let cov_b: Vec<f64> = match clusters {
-        None => h_inv.iter().map(|v| -v).collect(),
-        Some(c) => {
-            let n_groups = c.iter().max().map_or(0, |m| m + 1);
-            let mut sums = vec![0.0; n_groups * k];
-            for i in 0..n {
-                let row = &x[i * k..(i + 1) * k];
-                let mu = row.iter().zip(&beta).map(|(a, b)| a * b).sum::<f64>().exp();
-                for a in 0..k {
-                    sums[c[i] * k + a] += (y[i] - mu) * row[a];
-                }
-            }
-            let used: Vec<usize> = (0..n_groups).filter(|g| c.contains(g)).collect();
-            let gn = used.len() as f64;
-            if gn < 2.0 {
-                return Err(StatsError::Undefined(
-                    "clustered errors need at least two clusters".into(),
-                ));
-            }
-            let mut meat = vec![0.0; k * k];
-            for &gi in &used {
-                let sg = &sums[gi * k..(gi + 1) * k];
-                for a in 0..k {
-                    for b in 0..k {
-                        meat[a * k + b] += sg[a] * sg[b];
-                    }
-                }
-            }
-            let factor = gn / (gn - 1.0) * ((n as f64 - 1.0) / (n as f64 - k as f64));
-            matmul(&matmul(&h_inv, &meat, k), &h_inv, k)
-                .into_iter()
-                .map(|v| v * factor)
-                .collect()
-        }
-    };
     let p = k + 1;
     let mut cov = vec![f64::NAN; p * p];
     for a in 0..k {
-        for b in 0..k {
-            cov[a * p + b] = cov_b[a * k + b];
-        }
+        cov[a * p..a * p + k].copy_from_slice(&cov_b[a * k..(a + 1) * k]);
     }
     let mut params = beta;
     params.push(0.0);
@@ -245,7 +302,7 @@ fn fit_poisson(
         params,
         cov,
         se,
-        llf: ll,
+        llf,
         iterations,
     })
 }
@@ -279,137 +336,58 @@ pub fn fit_nb2(
         return Err(StatsError::Undefined("nb2: all counts are zero".into()));
     }
     let p = k + 1;
-    // Start: intercept at ln(mean y) if the first column is constant, else 0; α by moments.
-    let mut beta = vec![0.0; k];
-    if x.chunks(k).all(|r| r[0] == x[0]) {
-        beta[0] = ybar.ln() / x[0];
-    }
+    // Start: α by the method of moments; optimise θ = (β, ln α), which keeps α > 0.
     let var = y.iter().map(|v| (v - ybar).powi(2)).sum::<f64>() / (n as f64 - 1.0).max(1.0);
-    let mut alpha = ((var - ybar) / (ybar * ybar)).clamp(0.05, 10.0);
-    // Newton in θ = (β, ln α), which keeps α > 0; step halving keeps ℓ increasing.
-    let (mut ll, mut g, mut h) = totals(y, x, &beta, alpha);
-    let mut iterations = 0;
-    for it in 0..200 {
-        iterations = it + 1;
-        let mut gt = g.clone();
-        gt[k] *= alpha;
-        let mut ht = h.clone();
+    let alpha0 = ((var - ybar) / (ybar * ybar)).clamp(0.05, 10.0);
+    let mut theta0 = start_beta(x, k, ybar);
+    theta0.push(alpha0.ln());
+    let in_log_alpha = |theta: &[f64]| -> Objective {
+        let alpha = theta[k].exp();
+        let (ll, mut g, mut h) = nb2_totals(y, x, &theta[..k], alpha);
+        // Chain rule for ln α: g' = α g, H' = α² H + α g on the diagonal, α H off it.
+        let ga = g[k];
+        g[k] *= alpha;
         for i in 0..k {
-            ht[i * p + k] *= alpha;
-            ht[k * p + i] *= alpha;
+            h[i * p + k] *= alpha;
+            h[k * p + i] *= alpha;
         }
-        ht[k * p + k] = alpha * alpha * h[k * p + k] + alpha * g[k];
-        let Some(inv) = invert(&ht, p) else {
-            return Err(StatsError::NoConvergence(
-                "nb2: singular Hessian (collinear design?)".into(),
-            ));
-        };
-        let step: Vec<f64> = (0..p)
-            .map(|i| -(0..p).map(|j| inv[i * p + j] * gt[j]).sum::<f64>())
-            .collect();
-        let mut t = 1.0;
-        let mut accepted = false;
-        for _ in 0..40 {
-            let nb: Vec<f64> = (0..k).map(|j| beta[j] + t * step[j]).collect();
-            let na = (alpha.ln() + t * step[k]).exp();
-            let (nl, ng, nh) = totals(y, x, &nb, na);
-            if nl.is_finite() && nl >= ll - 1e-12 * ll.abs() {
-                beta = nb;
-                alpha = na;
-                ll = nl;
-                g = ng;
-                h = nh;
-                accepted = true;
-                break;
-            }
-            t *= 0.5;
-        }
-        let max_step = step.iter().fold(0.0f64, |m, s| m.max((t * s).abs()));
-        if !accepted || max_step < 1e-10 || alpha < ALPHA_BOUNDARY {
-            break;
-        }
-    }
+        h[k * p + k] = alpha * alpha * h[k * p + k] + alpha * ga;
+        (ll, g, h)
+    };
+    let (theta, _, iterations) = maximize(theta0, in_log_alpha, |t| t[k].exp() < ALPHA_BOUNDARY)
+        .map_err(|e| StatsError::NoConvergence(format!("nb2: {e}")))?;
+    let (beta, alpha) = (&theta[..k], theta[k].exp());
     if alpha < ALPHA_BOUNDARY {
         return fit_poisson(y, x, k, clusters);
     }
+    // Back in (β, α): the gradient must vanish there too.
+    let (llf, g, h) = nb2_totals(y, x, beta, alpha);
     let gmax = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     if gmax.is_nan() || gmax >= 1e-4 * n as f64 {
         return Err(StatsError::NoConvergence(format!(
             "nb2: no convergence (gradient {gmax:e}); the maximum-likelihood estimate may not exist, e.g. when one covariate value has only zero counts"
         )));
     }
-    let Some(h_inv) = invert(&h, p) else {
-        return Err(StatsError::NoConvergence(
-            "nb2: singular Hessian at the optimum".into(),
-        ));
-    };
-    let cov = match clusters {
-        None => h_inv.iter().map(|v| -v).collect(),
-        Some(c) => robust_cov(y, x, &beta, alpha, &h_inv, c)?,
-    };
-    let mut params = beta;
+    let cov = covariance(&h, p, n, clusters, |i, out| {
+        obs_terms(
+            y[i],
+            &x[i * k..(i + 1) * k],
+            beta,
+            alpha,
+            out,
+            &mut [],
+            false,
+        );
+    })
+    .map_err(|e| StatsError::NoConvergence(format!("nb2: {e}")))?;
+    let mut params = beta.to_vec();
     params.push(alpha);
     let se = (0..p).map(|i| cov[i * p + i].sqrt()).collect();
     Ok(Nb2Fit {
         params,
         cov,
         se,
-        llf: ll,
+        llf,
         iterations,
     })
-}
-
-fn robust_cov(
-    y: &[f64],
-    x: &[f64],
-    beta: &[f64],
-    alpha: f64,
-    h_inv: &[f64],
-    clusters: &[usize],
-) -> Result<Vec<f64>, StatsError> {
-    let (n, k) = (y.len(), beta.len());
-    let p = k + 1;
-    if clusters.len() != n {
-        return Err(StatsError::Undefined(format!(
-            "nb2: {} cluster ids for {n} observations",
-            clusters.len()
-        )));
-    }
-    let n_groups = clusters.iter().max().map_or(0, |m| m + 1);
-    let mut sums = vec![0.0; n_groups * p];
-    let (mut gi, mut unused) = (vec![0.0; p], vec![]);
-    for i in 0..n {
-        obs_terms(
-            y[i],
-            &x[i * k..(i + 1) * k],
-            beta,
-            alpha,
-            &mut gi,
-            &mut unused,
-            false,
-        );
-        let c = clusters[i];
-        for j in 0..p {
-            sums[c * p + j] += gi[j];
-        }
-    }
-    let used: Vec<usize> = (0..n_groups).filter(|c| clusters.contains(c)).collect();
-    let g = used.len() as f64;
-    if g < 2.0 {
-        return Err(StatsError::Undefined(
-            "nb2: clustered errors need at least two clusters".into(),
-        ));
-    }
-    let mut meat = vec![0.0; p * p];
-    for &c in &used {
-        let s = &sums[c * p..(c + 1) * p];
-        for i in 0..p {
-            for j in 0..p {
-                meat[i * p + j] += s[i] * s[j];
-            }
-        }
-    }
-    let factor = g / (g - 1.0) * ((n as f64 - 1.0) / (n as f64 - p as f64));
-    let sandwich = matmul(&matmul(h_inv, &meat, p), h_inv, p);
-    Ok(sandwich.into_iter().map(|v| v * factor).collect())
 }
