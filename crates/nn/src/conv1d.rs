@@ -1,0 +1,117 @@
+//! One-dimensional convolution with circular padding, for inputs whose positions are angular
+//! bins around the animal (the last bin neighbours the first).
+//!
+//! Shapes: input `batch x c_in x len`, kernel `c_out x c_in x k` (k odd), bias `c_out`,
+//! output `batch x c_out x len`; `out[o][t] = b[o] + Σ_i Σ_j w[o][i][j] · in[i][(t + j - k/2) mod len]`.
+
+use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// A circular 1-D convolution's parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Conv1d {
+    /// Input channels.
+    pub c_in: usize,
+    /// Output channels.
+    pub c_out: usize,
+    /// Kernel width (odd).
+    pub k: usize,
+    /// Weights (`c_out x c_in x k`) then biases (`c_out`).
+    pub params: Vec<f32>,
+}
+
+impl Conv1d {
+    /// He-style initialisation: N(0, 2 / (c_in · k)), zero bias.
+    pub fn new<R: Rng>(c_in: usize, c_out: usize, k: usize, rng: &mut R) -> Self {
+        assert!(k % 2 == 1, "kernel width must be odd");
+        let std = (2.0 / (c_in * k) as f32).sqrt();
+        let mut params: Vec<f32> = (0..c_out * c_in * k)
+            .map(|_| {
+                let z: f32 = StandardNormal.sample(rng);
+                std * z
+            })
+            .collect();
+        params.extend(std::iter::repeat_n(0.0, c_out));
+        Self {
+            c_in,
+            c_out,
+            k,
+            params,
+        }
+    }
+
+    fn split(&self) -> (&[f32], &[f32]) {
+        self.params.split_at(self.c_out * self.c_in * self.k)
+    }
+
+    /// Forward pass into `out` (`batch x c_out x len`).
+    pub fn forward(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
+        let (w, b) = self.split();
+        let half = self.k / 2;
+        for n in 0..batch {
+            let xin = &x[n * self.c_in * len..(n + 1) * self.c_in * len];
+            let y = &mut out[n * self.c_out * len..(n + 1) * self.c_out * len];
+            for o in 0..self.c_out {
+                let yo = &mut y[o * len..(o + 1) * len];
+                yo.fill(b[o]);
+                for i in 0..self.c_in {
+                    let xi = &xin[i * len..(i + 1) * len];
+                    for j in 0..self.k {
+                        let wv = w[(o * self.c_in + i) * self.k + j];
+                        // Source index t + j - half, wrapped.
+                        let shift = (j + len - half % len) % len;
+                        for (t, yt) in yo.iter_mut().enumerate() {
+                            *yt += wv * xi[(t + shift) % len];
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Adds the parameter gradients of `sum(dy · out)` into `grads`, and writes the input
+    /// gradient into `dx` when given.
+    pub fn backward(
+        &self,
+        x: &[f32],
+        batch: usize,
+        len: usize,
+        dy: &[f32],
+        grads: &mut [f32],
+        mut dx: Option<&mut [f32]>,
+    ) {
+        let (w, _) = self.split();
+        let nw = self.c_out * self.c_in * self.k;
+        let half = self.k / 2;
+        if let Some(d) = dx.as_deref_mut() {
+            d[..batch * self.c_in * len].fill(0.0);
+        }
+        for n in 0..batch {
+            let xin = &x[n * self.c_in * len..(n + 1) * self.c_in * len];
+            let dyn_ = &dy[n * self.c_out * len..(n + 1) * self.c_out * len];
+            for o in 0..self.c_out {
+                let d = &dyn_[o * len..(o + 1) * len];
+                grads[nw + o] += d.iter().sum::<f32>();
+                for i in 0..self.c_in {
+                    let xi = &xin[i * len..(i + 1) * len];
+                    for j in 0..self.k {
+                        let shift = (j + len - half % len) % len;
+                        let idx = (o * self.c_in + i) * self.k + j;
+                        grads[idx] += d
+                            .iter()
+                            .enumerate()
+                            .map(|(t, dv)| dv * xi[(t + shift) % len])
+                            .sum::<f32>();
+                        if let Some(dxv) = dx.as_deref_mut() {
+                            let dxi =
+                                &mut dxv[(n * self.c_in + i) * len..(n * self.c_in + i + 1) * len];
+                            for (t, dv) in d.iter().enumerate() {
+                                dxi[(t + shift) % len] += w[idx] * dv;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
