@@ -1,6 +1,7 @@
 //! Every layer's analytic gradient against central finite differences.
 
-#![allow(clippy::unwrap_used)] // a failure is a test failure
+#![allow(clippy::unwrap_used)]
+// a failure is a test failure
 // Perturbing parameter i while reading gradient i is clearest as an index loop.
 #![allow(clippy::needless_range_loop)]
 

@@ -2,7 +2,7 @@
 
 /// Position, heading and motion of one agent. Plain data: the simulation state is a set of
 /// these plus the controllers' and models' memories.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct AgentState {
     /// Position x (cm).
     pub x: f32,

@@ -150,7 +150,7 @@ pub trait Env {
 }
 
 /// Totals of the current episode.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct EpisodeSummary {
     /// Actions taken.
     pub actions: u32,
@@ -196,6 +196,23 @@ pub struct StartPoses {
     pub robot: [f32; 3],
     /// One pose per fish.
     pub fish: Vec<[f32; 3]>,
+}
+
+/// Everything that changes while an environment runs (not its configuration or model): enough
+/// to continue an interrupted run exactly (checkpoints).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EnvSnapshot {
+    robot: Robot,
+    fish: Vec<AgentState>,
+    minds: Vec<FishMind>,
+    fish_rngs: Vec<SimRng>,
+    task_rng: SimRng,
+    reset_rng: SimRng,
+    goals: GoalTracker,
+    frame: u32,
+    prev_bins: Vec<f32>,
+    summary: EpisodeSummary,
+    live: bool,
 }
 
 /// The RoboFish tank as a reinforcement-learning environment.
@@ -331,6 +348,48 @@ impl TankEnv {
     /// Actions per episode.
     pub fn episode_actions(&self) -> u32 {
         self.cfg.task.episode_actions(self.cfg.mode)
+    }
+
+    /// The environment's changing state.
+    pub fn snapshot(&self) -> EnvSnapshot {
+        EnvSnapshot {
+            robot: self.robot,
+            fish: self.fish.clone(),
+            minds: self.minds.clone(),
+            fish_rngs: self.fish_rngs.clone(),
+            task_rng: self.task_rng.clone(),
+            reset_rng: self.reset_rng.clone(),
+            goals: self.goals.clone(),
+            frame: self.frame,
+            prev_bins: self.prev_bins.clone(),
+            summary: self.summary.clone(),
+            live: self.live,
+        }
+    }
+
+    /// Continues from a snapshot taken of an environment with the same configuration.
+    pub fn restore(&mut self, s: &EnvSnapshot) -> Result<(), SimError> {
+        if s.fish.len() != self.fish.len() || s.prev_bins.len() != self.prev_bins.len() {
+            return Err(SimError::StartPoses(format!(
+                "snapshot of {} fish and {} bins does not fit this environment ({} fish, {} bins)",
+                s.fish.len(),
+                s.prev_bins.len(),
+                self.fish.len(),
+                self.prev_bins.len()
+            )));
+        }
+        self.robot = s.robot;
+        self.fish.clone_from(&s.fish);
+        self.minds.clone_from(&s.minds);
+        self.fish_rngs.clone_from(&s.fish_rngs);
+        self.task_rng = s.task_rng.clone();
+        self.reset_rng = s.reset_rng.clone();
+        self.goals = s.goals.clone();
+        self.frame = s.frame;
+        self.prev_bins.clone_from(&s.prev_bins);
+        self.summary = s.summary.clone();
+        self.live = s.live;
+        Ok(())
     }
 
     fn random_pose(&mut self) -> AgentState {

@@ -91,7 +91,7 @@ pub struct FishMotion {
 }
 
 /// What a fish carries from frame to frame, owned by the environment and reset each episode.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct FishMind {
     /// The model's internal speed (cm/s): may differ from the realised one at walls.
     pub speed: f32,

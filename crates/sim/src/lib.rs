@@ -45,8 +45,8 @@ pub mod vector;
 pub use agent::AgentState;
 pub use checker::{check_env, CheckFailure, CheckReport};
 pub use env::{
-    BoxSpace, Env, EnvConfig, EpisodeSummary, RecordedCommand, StartPoses, StepInfo, TankEnv,
-    Trajectory, Transition,
+    BoxSpace, Env, EnvConfig, EnvSnapshot, EpisodeSummary, RecordedCommand, StartPoses, StepInfo,
+    TankEnv, Trajectory, Transition,
 };
 pub use error::SimError;
 pub use fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_OTHERS};

@@ -66,7 +66,7 @@ impl RobotParams {
 }
 
 /// The robot: its pose and its controller's memory.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Robot {
     /// Pose and last-frame velocity.
     pub state: AgentState,

@@ -112,7 +112,7 @@ pub struct GoalEvent {
 }
 
 /// The active goal and its switching logic.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GoalTracker {
     /// Centre of the active goal (cm).
     pub active: [f32; 2],

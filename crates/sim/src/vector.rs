@@ -104,6 +104,34 @@ impl VecEnv {
         &self.finished
     }
 
+    /// Snapshots of every environment plus the current observations.
+    pub fn snapshot(&self) -> (Vec<crate::env::EnvSnapshot>, Vec<f32>) {
+        (
+            self.envs.iter().map(TankEnv::snapshot).collect(),
+            self.obs.clone(),
+        )
+    }
+
+    /// Continues from [`VecEnv::snapshot`] taken of a vector environment of the same shape.
+    pub fn restore(
+        &mut self,
+        envs: &[crate::env::EnvSnapshot],
+        obs: &[f32],
+    ) -> Result<(), SimError> {
+        if envs.len() != self.envs.len() || obs.len() != self.obs.len() {
+            return Err(SimError::StartPoses(format!(
+                "snapshot of {} environments does not fit {}",
+                envs.len(),
+                self.envs.len()
+            )));
+        }
+        for (e, s) in self.envs.iter_mut().zip(envs) {
+            e.restore(s)?;
+        }
+        self.obs.copy_from_slice(obs);
+        Ok(())
+    }
+
     /// Resets every environment; environment `i` gets seed `derive_seed(seed, "env", i)`.
     pub fn reset(&mut self, seed: u64) -> Result<&[f32], SimError> {
         let d = self.obs_dim;

@@ -134,3 +134,30 @@ fn bad_actions_are_rejected_before_anything_moves() {
     ));
     assert!(VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 0).is_err());
 }
+
+#[test]
+fn snapshot_and_restore_continue_exactly() {
+    let mut a = VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 3).unwrap();
+    a.reset(8).unwrap();
+    for t in 0..30 {
+        a.step(&actions(t, 3)).unwrap();
+    }
+    let (snap, obs) = a.snapshot();
+    let json = serde_json::to_string(&snap).unwrap();
+    let mut b = VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 3).unwrap();
+    b.reset(999).unwrap();
+    b.restore(
+        &serde_json::from_str::<Vec<fishprobe_sim::EnvSnapshot>>(&json).unwrap(),
+        &obs,
+    )
+    .unwrap();
+    for t in 30..100 {
+        a.step(&actions(t, 3)).unwrap();
+        b.step(&actions(t, 3)).unwrap();
+        assert_eq!(a.observations(), b.observations(), "step {t}");
+        assert_eq!(a.transitions(), b.transitions(), "step {t}");
+    }
+    let small = VecEnv::new(EnvConfig::default(), Arc::new(Chaser { batched: false }), 2).unwrap();
+    let mut small = small;
+    assert!(small.restore(&snap, &obs).is_err());
+}
