@@ -8,6 +8,7 @@ mod inspect;
 mod models;
 mod simulate;
 pub(crate) mod synth;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -36,6 +37,8 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Convert the lab's pre-2020 files to robofish.io 1.0.
     ImportLegacy(import_legacy::ImportLegacyArgs),
+    /// Train a robot policy (PPO) against a fish model.
+    Train(train::TrainArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
     Analyze(analyze::AnalyzeArgs),
 }
@@ -79,5 +82,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Inspect(a) => inspect::run(a),
         Command::ImportLegacy(a) => import_legacy::run(a),
         Command::Analyze(a) => analyze::run(a),
+        Command::Train(a) => train::run(a),
     }
 }

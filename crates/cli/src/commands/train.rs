@@ -1,0 +1,124 @@
+//! `fishprobe train`: a PPO robot policy against one fish model.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
+use fishprobe_models::ModelSpec;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+
+use super::config::SimSettings;
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Fish model to train against (Follow, Zone, Force, ...); overrides the settings file's.
+    #[arg(long)]
+    model: Option<String>,
+    /// Master seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Run directory (params.json, progress.csv, result.json, checkpoints/, policy.safetensors).
+    #[arg(long)]
+    out: PathBuf,
+    /// `paper` (832,300 steps, 100 epochs per batch), `quick` (200,000 steps, 10 epochs) or
+    /// `smoke` (a few thousand steps of a small network).
+    #[arg(long, default_value = "paper")]
+    preset: String,
+    /// Override the number of environment steps.
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    resume: bool,
+    /// Settings file for the environment and fish (see `fishprobe config show`).
+    #[arg(long)]
+    settings: Option<PathBuf>,
+    /// Threads (default: all cores). Results do not depend on it.
+    #[arg(long)]
+    jobs: Option<usize>,
+}
+
+pub fn run(a: TrainArgs) -> Result<()> {
+    let mut trainer = if a.resume && a.out.join("params.json").exists() {
+        if a.model.is_some() || a.settings.is_some() || a.steps.is_some() {
+            eprintln!("note: --resume continues the run as params.json records it; --model, --settings and --steps are ignored");
+        }
+        Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
+    } else {
+        let Some(mut ppo) = PpoConfig::preset(&a.preset) else {
+            bail!("unknown --preset `{}`: use paper, quick or smoke", a.preset);
+        };
+        if let Some(s) = a.steps {
+            ppo.total_timesteps = s;
+        }
+        let mut settings = match &a.settings {
+            Some(p) => SimSettings::load(p)?,
+            None => SimSettings::default(),
+        };
+        match &a.model {
+            Some(m) => settings.fish = ModelSpec::by_name(m)?,
+            None if a.settings.is_none() => {
+                bail!("--model is required (or a --settings file naming the fish)")
+            }
+            None => {}
+        }
+        let spec = RunSpec {
+            ppo,
+            env: settings.env,
+            model: settings.fish,
+            seed: a.seed,
+            preset: a.preset.clone(),
+            program_version: env!("CARGO_PKG_VERSION").into(),
+        };
+        Trainer::create(&a.out, spec)
+            .with_context(|| format!("starting a run in {}", a.out.display()))?
+    };
+    super::with_jobs(a.jobs, || train_loop(&mut trainer))??;
+    let path = trainer.finish()?;
+    emit(&format!(
+        "trained {} policy for {} steps ({} iterations): {}\n",
+        trainer.spec().model.name(),
+        trainer.timesteps(),
+        trainer.iteration(),
+        path.display()
+    ))
+}
+
+fn train_loop(t: &mut Trainer) -> Result<()> {
+    let total = t.spec().ppo.total_timesteps;
+    let bar = ProgressBar::new(total);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} steps  {msg}  ETA {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_position(t.timesteps().min(total));
+    let mut episodes = 0;
+    while !t.done() {
+        let s = t.iterate()?;
+        episodes = s.episodes_total;
+        bar.set_position(s.timesteps.min(total));
+        bar.set_message(format!(
+            "it {} | {} episodes | return {:.2} | goals/ep {:.2} | {:.0} steps/s",
+            s.iteration, episodes, s.episode_return_mean, s.goals_per_episode, s.steps_per_s
+        ));
+        if !bar.is_hidden() {
+            continue;
+        }
+        // Without a terminal (CI, logs), a line per iteration instead of the bar.
+        eprintln!(
+            "iteration {} steps {} return {:.3} goals/episode {:.3} kl {:.4} {:.0} steps/s",
+            s.iteration,
+            s.timesteps,
+            s.episode_return_mean,
+            s.goals_per_episode,
+            s.kl,
+            s.steps_per_s
+        );
+    }
+    bar.finish_and_clear();
+    let _ = episodes;
+    Ok(())
+}

@@ -1,0 +1,136 @@
+//! PPO settings. Defaults are the paper's (RLlib 2.0.1 PPO, SPEC §7); what the paper does not
+//! list takes RLlib 2.0.1's PPO default, named as such; the rest are documented choices.
+
+use fishprobe_nn::Activation;
+use fishprobe_sim::params::{check, ConfigError};
+
+fishprobe_sim::documented_params! {
+    /// Everything that defines a PPO run besides the environment and the fish model.
+    pub struct PpoConfig {
+        /// Environment steps (policy actions) to train for (paper: 832,300). Training stops at
+        /// the first iteration boundary at or past it.
+        pub total_timesteps: u64 = 832_300; "steps",
+        /// Steps collected per iteration (paper: 8192).
+        pub train_batch_size: usize = 8192; "steps",
+        /// SGD minibatch size (paper: 512).
+        pub sgd_minibatch_size: usize = 512; "steps",
+        /// Passes over each batch (paper: 100).
+        pub num_sgd_iter: usize = 100; "epochs",
+        /// Adam learning rate (paper: 0.00026).
+        pub lr: f32 = 0.000_26; "1",
+        /// Discount γ (paper: 0.9453).
+        pub gamma: f32 = 0.9453; "1",
+        /// GAE λ (paper: 0.9652).
+        pub lambda: f32 = 0.9652; "1",
+        /// Entropy coefficient (paper: 0).
+        pub entropy_coeff: f32 = 0.0; "1",
+        /// Value-loss coefficient (paper: 1).
+        pub vf_loss_coeff: f32 = 1.0; "1",
+        /// Surrogate clip ε (paper: 0.1112).
+        pub clip_param: f32 = 0.1112; "1",
+        /// Initial KL-penalty coefficient of the adaptive KL penalty (RLlib 2.0.1 default 0.2).
+        pub kl_coeff: f32 = 0.2; "1",
+        /// KL target: after each iteration the coefficient is multiplied by 1.5 when the mean KL
+        /// of the last epoch exceeds 2x the target, by 0.5 below half of it (RLlib default 0.01).
+        pub kl_target: f32 = 0.01; "1",
+        /// The squared value error is clamped to [0, vf_clip_param] (RLlib's "value clipping";
+        /// default 10).
+        pub vf_clip_param: f32 = 10.0; "1",
+        /// Hidden layers of the policy and the (separate) value network (RLlib default
+        /// [256, 256], `vf_share_layers` false).
+        pub hidden: Vec<usize> = vec![256, 256]; "units",
+        /// Hidden activation (RLlib default tanh).
+        pub activation: Activation = Activation::Tanh; "-",
+        /// Standardise advantages over each batch (RLlib default).
+        pub standardize_advantages: bool = true; "-",
+        /// Parallel environments for sampling (choice; train_batch_size must be a multiple).
+        pub num_envs: usize = 64; "environments",
+        /// At a time limit, add γ·V(last observation) to the last reward (choice: the episode
+        /// is truncated, not ended; RLlib 2.0.1 with gym's done flag would treat it as ended).
+        pub bootstrap_truncated: bool = true; "-",
+        /// Iterations between checkpoints (choice).
+        pub checkpoint_every: usize = 5; "iterations",
+    }
+}
+
+impl PpoConfig {
+    /// A named preset: `paper` (the published settings), `quick` (200,000 steps and 10 epochs
+    /// per batch, for a first look in minutes), `smoke` (a few thousand steps of a small
+    /// network, for tests).
+    pub fn preset(name: &str) -> Option<Self> {
+        let paper = Self::default();
+        match name {
+            "paper" => Some(paper),
+            "quick" => Some(Self {
+                total_timesteps: 200_000,
+                num_sgd_iter: 10,
+                ..paper
+            }),
+            "smoke" => Some(Self {
+                total_timesteps: 4096,
+                train_batch_size: 1024,
+                sgd_minibatch_size: 256,
+                num_sgd_iter: 2,
+                hidden: vec![32, 32],
+                num_envs: 16,
+                checkpoint_every: 1,
+                ..paper
+            }),
+            _ => None,
+        }
+    }
+
+    /// Checks the ranges and the divisibility the sampler needs.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let p = "ppo";
+        if self.num_envs == 0
+            || self.train_batch_size == 0
+            || !self.train_batch_size.is_multiple_of(self.num_envs)
+        {
+            return Err(ConfigError::new(
+                p,
+                "train_batch_size",
+                self.train_batch_size,
+                "must be a positive multiple of num_envs",
+            ));
+        }
+        if self.sgd_minibatch_size == 0 || self.sgd_minibatch_size > self.train_batch_size {
+            return Err(ConfigError::new(
+                p,
+                "sgd_minibatch_size",
+                self.sgd_minibatch_size,
+                "must lie in [1, train_batch_size]",
+            ));
+        }
+        if self.num_sgd_iter == 0 || self.total_timesteps == 0 || self.checkpoint_every == 0 {
+            return Err(ConfigError::new(
+                p,
+                "num_sgd_iter",
+                self.num_sgd_iter,
+                "num_sgd_iter, total_timesteps and checkpoint_every must be at least 1",
+            ));
+        }
+        if self.hidden.is_empty() || self.hidden.contains(&0) {
+            return Err(ConfigError::new(
+                p,
+                "hidden",
+                format!("{:?}", self.hidden),
+                "needs at least one layer, none empty",
+            ));
+        }
+        check::positive(p, "lr", self.lr)?;
+        check::within(p, "gamma", self.gamma, 0.0, 1.0)?;
+        check::within(p, "lambda", self.lambda, 0.0, 1.0)?;
+        check::non_negative(p, "entropy_coeff", self.entropy_coeff)?;
+        check::non_negative(p, "vf_loss_coeff", self.vf_loss_coeff)?;
+        check::within(p, "clip_param", self.clip_param, 0.0, 1.0)?;
+        check::non_negative(p, "kl_coeff", self.kl_coeff)?;
+        check::positive(p, "kl_target", self.kl_target)?;
+        check::positive(p, "vf_clip_param", self.vf_clip_param)
+    }
+
+    /// Iterations until `total_timesteps` is reached.
+    pub fn iterations(&self) -> u64 {
+        self.total_timesteps.div_ceil(self.train_batch_size as u64)
+    }
+}

@@ -1,0 +1,37 @@
+//! Errors of training, evaluation and export.
+
+/// What can go wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum LearnError {
+    /// A configuration value is out of range.
+    #[error(transparent)]
+    Config(#[from] fishprobe_sim::ConfigError),
+    /// The simulator refused.
+    #[error(transparent)]
+    Sim(#[from] fishprobe_sim::SimError),
+    /// A fish model problem.
+    #[error(transparent)]
+    Model(#[from] fishprobe_models::ModelError),
+    /// Weights files.
+    #[error(transparent)]
+    Nn(#[from] fishprobe_nn::NnError),
+    /// Trial files.
+    #[error(transparent)]
+    Io(#[from] fishprobe_io::IoError),
+    /// A policy directory or file that cannot be used.
+    #[error("{0}")]
+    Policy(String),
+    /// A training run's directory that cannot be resumed or written.
+    #[error("{0}")]
+    Run(String),
+    /// Training diverged.
+    #[error(
+        "training diverged at iteration {iteration}: {what}; the last good checkpoint is kept"
+    )]
+    Diverged {
+        /// Iteration.
+        iteration: u64,
+        /// What went non-finite.
+        what: String,
+    },
+}

@@ -1,0 +1,207 @@
+//! Running a controller on the evaluation task: one trial file per episode and a summary.
+
+use crate::error::LearnError;
+use crate::policy::{to_env_action, GaussianPolicy};
+use fishprobe_io::{write_trial, TrialFile, TrialKind, TrialMeta};
+use fishprobe_models::ModelSpec;
+use fishprobe_nn::MlpWorkspace;
+use fishprobe_sim::{
+    derive_seed, stream, wrap_angle, Env, EnvConfig, StartPoses, TankEnv, TaskMode,
+};
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// What drives the robot.
+#[derive(Debug, Clone)]
+pub enum Controller {
+    /// A trained policy: its mean action, or samples with `stochastic`.
+    Policy {
+        /// The policy.
+        policy: Box<GaussianPolicy>,
+        /// Sample instead of taking the mean.
+        stochastic: bool,
+        /// Name recorded in trial files.
+        name: String,
+    },
+    /// The scripted baseline: every second, turn toward the active goal, ignoring the fish.
+    GoalSeeker,
+}
+
+impl Controller {
+    /// Its name in trial files.
+    pub fn name(&self) -> String {
+        match self {
+            Controller::Policy { name, .. } => name.clone(),
+            Controller::GoalSeeker => "scripted:goal-seeker".into(),
+        }
+    }
+}
+
+/// One evaluation episode's outcome.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct EpisodeResult {
+    /// Episode index.
+    pub episode: usize,
+    /// Its seed.
+    pub seed: u64,
+    /// Goals reached.
+    pub goals: usize,
+    /// Mean time to goal (s), if any goal.
+    pub mean_time_to_goal_s: Option<f64>,
+    /// Frames with the robot clipped at a wall.
+    pub wall_contacts: u32,
+    /// Its trial file.
+    pub file: PathBuf,
+}
+
+/// An evaluation: which episodes, how long, where to.
+#[derive(Debug, Clone)]
+pub struct Evaluation {
+    /// Fish model.
+    pub model: ModelSpec,
+    /// Environment settings (forced to evaluation mode).
+    pub env: EnvConfig,
+    /// Episodes.
+    pub episodes: usize,
+    /// Minutes per episode.
+    pub minutes: f32,
+    /// Master seed.
+    pub seed: u64,
+    /// Fixed start poses (approach assay) instead of random ones.
+    pub start: Option<StartPoses>,
+    /// Output directory; files are `<prefix>_<k>.hdf5`.
+    pub out: PathBuf,
+    /// File name prefix.
+    pub prefix: String,
+}
+
+fn run_episode(c: &Controller, e: &Evaluation, k: usize) -> Result<EpisodeResult, LearnError> {
+    let mut cfg = e.env.clone();
+    cfg.mode = TaskMode::Evaluation;
+    let seconds_per_action = cfg.frames_per_action as f32 / cfg.frame_rate_hz;
+    cfg.task.evaluation_episode_actions =
+        ((e.minutes * 60.0 / seconds_per_action).ceil() as u32).max(1);
+    let mut env = TankEnv::new(cfg.clone(), e.model.build()?)?;
+    if let Controller::Policy { policy, .. } = c {
+        policy.check_obs_dim(env.observation_space().dim())?;
+    }
+    env.set_start_poses(e.start.clone())?;
+    env.set_recording(true);
+    let seed = derive_seed(e.seed, "evaluate", k as u64);
+    let mut obs = vec![0.0; env.observation_space().dim()];
+    env.reset(Some(seed), &mut obs)?;
+    let mut rng = stream(seed, "evaluate-actions", 0);
+    let mut ws = MlpWorkspace::default();
+    let mut out = [0.0f32];
+    loop {
+        let action = match c {
+            Controller::Policy {
+                policy, stochastic, ..
+            } => {
+                let y = policy.pi.forward(&obs, 1, &mut ws);
+                let a = if *stochastic {
+                    let z: f32 = StandardNormal.sample(&mut rng);
+                    y[0] + y[1].exp() * z
+                } else {
+                    y[0]
+                };
+                to_env_action(a)
+            }
+            Controller::GoalSeeker => {
+                let r = env.robot().state;
+                let g = env.active_goal();
+                wrap_angle((g[1] - r.y).atan2(g[0] - r.x) - r.heading)
+            }
+        };
+        out[0] = action;
+        if env.step(&out, &mut obs)?.truncated {
+            break;
+        }
+    }
+    let t = env
+        .trajectory()
+        .ok_or_else(|| LearnError::Run("recording was on".into()))?;
+    let meta = TrialMeta {
+        kind: TrialKind::Sim,
+        policy: c.name(),
+        fish_model: e.model.name().to_string(),
+        seed,
+        goal_radius_cm: cfg.task.goal_radius_cm,
+        config_json: serde_json::json!({"env": cfg, "fish": e.model}).to_string(),
+        experiment_setup: format!(
+            "fishprobe evaluate: {} against {}",
+            c.name(),
+            e.model.name()
+        ),
+    };
+    let half = cfg.tank.half_size_cm;
+    let trial = TrialFile::from_trajectory(t, env.summary(), &meta, [2.0 * half, 2.0 * half]);
+    let file = e.out.join(format!("{}_{k:03}.hdf5", e.prefix));
+    write_trial(&file, &trial)?;
+    let s = env.summary();
+    let mut prev = 0u32;
+    let waits: Vec<f64> = s
+        .goal_events
+        .iter()
+        .map(|g| {
+            let w = f64::from(g.frame - prev) / f64::from(cfg.frame_rate_hz);
+            prev = g.frame;
+            w
+        })
+        .collect();
+    Ok(EpisodeResult {
+        episode: k,
+        seed,
+        goals: s.goal_events.len(),
+        mean_time_to_goal_s: (!waits.is_empty())
+            .then(|| waits.iter().sum::<f64>() / waits.len() as f64),
+        wall_contacts: s.robot_wall_contacts,
+        file,
+    })
+}
+
+/// Runs the episodes in parallel; writes the trial files and `summary.csv` into `e.out`.
+pub fn evaluate(c: &Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>, LearnError> {
+    let results: Vec<EpisodeResult> = (0..e.episodes)
+        .into_par_iter()
+        .map(|k| run_episode(c, e, k))
+        .collect::<Result<_, _>>()?;
+    let mut csv =
+        String::from("episode,seed,goals_reached,mean_time_to_goal_s,wall_contacts,file\n");
+    for r in &results {
+        csv += &format!(
+            "{},{},{},{},{},{}\n",
+            r.episode,
+            r.seed,
+            r.goals,
+            r.mean_time_to_goal_s
+                .map(|v| format!("{v:.3}"))
+                .unwrap_or_default(),
+            r.wall_contacts,
+            r.file
+                .file_name()
+                .map(|f| f.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        );
+    }
+    fishprobe_io::write_atomically(&e.out.join("summary.csv"), csv.as_bytes())?;
+    Ok(results)
+}
+
+/// Mean and sample s.d. of goals per episode.
+pub fn goals_mean_sd(r: &[EpisodeResult]) -> (f64, f64) {
+    let n = r.len() as f64;
+    let mean = r.iter().map(|x| x.goals as f64).sum::<f64>() / n;
+    let var = r
+        .iter()
+        .map(|x| (x.goals as f64 - mean).powi(2))
+        .sum::<f64>()
+        / (n - 1.0).max(1.0);
+    (mean, var.sqrt())
+}
+
+/// Where a policy directory's own evaluation goes by default.
+pub fn default_out(policy_dir: &Path) -> PathBuf {
+    policy_dir.join("evaluation")
+}

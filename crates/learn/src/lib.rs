@@ -1,0 +1,39 @@
+//! Reinforcement learning for the robot: PPO with the paper's settings (SPEC §7), evaluation
+//! of trained policies on the 15-minute task, and ONNX export for the robot PC.
+//!
+//! ```no_run
+//! use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
+//! use fishprobe_models::ModelSpec;
+//! use fishprobe_sim::EnvConfig;
+//!
+//! let spec = RunSpec {
+//!     ppo: PpoConfig::preset("quick").unwrap(),
+//!     env: EnvConfig::default(),
+//!     model: ModelSpec::by_name("Zone")?,
+//!     seed: 1,
+//!     preset: "quick".into(),
+//!     program_version: env!("CARGO_PKG_VERSION").into(),
+//! };
+//! let mut run = Trainer::create("runs/zone".as_ref(), spec)?;
+//! while !run.done() {
+//!     let s = run.iterate()?;
+//!     println!("{}: {:.1} goals per episode", s.timesteps, s.goals_per_episode);
+//! }
+//! run.finish()?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+pub mod config;
+pub mod error;
+pub mod evaluate;
+pub mod gae;
+pub mod onnx;
+pub mod policy;
+pub mod ppo;
+pub mod trainer;
+
+pub use config::PpoConfig;
+pub use error::LearnError;
+pub use evaluate::{evaluate, Controller, EpisodeResult, Evaluation};
+pub use policy::{to_env_action, GaussianPolicy};
+pub use trainer::{IterationStats, RunSpec, Trainer};

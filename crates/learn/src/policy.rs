@@ -1,0 +1,183 @@
+//! The robot's policy: a diagonal Gaussian over the turn command whose mean and log-s.d. come
+//! from one MLP, and a separate MLP for the value (RLlib's default continuous model with
+//! `vf_share_layers = false`). Actions are "normalised" as in RLlib: the network acts in
+//! [-1, 1], which maps linearly onto the action space [-π, π] (samples are clipped to it).
+
+use crate::config::PpoConfig;
+use crate::error::LearnError;
+use fishprobe_nn::store::{load, save, Tensors};
+use fishprobe_nn::{Mlp, MlpSpec, MlpWorkspace};
+use rand::Rng;
+use serde_json::json;
+use std::f32::consts::PI;
+use std::path::{Path, PathBuf};
+
+/// Name of the weights file in a policy directory.
+pub const POLICY_FILE: &str = "policy.safetensors";
+/// Format version of policy files.
+pub const POLICY_VERSION: u64 = 1;
+
+/// Policy and value networks.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GaussianPolicy {
+    /// Policy network: observation → (mean, log-s.d.) of the normalised action.
+    pub pi: Mlp,
+    /// Value network: observation → V.
+    pub vf: Mlp,
+}
+
+/// The normalised action's scale: env action = clip(a, -1, 1) · π.
+pub fn to_env_action(normalised: f32) -> f32 {
+    normalised.clamp(-1.0, 1.0) * PI
+}
+
+impl GaussianPolicy {
+    /// Fresh networks for `obs_dim` inputs (RLlib's normc initialisation: 0.01 on the policy
+    /// output, 1.0 on the value output).
+    pub fn new<R: Rng>(obs_dim: usize, cfg: &PpoConfig, rng: &mut R) -> Self {
+        let sizes = |out: usize| {
+            let mut s = vec![obs_dim];
+            s.extend(&cfg.hidden);
+            s.push(out);
+            s
+        };
+        Self {
+            pi: Mlp::new(
+                MlpSpec {
+                    sizes: sizes(2),
+                    hidden: cfg.activation,
+                },
+                0.01,
+                rng,
+            ),
+            vf: Mlp::new(
+                MlpSpec {
+                    sizes: sizes(1),
+                    hidden: cfg.activation,
+                },
+                1.0,
+                rng,
+            ),
+        }
+    }
+
+    /// Observation length it expects.
+    pub fn obs_dim(&self) -> usize {
+        self.pi.input_size()
+    }
+
+    /// The deterministic (mean) normalised actions for a batch of observations.
+    pub fn mean_actions(&self, obs: &[f32], batch: usize, ws: &mut MlpWorkspace, out: &mut [f32]) {
+        let y = self.pi.forward(obs, batch, ws);
+        for (o, row) in out.iter_mut().zip(y.chunks_exact(2)) {
+            *o = row[0];
+        }
+    }
+
+    /// Writes `dir/policy.safetensors` and its JSON sidecar (architecture, format version,
+    /// and `about`: what it was trained on).
+    pub fn save(&self, dir: &Path, about: serde_json::Value) -> Result<PathBuf, LearnError> {
+        let mut t = Tensors::new();
+        for (prefix, net) in [("pi", &self.pi), ("vf", &self.vf)] {
+            let sizes = &net.spec().sizes;
+            for l in 0..sizes.len() - 1 {
+                let (w, b) = net.layer(l);
+                t.insert(
+                    format!("{prefix}.{l}.weight"),
+                    (vec![sizes[l], sizes[l + 1]], w.to_vec()),
+                );
+                t.insert(
+                    format!("{prefix}.{l}.bias"),
+                    (vec![sizes[l + 1]], b.to_vec()),
+                );
+            }
+        }
+        let meta = json!({
+            "format": "fishprobe-policy",
+            "version": POLICY_VERSION,
+            "obs_dim": self.obs_dim(),
+            "pi": self.pi.spec(),
+            "vf": self.vf.spec(),
+            "action": "normalised; env action = clip(a, -1, 1) * pi rad",
+            "about": about,
+        });
+        let path = dir.join(POLICY_FILE);
+        save(&path, &t, &meta)?;
+        Ok(path)
+    }
+
+    /// Reads a policy directory (or a `policy.safetensors` file), checking format, version
+    /// and shapes.
+    pub fn load(path: &Path) -> Result<(Self, serde_json::Value), LearnError> {
+        let file = if path.is_dir() {
+            path.join(POLICY_FILE)
+        } else {
+            path.to_path_buf()
+        };
+        let bad = |what: String| LearnError::Policy(format!("{}: {what}", file.display()));
+        if !file.is_file() {
+            return Err(bad(
+                "missing: not a policy directory (train one with `fishprobe train`)".into(),
+            ));
+        }
+        let (tensors, meta) = load(&file)?;
+        if meta["format"] != "fishprobe-policy" {
+            return Err(bad(format!(
+                "not a fishprobe policy (format {})",
+                meta["format"]
+            )));
+        }
+        if meta["version"].as_u64() != Some(POLICY_VERSION) {
+            return Err(bad(format!("policy format version {} is not {POLICY_VERSION} (written by another fishprobe version)", meta["version"])));
+        }
+        let net = |prefix: &str| -> Result<Mlp, LearnError> {
+            let spec: MlpSpec = serde_json::from_value(meta[prefix].clone())
+                .map_err(|e| bad(format!("{prefix} architecture: {e}")))?;
+            let mut params = Vec::new();
+            for l in 0..spec.sizes.len().saturating_sub(1) {
+                for (part, shape) in [
+                    ("weight", vec![spec.sizes[l], spec.sizes[l + 1]]),
+                    ("bias", vec![spec.sizes[l + 1]]),
+                ] {
+                    let name = format!("{prefix}.{l}.{part}");
+                    match tensors.get(&name) {
+                        Some((s, d)) if *s == shape => params.extend_from_slice(d),
+                        Some((s, _)) => {
+                            return Err(bad(format!(
+                                "tensor {name} has shape {s:?}, the architecture says {shape:?}"
+                            )))
+                        }
+                        None => return Err(bad(format!("tensor {name} is missing"))),
+                    }
+                }
+            }
+            Mlp::from_params(spec, params)
+                .ok_or_else(|| bad(format!("{prefix}: parameter count does not match")))
+        };
+        let policy = Self {
+            pi: net("pi")?,
+            vf: net("vf")?,
+        };
+        if policy.pi.output_size() != 2
+            || policy.vf.output_size() != 1
+            || policy.vf.input_size() != policy.obs_dim()
+        {
+            return Err(bad(
+                "networks do not have the policy's shape (pi: 2 outputs, vf: 1)".into(),
+            ));
+        }
+        Ok((policy, meta))
+    }
+
+    /// Checks the policy fits an environment's observation size.
+    pub fn check_obs_dim(&self, env_obs: usize) -> Result<(), LearnError> {
+        if self.obs_dim() == env_obs {
+            Ok(())
+        } else {
+            Err(LearnError::Policy(format!(
+                "the policy was built for observations of {} floats, the environment gives {env_obs}",
+                self.obs_dim()
+            )))
+        }
+    }
+}

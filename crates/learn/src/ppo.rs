@@ -1,0 +1,391 @@
+//! One PPO iteration, top to bottom: collect a batch from the vector environment, compute
+//! advantages, then `num_sgd_iter` epochs of minibatch updates.
+//!
+//! The loss is RLlib 2.0.1's PPO loss (torch), averaged over the minibatch:
+//!
+//! ```text
+//! -min(r·A, clip(r, 1-ε, 1+ε)·A) + vf_coeff·clamp((V - R)², 0, vf_clip) - ent_coeff·H + kl_coeff·KL(old ‖ new)
+//! ```
+//!
+//! with r the probability ratio, A the standardised GAE advantage and R the GAE value target.
+//! The policy and value networks are separate, so each sees only its own terms; they are
+//! updated side by side on two threads.
+
+use crate::config::PpoConfig;
+use crate::gae::gae;
+use crate::policy::{to_env_action, GaussianPolicy};
+use fishprobe_nn::dist::{
+    gaussian_entropy, gaussian_kl, gaussian_kl_grad, gaussian_log_prob, gaussian_log_prob_grad,
+};
+use fishprobe_nn::{Adam, MlpWorkspace};
+use fishprobe_sim::{SimError, SimRng, VecEnv};
+use rand::RngExt;
+use rand_distr::{Distribution, StandardNormal};
+
+/// A collected batch, time-major (`index = t · n_envs + env`).
+#[derive(Debug, Clone, Default)]
+pub struct Rollout {
+    /// Environments.
+    pub n_envs: usize,
+    /// Steps per environment.
+    pub steps: usize,
+    /// Observation length.
+    pub obs_dim: usize,
+    /// Observations.
+    pub obs: Vec<f32>,
+    /// Sampled normalised actions.
+    pub actions: Vec<f32>,
+    /// Their log-probabilities under the sampling policy.
+    pub logp: Vec<f32>,
+    /// The sampling policy's means.
+    pub mean: Vec<f32>,
+    /// The sampling policy's log-s.d.
+    pub log_std: Vec<f32>,
+    /// V of each observation.
+    pub values: Vec<f32>,
+    /// Rewards (plus γ·V(last observation) at a truncation when bootstrapping).
+    pub rewards: Vec<f32>,
+    /// Whether the episode ended at this step.
+    pub dones: Vec<bool>,
+    /// V of the observations after the last step.
+    pub last_values: Vec<f32>,
+    /// GAE advantages.
+    pub advantages: Vec<f32>,
+    /// GAE value targets.
+    pub returns: Vec<f32>,
+}
+
+/// Episodes that ended during collection: (return, goals reached).
+pub type Finished = Vec<(f32, u32)>;
+
+impl Rollout {
+    /// Buffers for `steps x n_envs` transitions.
+    pub fn new(n_envs: usize, steps: usize, obs_dim: usize) -> Self {
+        let n = n_envs * steps;
+        Self {
+            n_envs,
+            steps,
+            obs_dim,
+            obs: vec![0.0; n * obs_dim],
+            actions: vec![0.0; n],
+            logp: vec![0.0; n],
+            mean: vec![0.0; n],
+            log_std: vec![0.0; n],
+            values: vec![0.0; n],
+            rewards: vec![0.0; n],
+            dones: vec![false; n],
+            last_values: vec![0.0; n_envs],
+            advantages: vec![0.0; n],
+            returns: vec![0.0; n],
+        }
+    }
+
+    /// Number of transitions.
+    pub fn len(&self) -> usize {
+        self.n_envs * self.steps
+    }
+
+    /// Whether it holds no transitions.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Scratch space reused across iterations.
+#[derive(Debug, Default)]
+pub struct Scratch {
+    ws_pi: MlpWorkspace,
+    ws_vf: MlpWorkspace,
+    env_actions: Vec<f32>,
+    final_rows: Vec<f32>,
+    idx: Vec<usize>,
+    mb_obs: Vec<f32>,
+    grads_pi: Vec<f32>,
+    grads_vf: Vec<f32>,
+    dy_pi: Vec<f32>,
+    dy_vf: Vec<f32>,
+}
+
+/// Fills `roll` with one batch; returns the episodes that ended.
+pub fn collect(
+    cfg: &PpoConfig,
+    venv: &mut VecEnv,
+    policy: &GaussianPolicy,
+    roll: &mut Rollout,
+    rng: &mut SimRng,
+    s: &mut Scratch,
+) -> Result<Finished, SimError> {
+    let (n, d) = (roll.n_envs, roll.obs_dim);
+    s.env_actions.resize(n, 0.0);
+    let mut finished = Vec::new();
+    for t in 0..roll.steps {
+        let base = t * n;
+        roll.obs[base * d..(base + n) * d].copy_from_slice(venv.observations());
+        let obs = &roll.obs[base * d..(base + n) * d];
+        let out = policy.pi.forward(obs, n, &mut s.ws_pi);
+        for i in 0..n {
+            let (mean, log_std) = (out[2 * i], out[2 * i + 1]);
+            let z: f32 = StandardNormal.sample(rng);
+            let a = mean + log_std.exp() * z;
+            roll.mean[base + i] = mean;
+            roll.log_std[base + i] = log_std;
+            roll.actions[base + i] = a;
+            roll.logp[base + i] = gaussian_log_prob(a, mean, log_std);
+            s.env_actions[i] = to_env_action(a);
+        }
+        let v = policy.vf.forward(obs, n, &mut s.ws_vf);
+        roll.values[base..base + n].copy_from_slice(v);
+        venv.step(&s.env_actions)?;
+        for (i, tr) in venv.transitions().iter().enumerate() {
+            roll.rewards[base + i] = tr.reward;
+            roll.dones[base + i] = tr.terminated || tr.truncated;
+        }
+        for e in venv.finished_episodes().iter().flatten() {
+            finished.push((e.episode_return, e.goal_events.len() as u32));
+        }
+        if cfg.bootstrap_truncated {
+            bootstrap_truncations(cfg, venv, policy, roll, base, s);
+        }
+    }
+    let last = policy.vf.forward(venv.observations(), n, &mut s.ws_vf);
+    roll.last_values.copy_from_slice(last);
+    gae(
+        &roll.rewards,
+        &roll.values,
+        &roll.dones,
+        &roll.last_values,
+        n,
+        cfg.gamma,
+        cfg.lambda,
+        &mut roll.advantages,
+        &mut roll.returns,
+    );
+    Ok(finished)
+}
+
+/// At a time limit the episode is cut, not ended: add γ·V(its last observation).
+fn bootstrap_truncations(
+    cfg: &PpoConfig,
+    venv: &VecEnv,
+    policy: &GaussianPolicy,
+    roll: &mut Rollout,
+    base: usize,
+    s: &mut Scratch,
+) {
+    let d = roll.obs_dim;
+    let truncated: Vec<usize> = venv
+        .transitions()
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.truncated && !t.terminated)
+        .map(|(i, _)| i)
+        .collect();
+    if truncated.is_empty() {
+        return;
+    }
+    s.final_rows.clear();
+    for &i in &truncated {
+        s.final_rows
+            .extend_from_slice(&venv.final_observations()[i * d..(i + 1) * d]);
+    }
+    let v = policy
+        .vf
+        .forward(&s.final_rows, truncated.len(), &mut s.ws_vf);
+    for (k, &i) in truncated.iter().enumerate() {
+        roll.rewards[base + i] += cfg.gamma * v[k];
+    }
+}
+
+/// Averages over an update.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct UpdateStats {
+    /// Mean surrogate loss term (-min(r·A, clip(r)·A)).
+    pub policy_loss: f32,
+    /// Mean clamped squared value error.
+    pub vf_loss: f32,
+    /// Mean KL(old ‖ new) over the last epoch.
+    pub kl: f32,
+    /// Mean policy entropy.
+    pub entropy: f32,
+}
+
+/// Sums of one minibatch's policy terms: (surrogate loss, KL, entropy).
+type PiSums = (f64, f64, f64);
+
+/// `num_sgd_iter` epochs of minibatch updates over `roll`.
+#[allow(clippy::too_many_arguments)]
+pub fn update(
+    cfg: &PpoConfig,
+    policy: &mut GaussianPolicy,
+    adam_pi: &mut Adam,
+    adam_vf: &mut Adam,
+    kl_coeff: f32,
+    roll: &mut Rollout,
+    rng: &mut SimRng,
+    s: &mut Scratch,
+) -> Result<UpdateStats, String> {
+    let (n, d, m) = (roll.len(), roll.obs_dim, cfg.sgd_minibatch_size);
+    if cfg.standardize_advantages {
+        let mean = roll.advantages.iter().map(|&a| f64::from(a)).sum::<f64>() / n as f64;
+        let var = roll
+            .advantages
+            .iter()
+            .map(|&a| (f64::from(a) - mean).powi(2))
+            .sum::<f64>()
+            / n as f64;
+        let sd = var.sqrt().max(1e-8);
+        roll.advantages
+            .iter_mut()
+            .for_each(|a| *a = ((f64::from(*a) - mean) / sd) as f32);
+    }
+    s.idx.clear();
+    s.idx.extend(0..n);
+    s.mb_obs.resize(m * d, 0.0);
+    s.grads_pi.resize(policy.pi.num_params(), 0.0);
+    s.grads_vf.resize(policy.vf.num_params(), 0.0);
+    s.dy_pi.resize(2 * m, 0.0);
+    s.dy_vf.resize(m, 0.0);
+    let (mut stats, mut batches) = (UpdateStats::default(), 0usize);
+    let (mut last_kl, mut last_batches) = (0.0f64, 0usize);
+    for epoch in 0..cfg.num_sgd_iter {
+        // Shuffle (Fisher-Yates), then full minibatches; a remainder smaller than a minibatch
+        // is dropped this epoch (it is shuffled into others).
+        for i in (1..n).rev() {
+            s.idx.swap(i, rng.random_range(0..=i));
+        }
+        for chunk in s.idx.chunks_exact(m) {
+            for (row, &k) in s.mb_obs.chunks_exact_mut(d).zip(chunk) {
+                row.copy_from_slice(&roll.obs[k * d..(k + 1) * d]);
+            }
+            let (pi_part, vf_part) = (
+                (
+                    &mut policy.pi,
+                    &mut *adam_pi,
+                    &mut s.ws_pi,
+                    &mut s.grads_pi,
+                    &mut s.dy_pi,
+                ),
+                (
+                    &mut policy.vf,
+                    &mut *adam_vf,
+                    &mut s.ws_vf,
+                    &mut s.grads_vf,
+                    &mut s.dy_vf,
+                ),
+            );
+            let obs = &s.mb_obs;
+            let roll_ref = &*roll;
+            let (pi_sums, vf_sum) = rayon::join(
+                || policy_step(cfg, kl_coeff, roll_ref, chunk, obs, pi_part),
+                || value_step(cfg, roll_ref, chunk, obs, vf_part),
+            );
+            let (surr, kl, ent) = pi_sums;
+            if !(surr.is_finite() && kl.is_finite() && vf_sum.is_finite()) {
+                return Err(format!(
+                    "non-finite loss (surrogate {surr}, KL {kl}, value {vf_sum})"
+                ));
+            }
+            stats.policy_loss += (surr / m as f64) as f32;
+            stats.vf_loss += (vf_sum / m as f64) as f32;
+            stats.entropy += (ent / m as f64) as f32;
+            batches += 1;
+            if epoch + 1 == cfg.num_sgd_iter {
+                last_kl += kl / m as f64;
+                last_batches += 1;
+            }
+        }
+    }
+    let b = batches.max(1) as f32;
+    stats.policy_loss /= b;
+    stats.vf_loss /= b;
+    stats.entropy /= b;
+    stats.kl = (last_kl / last_batches.max(1) as f64) as f32;
+    Ok(stats)
+}
+
+type NetPart<'a> = (
+    &'a mut fishprobe_nn::Mlp,
+    &'a mut Adam,
+    &'a mut MlpWorkspace,
+    &'a mut Vec<f32>,
+    &'a mut Vec<f32>,
+);
+
+/// Policy-network step on one minibatch; returns the sums of its terms.
+fn policy_step(
+    cfg: &PpoConfig,
+    kl_coeff: f32,
+    roll: &Rollout,
+    rows: &[usize],
+    obs: &[f32],
+    part: NetPart<'_>,
+) -> PiSums {
+    let (net, adam, ws, grads, dy) = part;
+    let m = rows.len();
+    let inv_m = 1.0 / m as f32;
+    let (lo, hi) = (1.0 - cfg.clip_param, 1.0 + cfg.clip_param);
+    let out = net.forward(obs, m, ws);
+    let (mut surr_sum, mut kl_sum, mut ent_sum) = (0.0f64, 0.0f64, 0.0f64);
+    for (j, &k) in rows.iter().enumerate() {
+        let (mean, log_std) = (out[2 * j], out[2 * j + 1]);
+        let a = roll.actions[k];
+        let adv = roll.advantages[k];
+        let ratio = (gaussian_log_prob(a, mean, log_std) - roll.logp[k]).exp();
+        let (s1, s2) = (ratio * adv, ratio.clamp(lo, hi) * adv);
+        surr_sum -= f64::from(s1.min(s2));
+        let kl = gaussian_kl(roll.mean[k], roll.log_std[k], mean, log_std);
+        kl_sum += f64::from(kl);
+        ent_sum += f64::from(gaussian_entropy(log_std));
+        // d(-min)/d logp: the unclipped term carries the gradient when it is the minimum
+        // (inside the clip range both are equal).
+        let d_logp = if s1 <= s2 { -adv * ratio } else { 0.0 };
+        let (lp_m, lp_s) = gaussian_log_prob_grad(a, mean, log_std);
+        let (kl_m, kl_s) = gaussian_kl_grad(roll.mean[k], roll.log_std[k], mean, log_std);
+        dy[2 * j] = (d_logp * lp_m + kl_coeff * kl_m) * inv_m;
+        dy[2 * j + 1] = (d_logp * lp_s + kl_coeff * kl_s - cfg.entropy_coeff) * inv_m;
+    }
+    grads.fill(0.0);
+    net.backward(obs, m, &dy[..2 * m], ws, grads, None);
+    adam.step(net.params_mut(), grads);
+    (surr_sum, kl_sum, ent_sum)
+}
+
+/// Value-network step on one minibatch; returns the sum of clamped squared errors.
+fn value_step(
+    cfg: &PpoConfig,
+    roll: &Rollout,
+    rows: &[usize],
+    obs: &[f32],
+    part: NetPart<'_>,
+) -> f64 {
+    let (net, adam, ws, grads, dy) = part;
+    let m = rows.len();
+    let out = net.forward(obs, m, ws);
+    let mut sum = 0.0f64;
+    for (j, &k) in rows.iter().enumerate() {
+        let err = out[j] - roll.returns[k];
+        let sq = err * err;
+        sum += f64::from(sq.min(cfg.vf_clip_param));
+        // The clamp is flat above vf_clip_param: no gradient there.
+        dy[j] = if sq < cfg.vf_clip_param {
+            2.0 * err * cfg.vf_loss_coeff / m as f32
+        } else {
+            0.0
+        };
+    }
+    grads.fill(0.0);
+    net.backward(obs, m, &dy[..m], ws, grads, None);
+    adam.step(net.params_mut(), grads);
+    sum * f64::from(cfg.vf_loss_coeff)
+}
+
+/// RLlib's adaptive KL coefficient.
+pub fn adapt_kl(kl_coeff: f32, kl: f32, target: f32) -> f32 {
+    if kl > 2.0 * target {
+        kl_coeff * 1.5
+    } else if kl < 0.5 * target {
+        kl_coeff * 0.5
+    } else {
+        kl_coeff
+    }
+}

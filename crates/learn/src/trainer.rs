@@ -1,0 +1,444 @@
+//! A training run on disk: `params.json` (the resolved configuration), `progress.csv` and
+//! `result.json` (one JSON object per iteration), `checkpoints/` and, at the end,
+//! `policy.safetensors`. A run interrupted at any moment resumes from its last checkpoint and
+//! ends exactly where an uninterrupted run with the same seed ends: a checkpoint holds the
+//! networks, Adam's moments, the KL coefficient, the sampling RNG and every environment's
+//! state mid-episode.
+
+use crate::config::PpoConfig;
+use crate::error::LearnError;
+use crate::policy::GaussianPolicy;
+use crate::ppo::{adapt_kl, collect, update, Rollout, Scratch, UpdateStats};
+use fishprobe_models::ModelSpec;
+use fishprobe_nn::store::{load, save, write_atomic, Tensors};
+use fishprobe_nn::Adam;
+use fishprobe_sim::{derive_seed, stream, EnvConfig, EnvSnapshot, SimRng, TaskMode, VecEnv};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What a run is: everything `params.json` records.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSpec {
+    /// PPO settings.
+    pub ppo: PpoConfig,
+    /// The environment (training mode).
+    pub env: EnvConfig,
+    /// The fish model the policy is trained against.
+    pub model: ModelSpec,
+    /// Master seed.
+    pub seed: u64,
+    /// The preset the settings came from.
+    pub preset: String,
+    /// fishprobe version that started the run.
+    pub program_version: String,
+}
+
+/// One iteration's log line.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IterationStats {
+    /// Iteration (1-based).
+    pub iteration: u64,
+    /// Environment steps so far.
+    pub timesteps: u64,
+    /// Episodes finished so far.
+    pub episodes_total: u64,
+    /// Episodes finished in this iteration.
+    pub episodes: u64,
+    /// Mean return of those episodes (NaN when none).
+    pub episode_return_mean: f32,
+    /// Their minimum return.
+    pub episode_return_min: f32,
+    /// Their maximum return.
+    pub episode_return_max: f32,
+    /// Mean goals reached per episode.
+    pub goals_per_episode: f32,
+    /// Mean surrogate loss.
+    pub policy_loss: f32,
+    /// Mean clamped value loss.
+    pub value_loss: f32,
+    /// Mean KL of the last epoch.
+    pub kl: f32,
+    /// KL coefficient after this iteration's adaptation.
+    pub kl_coeff: f32,
+    /// Mean policy entropy.
+    pub entropy: f32,
+    /// Wall time of the iteration (s).
+    pub time_s: f64,
+    /// Environment steps per second in this iteration.
+    pub steps_per_s: f64,
+}
+
+const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,time_s,steps_per_s";
+
+impl IterationStats {
+    fn csv_row(&self) -> String {
+        format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.1}",
+            self.iteration,
+            self.timesteps,
+            self.episodes_total,
+            self.episodes,
+            self.episode_return_mean,
+            self.episode_return_min,
+            self.episode_return_max,
+            self.goals_per_episode,
+            self.policy_loss,
+            self.value_loss,
+            self.kl,
+            self.kl_coeff,
+            self.entropy,
+            self.time_s,
+            self.steps_per_s
+        )
+    }
+}
+
+/// Trainer state that is not networks: `state.json` of a checkpoint.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct State {
+    iteration: u64,
+    timesteps: u64,
+    episodes: u64,
+    kl_coeff: f32,
+    adam_t: (u64, u64),
+    rng: SimRng,
+    envs: Vec<EnvSnapshot>,
+    obs: Vec<f32>,
+}
+
+/// A PPO run in progress.
+pub struct Trainer {
+    dir: PathBuf,
+    spec: RunSpec,
+    venv: VecEnv,
+    policy: GaussianPolicy,
+    adam_pi: Adam,
+    adam_vf: Adam,
+    kl_coeff: f32,
+    rng: SimRng,
+    iteration: u64,
+    timesteps: u64,
+    episodes: u64,
+    roll: Rollout,
+    scratch: Scratch,
+}
+
+fn run_err(path: &Path, what: impl std::fmt::Display) -> LearnError {
+    LearnError::Run(format!("{}: {what}", path.display()))
+}
+
+impl Trainer {
+    /// Starts a new run in `dir` (which must not hold one).
+    pub fn create(dir: &Path, mut spec: RunSpec) -> Result<Self, LearnError> {
+        spec.ppo.validate()?;
+        spec.env.mode = TaskMode::Training;
+        spec.env.validate()?;
+        if dir.join("params.json").exists() {
+            return Err(run_err(
+                dir,
+                "already holds a training run (use --resume to continue it, or another --out)",
+            ));
+        }
+        let mut t = Self::build(dir, spec)?;
+        t.venv.reset(derive_seed(t.spec.seed, "envs", 0))?;
+        let params = serde_json::to_string_pretty(&t.spec).map_err(|e| run_err(dir, e))?;
+        write_atomic(&dir.join("params.json"), params.as_bytes())?;
+        write_atomic(
+            &dir.join("progress.csv"),
+            format!("{CSV_HEADER}\n").as_bytes(),
+        )?;
+        write_atomic(&dir.join("result.json"), b"")?;
+        Ok(t)
+    }
+
+    fn build(dir: &Path, spec: RunSpec) -> Result<Self, LearnError> {
+        let model = spec.model.build()?;
+        let venv = VecEnv::new(spec.env.clone(), model, spec.ppo.num_envs)?;
+        let obs_dim = venv.obs_dim();
+        let policy =
+            GaussianPolicy::new(obs_dim, &spec.ppo, &mut stream(spec.seed, "policy-init", 0));
+        let adam_pi = Adam::new(policy.pi.num_params(), spec.ppo.lr);
+        let adam_vf = Adam::new(policy.vf.num_params(), spec.ppo.lr);
+        let steps = spec.ppo.train_batch_size / spec.ppo.num_envs;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            roll: Rollout::new(spec.ppo.num_envs, steps, obs_dim),
+            kl_coeff: spec.ppo.kl_coeff,
+            rng: stream(spec.seed, "ppo-sampling", 0),
+            spec,
+            venv,
+            policy,
+            adam_pi,
+            adam_vf,
+            iteration: 0,
+            timesteps: 0,
+            episodes: 0,
+            scratch: Scratch::default(),
+        })
+    }
+
+    /// Continues the run in `dir` from its last checkpoint (from the start when it has none).
+    pub fn resume(dir: &Path) -> Result<Self, LearnError> {
+        let params = dir.join("params.json");
+        let text = std::fs::read_to_string(&params)
+            .map_err(|e| run_err(&params, format!("cannot resume: {e}")))?;
+        let spec: RunSpec = serde_json::from_str(&text)
+            .map_err(|e| run_err(&params, format!("not a run's parameters: {e}")))?;
+        spec.ppo.validate()?;
+        let mut t = Self::build(dir, spec)?;
+        match std::fs::read_to_string(dir.join("checkpoints/latest")) {
+            Ok(name) => t.load_checkpoint(&dir.join("checkpoints").join(name.trim()))?,
+            Err(_) => t
+                .venv
+                .reset(derive_seed(t.spec.seed, "envs", 0))
+                .map(|_| ())?,
+        }
+        t.truncate_logs()?;
+        Ok(t)
+    }
+
+    /// The run's settings.
+    pub fn spec(&self) -> &RunSpec {
+        &self.spec
+    }
+    /// Iterations done.
+    pub fn iteration(&self) -> u64 {
+        self.iteration
+    }
+    /// Steps done.
+    pub fn timesteps(&self) -> u64 {
+        self.timesteps
+    }
+    /// Whether the step budget is reached.
+    pub fn done(&self) -> bool {
+        self.timesteps >= self.spec.ppo.total_timesteps
+    }
+    /// The current policy.
+    pub fn policy(&self) -> &GaussianPolicy {
+        &self.policy
+    }
+
+    /// One iteration: collect, update, log; checkpoints on schedule and at the end.
+    pub fn iterate(&mut self) -> Result<IterationStats, LearnError> {
+        let started = Instant::now();
+        let finished = collect(
+            &self.spec.ppo,
+            &mut self.venv,
+            &self.policy,
+            &mut self.roll,
+            &mut self.rng,
+            &mut self.scratch,
+        )?;
+        let iteration = self.iteration + 1;
+        let u: UpdateStats = update(
+            &self.spec.ppo,
+            &mut self.policy,
+            &mut self.adam_pi,
+            &mut self.adam_vf,
+            self.kl_coeff,
+            &mut self.roll,
+            &mut self.rng,
+            &mut self.scratch,
+        )
+        .map_err(|what| LearnError::Diverged { iteration, what })?;
+        if self
+            .policy
+            .pi
+            .params()
+            .iter()
+            .chain(self.policy.vf.params())
+            .any(|v| !v.is_finite())
+        {
+            return Err(LearnError::Diverged {
+                iteration,
+                what: "non-finite network weights".into(),
+            });
+        }
+        self.kl_coeff = adapt_kl(self.kl_coeff, u.kl, self.spec.ppo.kl_target);
+        self.iteration = iteration;
+        self.timesteps += self.roll.len() as u64;
+        self.episodes += finished.len() as u64;
+        let returns: Vec<f32> = finished.iter().map(|f| f.0).collect();
+        let n = returns.len().max(1) as f32;
+        let time_s = started.elapsed().as_secs_f64();
+        let stats = IterationStats {
+            iteration,
+            timesteps: self.timesteps,
+            episodes_total: self.episodes,
+            episodes: finished.len() as u64,
+            episode_return_mean: if returns.is_empty() {
+                f32::NAN
+            } else {
+                returns.iter().sum::<f32>() / n
+            },
+            episode_return_min: returns.iter().copied().fold(f32::NAN, f32::min),
+            episode_return_max: returns.iter().copied().fold(f32::NAN, f32::max),
+            goals_per_episode: if finished.is_empty() {
+                f32::NAN
+            } else {
+                finished.iter().map(|f| f.1 as f32).sum::<f32>() / n
+            },
+            policy_loss: u.policy_loss,
+            value_loss: u.vf_loss,
+            kl: u.kl,
+            kl_coeff: self.kl_coeff,
+            entropy: u.entropy,
+            time_s,
+            steps_per_s: self.roll.len() as f64 / time_s.max(1e-9),
+        };
+        self.append_logs(&stats)?;
+        if iteration.is_multiple_of(self.spec.ppo.checkpoint_every as u64) || self.done() {
+            self.save_checkpoint()?;
+        }
+        Ok(stats)
+    }
+
+    /// Writes the final policy to `dir/policy.safetensors`.
+    pub fn finish(&self) -> Result<PathBuf, LearnError> {
+        self.policy.save(&self.dir, self.about())
+    }
+
+    fn about(&self) -> serde_json::Value {
+        serde_json::json!({
+            "model": self.spec.model.name(),
+            "seed": self.spec.seed,
+            "preset": self.spec.preset,
+            "iteration": self.iteration,
+            "timesteps": self.timesteps,
+            "program_version": env!("CARGO_PKG_VERSION"),
+        })
+    }
+
+    fn append_logs(&self, s: &IterationStats) -> Result<(), LearnError> {
+        use std::io::Write;
+        let append = |name: &str, line: String| -> Result<(), LearnError> {
+            let p = self.dir.join(name);
+            let mut f = std::fs::OpenOptions::new()
+                .append(true)
+                .create(true)
+                .open(&p)
+                .map_err(|e| run_err(&p, e))?;
+            f.write_all(line.as_bytes()).map_err(|e| run_err(&p, e))
+        };
+        append("progress.csv", s.csv_row() + "\n")?;
+        let json = serde_json::to_string(s).map_err(|e| run_err(&self.dir, e))?;
+        append("result.json", json + "\n")
+    }
+
+    /// Drops log lines of iterations after the checkpoint (they will be redone).
+    fn truncate_logs(&self) -> Result<(), LearnError> {
+        let keep = |line: &str, first_field: &dyn Fn(&str) -> Option<u64>| {
+            first_field(line).is_none_or(|it| it <= self.iteration)
+        };
+        for (name, field) in [
+            (
+                "progress.csv",
+                &(|l: &str| l.split(',').next().and_then(|v| v.parse::<u64>().ok()))
+                    as &dyn Fn(&str) -> Option<u64>,
+            ),
+            ("result.json", &|l: &str| {
+                serde_json::from_str::<serde_json::Value>(l)
+                    .ok()
+                    .and_then(|v| v["iteration"].as_u64())
+            }),
+        ] {
+            let p = self.dir.join(name);
+            let text = std::fs::read_to_string(&p).unwrap_or_default();
+            let kept: String = text
+                .lines()
+                .filter(|l| !l.trim().is_empty() && keep(l, field))
+                .map(|l| format!("{l}\n"))
+                .collect();
+            let kept = if name == "progress.csv" && kept.is_empty() {
+                format!("{CSV_HEADER}\n")
+            } else {
+                kept
+            };
+            write_atomic(&p, kept.as_bytes())?;
+        }
+        Ok(())
+    }
+
+    fn save_checkpoint(&self) -> Result<(), LearnError> {
+        let name = format!("ckpt_{:06}", self.iteration);
+        let dir = self.dir.join("checkpoints").join(&name);
+        self.policy.save(&dir, self.about())?;
+        let mut optim = Tensors::new();
+        for (k, adam) in [("pi", &self.adam_pi), ("vf", &self.adam_vf)] {
+            optim.insert(format!("{k}.m"), (vec![adam.m.len()], adam.m.clone()));
+            optim.insert(format!("{k}.v"), (vec![adam.v.len()], adam.v.clone()));
+        }
+        save(
+            &dir.join("optim.safetensors"),
+            &optim,
+            &serde_json::json!({"format": "fishprobe-adam", "version": 1}),
+        )?;
+        let (envs, obs) = self.venv.snapshot();
+        let state = State {
+            iteration: self.iteration,
+            timesteps: self.timesteps,
+            episodes: self.episodes,
+            kl_coeff: self.kl_coeff,
+            adam_t: (self.adam_pi.t, self.adam_vf.t),
+            rng: self.rng.clone(),
+            envs,
+            obs,
+        };
+        let text = serde_json::to_string(&state).map_err(|e| run_err(&dir, e))?;
+        write_atomic(&dir.join("state.json"), text.as_bytes())?;
+        // The pointer moves last: a crash before this line leaves the previous checkpoint.
+        write_atomic(&self.dir.join("checkpoints/latest"), name.as_bytes())?;
+        // Keep the two newest checkpoints.
+        let mut all: Vec<PathBuf> = std::fs::read_dir(self.dir.join("checkpoints"))
+            .map_err(|e| run_err(&self.dir, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_dir())
+            .collect();
+        all.sort();
+        for old in all.iter().rev().skip(2) {
+            let _ = std::fs::remove_dir_all(old);
+        }
+        Ok(())
+    }
+
+    fn load_checkpoint(&mut self, dir: &Path) -> Result<(), LearnError> {
+        let (policy, _) = GaussianPolicy::load(dir)?;
+        if policy.pi.spec() != self.policy.pi.spec() || policy.vf.spec() != self.policy.vf.spec() {
+            return Err(run_err(dir, "checkpoint networks do not match params.json"));
+        }
+        self.policy = policy;
+        let (optim, _) = load(&dir.join("optim.safetensors"))?;
+        for (k, adam) in [("pi", &mut self.adam_pi), ("vf", &mut self.adam_vf)] {
+            for (part, buf) in [("m", &mut adam.m), ("v", &mut adam.v)] {
+                match optim.get(&format!("{k}.{part}")) {
+                    Some((_, d)) if d.len() == buf.len() => buf.copy_from_slice(d),
+                    _ => {
+                        return Err(run_err(
+                            dir,
+                            format!("optimiser state {k}.{part} missing or of the wrong size"),
+                        ))
+                    }
+                }
+            }
+        }
+        let p = dir.join("state.json");
+        let text = std::fs::read_to_string(&p).map_err(|e| run_err(&p, e))?;
+        let s: State = serde_json::from_str(&text).map_err(|e| run_err(&p, e))?;
+        self.venv.restore(&s.envs, &s.obs)?;
+        self.iteration = s.iteration;
+        self.timesteps = s.timesteps;
+        self.episodes = s.episodes;
+        self.kl_coeff = s.kl_coeff;
+        self.adam_pi.t = s.adam_t.0;
+        self.adam_vf.t = s.adam_t.1;
+        self.rng = s.rng;
+        Ok(())
+    }
+}
+
+/// Observation length of an environment configuration (for checking policies).
+pub fn obs_dim(env: &EnvConfig) -> usize {
+    env.observation.size()
+}
