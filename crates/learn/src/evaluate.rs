@@ -76,7 +76,13 @@ pub struct Evaluation {
     pub prefix: String,
 }
 
-fn run_episode(c: &Controller, e: &Evaluation, k: usize) -> Result<EpisodeResult, LearnError> {
+/// Runs episode `k` of an evaluation and writes its trial file to `file`.
+pub fn run_episode(
+    c: &Controller,
+    e: &Evaluation,
+    k: usize,
+    file: &Path,
+) -> Result<EpisodeResult, LearnError> {
     let mut cfg = e.env.clone();
     cfg.mode = TaskMode::Evaluation;
     let seconds_per_action = cfg.frames_per_action as f32 / cfg.frame_rate_hz;
@@ -137,8 +143,7 @@ fn run_episode(c: &Controller, e: &Evaluation, k: usize) -> Result<EpisodeResult
     };
     let half = cfg.tank.half_size_cm;
     let trial = TrialFile::from_trajectory(t, env.summary(), &meta, [2.0 * half, 2.0 * half]);
-    let file = e.out.join(format!("{}_{k:03}.hdf5", e.prefix));
-    write_trial(&file, &trial)?;
+    write_trial(file, &trial)?;
     let s = env.summary();
     let mut prev = 0u32;
     let waits: Vec<f64> = s
@@ -157,7 +162,7 @@ fn run_episode(c: &Controller, e: &Evaluation, k: usize) -> Result<EpisodeResult
         mean_time_to_goal_s: (!waits.is_empty())
             .then(|| waits.iter().sum::<f64>() / waits.len() as f64),
         wall_contacts: s.robot_wall_contacts,
-        file,
+        file: file.to_path_buf(),
     })
 }
 
@@ -165,7 +170,7 @@ fn run_episode(c: &Controller, e: &Evaluation, k: usize) -> Result<EpisodeResult
 pub fn evaluate(c: &Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>, LearnError> {
     let results: Vec<EpisodeResult> = (0..e.episodes)
         .into_par_iter()
-        .map(|k| run_episode(c, e, k))
+        .map(|k| run_episode(c, e, k, &e.out.join(format!("{}_{k:03}.hdf5", e.prefix))))
         .collect::<Result<_, _>>()?;
     let mut csv =
         String::from("episode,seed,goals_reached,mean_time_to_goal_s,wall_contacts,file\n");
@@ -201,7 +206,20 @@ pub fn goals_mean_sd(r: &[EpisodeResult]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
-/// Where a policy directory's own evaluation goes by default.
-pub fn default_out(policy_dir: &Path) -> PathBuf {
-    policy_dir.join("evaluation")
+/// A controller from a `--policy` argument: a policy directory, or `scripted:goal-seeker`.
+pub fn controller(arg: &str, stochastic: bool) -> Result<Controller, LearnError> {
+    if arg == "scripted:goal-seeker" {
+        return Ok(Controller::GoalSeeker);
+    }
+    let path = Path::new(arg);
+    let (policy, meta) = GaussianPolicy::load(path)?;
+    let name = meta["about"]["model"]
+        .as_str()
+        .map(|m| format!("{m} (seed {})", meta["about"]["seed"]))
+        .unwrap_or_else(|| arg.to_string());
+    Ok(Controller::Policy {
+        policy: Box::new(policy),
+        stochastic,
+        name,
+    })
 }

@@ -34,6 +34,8 @@ pub mod trainer;
 
 pub use config::PpoConfig;
 pub use error::LearnError;
-pub use evaluate::{evaluate, Controller, EpisodeResult, Evaluation};
+pub use evaluate::{
+    controller, evaluate, goals_mean_sd, run_episode, Controller, EpisodeResult, Evaluation,
+};
 pub use policy::{to_env_action, GaussianPolicy};
 pub use trainer::{IterationStats, RunSpec, Trainer};

@@ -1,1 +1,179 @@
-pub fn placeholder() {}
+//! ONNX export of a policy's deterministic action, so the lab can run it from Python (e.g.
+//! onnxruntime) on the robot PC: input `obs` (float32, batch x obs_dim), output `turn`
+//! (float32, batch x 1) = clip(mean, -1, 1) · π in radians: exactly the action fishprobe
+//! sends. The protobuf is written directly (ONNX IR 8, opset 13); only the policy network's
+//! mean is exported.
+
+use crate::error::LearnError;
+use crate::policy::GaussianPolicy;
+use fishprobe_nn::Activation;
+use std::f32::consts::PI;
+
+/// A protobuf message under construction.
+#[derive(Default)]
+struct Msg(Vec<u8>);
+
+impl Msg {
+    fn varint(&mut self, mut v: u64) {
+        while v >= 0x80 {
+            self.0.push((v as u8) | 0x80);
+            v >>= 7;
+        }
+        self.0.push(v as u8);
+    }
+    fn key(&mut self, field: u64, wire: u64) {
+        self.varint((field << 3) | wire);
+    }
+    fn int(&mut self, field: u64, v: i64) -> &mut Self {
+        self.key(field, 0);
+        self.varint(v as u64);
+        self
+    }
+    fn bytes(&mut self, field: u64, b: &[u8]) -> &mut Self {
+        self.key(field, 2);
+        self.varint(b.len() as u64);
+        self.0.extend_from_slice(b);
+        self
+    }
+    fn string(&mut self, field: u64, s: &str) -> &mut Self {
+        self.bytes(field, s.as_bytes())
+    }
+    fn msg(&mut self, field: u64, m: &Msg) -> &mut Self {
+        self.bytes(field, &m.0)
+    }
+    fn float(&mut self, field: u64, v: f32) -> &mut Self {
+        self.key(field, 5);
+        self.0.extend_from_slice(&v.to_le_bytes());
+        self
+    }
+}
+
+const FLOAT: i64 = 1;
+
+fn tensor(name: &str, dims: &[usize], data: &[f32]) -> Msg {
+    let mut t = Msg::default();
+    for &d in dims {
+        t.int(1, d as i64);
+    }
+    t.int(2, FLOAT).string(8, name);
+    let raw: Vec<u8> = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    t.bytes(9, &raw);
+    t
+}
+
+fn value_info(name: &str, cols: usize) -> Msg {
+    let mut batch = Msg::default();
+    batch.string(2, "batch");
+    let mut width = Msg::default();
+    width.int(1, cols as i64);
+    let mut shape = Msg::default();
+    shape.msg(1, &batch).msg(1, &width);
+    let mut tensor_type = Msg::default();
+    tensor_type.int(1, FLOAT).msg(2, &shape);
+    let mut ty = Msg::default();
+    ty.msg(1, &tensor_type);
+    let mut vi = Msg::default();
+    vi.string(1, name).msg(2, &ty);
+    vi
+}
+
+fn node(op: &str, inputs: &[&str], output: &str, attr: Option<(&str, f32)>) -> Msg {
+    let mut n = Msg::default();
+    for i in inputs {
+        n.string(1, i);
+    }
+    n.string(2, output).string(3, output).string(4, op);
+    if let Some((name, v)) = attr {
+        let mut a = Msg::default();
+        a.string(1, name).float(2, v).int(20, 1);
+        n.msg(5, &a);
+    }
+    n
+}
+
+/// The ONNX model bytes of a policy's deterministic action.
+pub fn policy_to_onnx(policy: &GaussianPolicy) -> Result<Vec<u8>, LearnError> {
+    let net = &policy.pi;
+    let sizes = &net.spec().sizes;
+    let layers = sizes.len() - 1;
+    let mut graph = Msg::default();
+    let mut inits = Vec::new();
+    let mut x = "obs".to_string();
+    for l in 0..layers {
+        let (w, b) = net.layer(l);
+        let (inp, out) = (sizes[l], sizes[l + 1]);
+        // The last layer outputs (mean, log_std): export the mean column only.
+        let (w, b, out) = if l + 1 == layers {
+            (
+                w.chunks_exact(out).map(|row| row[0]).collect::<Vec<f32>>(),
+                vec![b[0]],
+                1,
+            )
+        } else {
+            (w.to_vec(), b.to_vec(), out)
+        };
+        inits.push(tensor(&format!("W{l}"), &[inp, out], &w));
+        inits.push(tensor(&format!("b{l}"), &[out], &b));
+        graph.msg(
+            1,
+            &node("MatMul", &[&x, &format!("W{l}")], &format!("mm{l}"), None),
+        );
+        graph.msg(
+            1,
+            &node(
+                "Add",
+                &[&format!("mm{l}"), &format!("b{l}")],
+                &format!("z{l}"),
+                None,
+            ),
+        );
+        x = format!("z{l}");
+        if l + 1 < layers {
+            let (op, attr) = match net.spec().hidden {
+                Activation::Tanh => ("Tanh", None),
+                Activation::LeakyRelu(a) => ("LeakyRelu", Some(("alpha", a))),
+            };
+            graph.msg(1, &node(op, &[&x], &format!("h{l}"), attr));
+            x = format!("h{l}");
+        }
+    }
+    inits.push(tensor("lo", &[], &[-1.0]));
+    inits.push(tensor("hi", &[], &[1.0]));
+    inits.push(tensor("scale", &[1], &[PI]));
+    graph.msg(1, &node("Clip", &[&x, "lo", "hi"], "clipped", None));
+    graph.msg(1, &node("Mul", &["clipped", "scale"], "turn", None));
+    graph.string(2, "fishprobe_policy");
+    for t in &inits {
+        graph.msg(5, t);
+    }
+    graph.msg(11, &value_info("obs", policy.obs_dim()));
+    graph.msg(12, &value_info("turn", 1));
+    let mut opset = Msg::default();
+    opset.string(1, "").int(2, 13);
+    let mut model = Msg::default();
+    model
+        .int(1, 8)
+        .string(2, "fishprobe")
+        .string(3, env!("CARGO_PKG_VERSION"))
+        .msg(7, &graph)
+        .msg(8, &opset);
+    Ok(model.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn varints_and_keys_follow_protobuf() {
+        let mut m = Msg::default();
+        m.varint(300);
+        assert_eq!(m.0, vec![0xAC, 0x02]);
+        let mut m = Msg::default();
+        m.int(1, 8);
+        assert_eq!(m.0, vec![0x08, 0x08]);
+        let mut m = Msg::default();
+        m.string(2, "ab");
+        assert_eq!(m.0, vec![0x12, 0x02, b'a', b'b']);
+    }
+}

@@ -223,6 +223,7 @@ impl Trainer {
     /// One iteration: collect, update, log; checkpoints on schedule and at the end.
     pub fn iterate(&mut self) -> Result<IterationStats, LearnError> {
         let started = Instant::now();
+        let iteration = self.iteration + 1;
         let finished = collect(
             &self.spec.ppo,
             &mut self.venv,
@@ -230,8 +231,15 @@ impl Trainer {
             &mut self.roll,
             &mut self.rng,
             &mut self.scratch,
-        )?;
-        let iteration = self.iteration + 1;
+        )
+        .map_err(|e| match e {
+            // A finite policy never proposes a NaN action: the networks have diverged.
+            fishprobe_sim::SimError::NonFiniteAction { .. } => LearnError::Diverged {
+                iteration,
+                what: format!("the policy proposed a non-finite action ({e})"),
+            },
+            other => other.into(),
+        })?;
         let u: UpdateStats = update(
             &self.spec.ppo,
             &mut self.policy,
@@ -441,4 +449,46 @@ impl Trainer {
 /// Observation length of an environment configuration (for checking policies).
 pub fn obs_dim(env: &EnvConfig) -> usize {
     env.observation.size()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn divergence_stops_with_an_error_and_keeps_the_last_good_checkpoint() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-diverge-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut ppo = PpoConfig::preset("smoke").unwrap();
+        ppo.total_timesteps = 1_000_000;
+        let spec = RunSpec {
+            ppo,
+            env: EnvConfig::default(),
+            model: ModelSpec::by_name("Zone").unwrap(),
+            seed: 0,
+            preset: "smoke".into(),
+            program_version: "test".into(),
+        };
+        let mut t = Trainer::create(&dir, spec).unwrap();
+        t.iterate().unwrap();
+        let good = std::fs::read(dir.join("checkpoints/ckpt_000001/policy.safetensors")).unwrap();
+        // Poison the policy: the next update meets non-finite values.
+        t.policy.pi.params_mut()[0] = f32::NAN;
+        match t.iterate() {
+            Err(LearnError::Diverged { iteration, .. }) => assert_eq!(iteration, 2),
+            Err(other) => panic!("unexpected error {other}"),
+            Ok(_) => panic!("a NaN weight went unnoticed"),
+        }
+        assert_eq!(
+            std::fs::read_to_string(dir.join("checkpoints/latest")).unwrap(),
+            "ckpt_000001"
+        );
+        assert_eq!(
+            std::fs::read(dir.join("checkpoints/ckpt_000001/policy.safetensors")).unwrap(),
+            good
+        );
+        // And the run resumes from it.
+        let r = Trainer::resume(&dir).unwrap();
+        assert_eq!(r.iteration(), 1);
+    }
 }

@@ -3,6 +3,8 @@
 mod analyze;
 mod bench;
 mod config;
+mod evaluate;
+mod export;
 mod import_legacy;
 mod inspect;
 mod models;
@@ -39,6 +41,10 @@ enum Command {
     ImportLegacy(import_legacy::ImportLegacyArgs),
     /// Train a robot policy (PPO) against a fish model.
     Train(train::TrainArgs),
+    /// Run a trained policy (or the scripted baseline) on the 15-minute evaluation task.
+    Evaluate(evaluate::EvaluateArgs),
+    /// Export a trained policy as ONNX (observation in, turn angle out).
+    Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
     Analyze(analyze::AnalyzeArgs),
 }
@@ -83,5 +89,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ImportLegacy(a) => import_legacy::run(a),
         Command::Analyze(a) => analyze::run(a),
         Command::Train(a) => train::run(a),
+        Command::Evaluate(a) => evaluate::run(a),
+        Command::Export(a) => export::run(a),
     }
 }

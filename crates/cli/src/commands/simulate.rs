@@ -19,7 +19,7 @@ pub struct SimulateArgs {
     model: Option<String>,
     /// Scripted robot: `still` (stands where it starts), `circle` (drives a 30 cm circle
     /// around the centre) or `goals` (drives to the active goal and waits until the fish
-    /// reaches it).
+    /// reaches it); or `policy:DIR`, a trained policy's mean action.
     #[arg(long, default_value = "goals")]
     robot: String,
     /// Trial length in minutes (paper: 15).
@@ -44,16 +44,18 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     if let Some(m) = &a.model {
         settings.fish = ModelSpec::by_name(m)?;
     }
-    let script = match RobotScript::parse(&a.robot) {
-        Some(s) => s,
-        None if a.robot.starts_with("policy:") => {
-            bail!("--robot policy:DIR needs a trained policy; training arrives with `fishprobe train` (not built yet)")
-        }
-        None => bail!("unknown --robot `{}`: use still, circle or goals", a.robot),
-    };
     if !(a.minutes.is_finite() && a.minutes > 0.0) {
         bail!("--minutes must be a positive number, got {}", a.minutes);
     }
+    if let Some(dir) = a.robot.strip_prefix("policy:") {
+        return simulate_policy(dir, &settings, &a);
+    }
+    let Some(script) = RobotScript::parse(&a.robot) else {
+        bail!(
+            "unknown --robot `{}`: use still, circle, goals or policy:DIR",
+            a.robot
+        );
+    };
     let script_params = ScriptParams::default();
     let mut env_cfg = settings.env.clone();
     env_cfg.mode = TaskMode::Evaluation;
@@ -105,5 +107,30 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         script.name(),
         s.goal_events.len(),
         s.fish_wall_contacts
+    ))
+}
+
+/// One evaluation episode driven by a trained policy (its mean action).
+fn simulate_policy(dir: &str, settings: &SimSettings, a: &SimulateArgs) -> Result<()> {
+    let c =
+        fishprobe_learn::controller(dir, false).with_context(|| format!("loading policy {dir}"))?;
+    let e = fishprobe_learn::Evaluation {
+        model: settings.fish.clone(),
+        env: settings.env.clone(),
+        episodes: 1,
+        minutes: a.minutes,
+        seed: a.seed,
+        start: None,
+        out: a.out.parent().map(PathBuf::from).unwrap_or_default(),
+        prefix: String::new(),
+    };
+    let r = fishprobe_learn::run_episode(&c, &e, 0, &a.out)?;
+    emit(&format!(
+        "{}: {:.1} min of {} fish with policy {}; {} goals reached\n",
+        a.out.display(),
+        a.minutes,
+        settings.fish.name(),
+        c.name(),
+        r.goals
     ))
 }

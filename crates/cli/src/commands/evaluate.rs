@@ -1,0 +1,77 @@
+//! `fishprobe evaluate`: a trained policy (or the scripted baseline) on the 15-minute
+//! evaluation task, one trial file per episode.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_learn::{controller, evaluate, goals_mean_sd, Evaluation};
+use fishprobe_models::ModelSpec;
+use std::path::PathBuf;
+
+use super::config::SimSettings;
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct EvaluateArgs {
+    /// A policy directory from `fishprobe train`, or `scripted:goal-seeker` (turns toward the
+    /// active goal every second, ignoring the fish: the baseline a policy must beat).
+    #[arg(long)]
+    policy: String,
+    /// Fish model to evaluate against.
+    #[arg(long)]
+    model: String,
+    /// Episodes.
+    #[arg(long, default_value_t = 18)]
+    episodes: usize,
+    /// Minutes per episode (paper: 15).
+    #[arg(long, default_value_t = 15.0)]
+    minutes: f32,
+    /// Output directory: `trial_<k>.hdf5` per episode and `summary.csv`.
+    #[arg(long)]
+    out: PathBuf,
+    /// Sample actions instead of taking the policy's mean.
+    #[arg(long)]
+    stochastic: bool,
+    /// Master seed of the episodes.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Settings file for the environment (see `fishprobe config show`).
+    #[arg(long)]
+    settings: Option<PathBuf>,
+    /// Threads (default: all cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+}
+
+pub fn run(a: EvaluateArgs) -> Result<()> {
+    if a.episodes == 0 || !(a.minutes.is_finite() && a.minutes > 0.0) {
+        bail!("--episodes must be at least 1 and --minutes a positive number");
+    }
+    let env = match &a.settings {
+        Some(p) => SimSettings::load(p)?.env,
+        None => SimSettings::default().env,
+    };
+    let c = controller(&a.policy, a.stochastic)
+        .with_context(|| format!("loading --policy {}", a.policy))?;
+    let e = Evaluation {
+        model: ModelSpec::by_name(&a.model)?,
+        env,
+        episodes: a.episodes,
+        minutes: a.minutes,
+        seed: a.seed,
+        start: None,
+        out: a.out.clone(),
+        prefix: "trial".into(),
+    };
+    let results = super::with_jobs(a.jobs, || evaluate(&c, &e))??;
+    let (mean, sd) = goals_mean_sd(&results);
+    emit(&format!(
+        "{} against {}: {:.1} ± {:.1} goals per {} min over {} episodes (mean ± s.d.); trial files and summary.csv in {}\n",
+        c.name(),
+        a.model,
+        mean,
+        sd,
+        a.minutes,
+        results.len(),
+        a.out.display()
+    ))
+}

@@ -1,0 +1,332 @@
+//! End-to-end tests of train, evaluate, export and simulate --robot policy:DIR.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir, stderr, stdout};
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// progress.csv without the wall-time columns (time_s, steps_per_s).
+fn progress_without_times(dir: &Path) -> Vec<String> {
+    std::fs::read_to_string(dir.join("progress.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| l.split(',').take(13).collect::<Vec<_>>().join(","))
+        .collect()
+}
+
+#[test]
+fn a_killed_run_resumes_to_the_same_result() {
+    let d = fresh_dir("resume");
+    let (a, b) = (d.join("a"), d.join("b"));
+    let args = |out: &Path| {
+        vec![
+            "train",
+            "--model",
+            "Zone",
+            "--preset",
+            "smoke",
+            "--steps",
+            "24576",
+            "--seed",
+            "4",
+            "--out",
+            out.to_str().unwrap().to_string().leak(),
+        ]
+    };
+    let o = fishprobe(&args(&a));
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The same run, killed (SIGKILL) once some iterations are logged, then resumed.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(args(&b))
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        let lines = std::fs::read_to_string(b.join("progress.csv"))
+            .map(|t| t.lines().count())
+            .unwrap_or(0);
+        if lines >= 6 || start.elapsed() > Duration::from_secs(60) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let mut resume = args(&b);
+    resume.push("--resume");
+    let o = fishprobe(&resume);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(a.join("policy.safetensors")).unwrap(),
+        std::fs::read(b.join("policy.safetensors")).unwrap(),
+        "resumed policy differs"
+    );
+    assert_eq!(progress_without_times(&a), progress_without_times(&b));
+    assert_eq!(progress_without_times(&a).len(), 1 + 24);
+    // result.json: one JSON object per iteration.
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(a.join("result.json"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 24);
+    for k in [
+        "timesteps",
+        "episode_return_mean",
+        "goals_per_episode",
+        "policy_loss",
+        "value_loss",
+        "kl",
+        "entropy",
+        "time_s",
+    ] {
+        assert!(lines[23].get(k).is_some(), "{k}");
+    }
+    let params: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.join("params.json")).unwrap()).unwrap();
+    assert_eq!(params["ppo"]["clip_param"].as_f64().unwrap() as f32, 0.1112);
+    assert_eq!(params["model"]["model"], "Zone");
+    // Starting over in a used directory is refused.
+    let o = fishprobe(&args(&a));
+    assert!(
+        stderr(&o).contains("already holds a training run"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn evaluate_export_and_simulate_a_trained_policy() {
+    let d = fresh_dir("eval");
+    let run = d.join("run");
+    assert!(fishprobe(&[
+        "train",
+        "--model",
+        "Follow",
+        "--preset",
+        "smoke",
+        "--out",
+        run.to_str().unwrap()
+    ])
+    .status
+    .success());
+    let ev = d.join("ev");
+    let o = fishprobe(&[
+        "evaluate",
+        "--policy",
+        run.to_str().unwrap(),
+        "--model",
+        "Follow",
+        "--episodes",
+        "3",
+        "--minutes",
+        "0.5",
+        "--out",
+        ev.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("goals per 0.5 min over 3 episodes"),
+        "{}",
+        stdout(&o)
+    );
+    let summary = std::fs::read_to_string(ev.join("summary.csv")).unwrap();
+    assert_eq!(summary.lines().count(), 4);
+    let t = fishprobe_io::read_trial(&ev.join("trial_000.hdf5")).unwrap();
+    let task = t.task.unwrap();
+    assert_eq!(task.fish_model, "Follow");
+    assert!(task.policy.starts_with("Follow"), "{}", task.policy);
+    assert_eq!(task.command_frames.len(), 30, "one command per second");
+    let base = fishprobe(&[
+        "evaluate",
+        "--policy",
+        "scripted:goal-seeker",
+        "--model",
+        "Follow",
+        "--episodes",
+        "2",
+        "--minutes",
+        "0.5",
+        "--out",
+        d.join("base").to_str().unwrap(),
+    ]);
+    assert!(base.status.success(), "{}", stderr(&base));
+    let one = d.join("one.hdf5");
+    let o = fishprobe(&[
+        "simulate",
+        "--robot",
+        &format!("policy:{}", run.display()),
+        "--model",
+        "Follow",
+        "--minutes",
+        "0.5",
+        "--out",
+        one.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(fishprobe_io::read_trial(&one).is_ok());
+    onnx_matches_onnxruntime(&run, &d);
+}
+
+/// The exported ONNX model gives the same turn angles as fishprobe (fast tanh vs exact tanh:
+/// within 1e-3 rad), checked with onnxruntime from PyPI.
+fn onnx_matches_onnxruntime(run: &Path, d: &Path) {
+    let onnx = d.join("policy.onnx");
+    let o = fishprobe(&[
+        "export",
+        "--policy",
+        run.to_str().unwrap(),
+        "--onnx",
+        onnx.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (policy, _) = fishprobe_learn::GaussianPolicy::load(run).unwrap();
+    let obs: Vec<f32> = (0..5 * 180)
+        .map(|i| ((i * 37 % 101) as f32) / 100.0)
+        .collect();
+    let mut mean = vec![0.0; 5];
+    policy.mean_actions(
+        &obs,
+        5,
+        &mut fishprobe_nn::MlpWorkspace::default(),
+        &mut mean,
+    );
+    let expected: Vec<f32> = mean
+        .iter()
+        .map(|&m| fishprobe_learn::to_env_action(m))
+        .collect();
+    let case = d.join("case.json");
+    std::fs::write(
+        &case,
+        serde_json::json!({"obs": obs, "expected": expected}).to_string(),
+    )
+    .unwrap();
+    let ok = |py: &str| {
+        Command::new(py)
+            .args(["-c", "import onnxruntime, numpy"])
+            .status()
+            .is_ok_and(|s| s.success())
+    };
+    if !ok("python3") {
+        let st = Command::new("python3")
+            .args(["-m", "pip", "install", "--quiet", "onnxruntime", "numpy"])
+            .status();
+        assert!(
+            st.is_ok_and(|s| s.success()) && ok("python3"),
+            "onnxruntime is required for this test"
+        );
+    }
+    let script = r#"
+import sys, json, numpy as np, onnxruntime as ort
+c = json.load(open(sys.argv[2]))
+s = ort.InferenceSession(sys.argv[1])
+out = s.run(["turn"], {"obs": np.array(c["obs"], dtype=np.float32).reshape(5, 180)})[0].ravel()
+err = np.max(np.abs(out - np.array(c["expected"], dtype=np.float32)))
+assert err < 1e-3, (out, c["expected"], err)
+print("max error", err)
+"#;
+    let o = Command::new("python3")
+        .args(["-c", script, onnx.to_str().unwrap(), case.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
+}
+
+#[test]
+fn unusable_policies_are_clear_errors() {
+    let d = fresh_dir("badpol");
+    let o = fishprobe(&[
+        "evaluate",
+        "--policy",
+        d.join("none").to_str().unwrap(),
+        "--model",
+        "Zone",
+        "--out",
+        d.join("x").to_str().unwrap(),
+    ]);
+    assert!(
+        stderr(&o).contains("not a policy directory"),
+        "{}",
+        stderr(&o)
+    );
+    let run = d.join("run");
+    assert!(fishprobe(&[
+        "train",
+        "--model",
+        "Zone",
+        "--preset",
+        "smoke",
+        "--steps",
+        "1024",
+        "--out",
+        run.to_str().unwrap()
+    ])
+    .status
+    .success());
+    // Built for 180 observations; an environment with 18 sectors gives 90.
+    let settings = d.join("s.toml");
+    std::fs::write(&settings, "[env.observation]\nsectors = 18\n").unwrap();
+    let o = fishprobe(&[
+        "evaluate",
+        "--policy",
+        run.to_str().unwrap(),
+        "--model",
+        "Zone",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.1",
+        "--settings",
+        settings.to_str().unwrap(),
+        "--out",
+        d.join("y").to_str().unwrap(),
+    ]);
+    assert!(
+        stderr(&o).contains("built for observations of 180 floats, the environment gives 90"),
+        "{}",
+        stderr(&o)
+    );
+    // Another format version.
+    let sidecar = run.join("policy.safetensors.json");
+    let text = std::fs::read_to_string(&sidecar)
+        .unwrap()
+        .replace("\"version\": 1", "\"version\": 99");
+    std::fs::write(&sidecar, text).unwrap();
+    let o = fishprobe(&[
+        "export",
+        "--policy",
+        run.to_str().unwrap(),
+        "--onnx",
+        d.join("p.onnx").to_str().unwrap(),
+    ]);
+    assert!(stderr(&o).contains("version 99"), "{}", stderr(&o));
+    // Missing weights.
+    std::fs::remove_file(run.join("policy.safetensors")).unwrap();
+    let o = fishprobe(&[
+        "export",
+        "--policy",
+        run.to_str().unwrap(),
+        "--onnx",
+        d.join("p.onnx").to_str().unwrap(),
+    ]);
+    assert!(stderr(&o).contains("missing"), "{}", stderr(&o));
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "Zone",
+        "--preset",
+        "huge",
+        "--out",
+        d.join("z").to_str().unwrap(),
+    ]);
+    assert!(
+        stderr(&o).contains("unknown --preset `huge`"),
+        "{}",
+        stderr(&o)
+    );
+}
