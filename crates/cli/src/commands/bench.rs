@@ -30,6 +30,17 @@ enum StudySizeArg {
 
 #[derive(Debug, Subcommand)]
 enum BenchWhat {
+    /// The trainer: single-core matrix-multiply rate, PPO-update minibatch steps/s and GFLOP/s
+    /// (paper network and minibatch), and end-to-end training steps/s with the `paper` preset,
+    /// projected to a full run.
+    Train {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Training iterations of the end-to-end measurement (8192 steps, 100 epochs each).
+        #[arg(long, default_value_t = 2)]
+        iterations: u64,
+    },
     /// The whole analysis of a paper-sized study of synthetic trials (scripted robots), file
     /// reading included, with the paper's replicate counts.
     Stats {
@@ -105,6 +116,7 @@ pub fn run(a: BenchArgs) -> Result<()> {
             seconds,
             envs,
         } => bench_sim(json, seconds, envs),
+        BenchWhat::Train { json, iterations } => bench_train(json, iterations),
         BenchWhat::Stats {
             json,
             dir,
@@ -297,4 +309,97 @@ fn timed(
         steps += chunk()?;
     }
     Ok((steps, start.elapsed().as_secs_f64()))
+}
+
+/// FLOPs of one forward and backward pass of an MLP on `m` rows (dense layers only).
+fn mlp_flops(sizes: &[usize], m: usize) -> f64 {
+    let macs: Vec<f64> = sizes.windows(2).map(|w| (w[0] * w[1]) as f64).collect();
+    let forward: f64 = macs.iter().sum::<f64>() * 2.0 * m as f64;
+    // Backward: weight gradients for every layer, input gradients for all but the first.
+    let backward = forward + (macs.iter().sum::<f64>() - macs[0]) * 2.0 * m as f64;
+    forward + backward
+}
+
+fn bench_train(json: bool, iterations: u64) -> Result<()> {
+    use fishprobe_learn::ppo::{update, Rollout, Scratch};
+    use fishprobe_learn::{GaussianPolicy, PpoConfig, RunSpec, Trainer};
+    let m = machine();
+    // 1. Single-core GEMM rate at the update's shapes (512 x 256 · 256 x 256).
+    let (a, b) = (vec![0.5f32; 512 * 256], vec![0.25f32; 256 * 256]);
+    let mut c = vec![0.0f32; 512 * 256];
+    let per = 2.0 * 512.0 * 256.0 * 256.0;
+    let (reps, secs) = timed(1.0, || {
+        fishprobe_nn::gemm::gemm(1.0, fishprobe_nn::gemm::Mat::new(&a, 512, 256), fishprobe_nn::gemm::Mat::new(&b, 256, 256), 0.0, &mut c, 512, 256);
+        Ok(1)
+    })?;
+    let gemm_gflops = per * reps as f64 / secs / 1e9;
+
+    // 2. PPO update on a synthetic batch (paper network, minibatch and batch sizes).
+    let mut cfg = PpoConfig::default();
+    cfg.num_sgd_iter = 2;
+    let mut rng = stream(0, "bench-train", 0);
+    let mut policy = GaussianPolicy::new(180, &cfg, &mut rng);
+    let mut roll = Rollout::new(cfg.num_envs, cfg.train_batch_size / cfg.num_envs, 180);
+    for (i, v) in roll.obs.iter_mut().enumerate() {
+        *v = ((i * 7919) % 1000) as f32 / 1000.0;
+    }
+    for (i, a) in roll.advantages.iter_mut().enumerate() {
+        *a = ((i % 17) as f32 - 8.0) / 8.0;
+    }
+    roll.logp.iter_mut().for_each(|l| *l = -1.0);
+    let mut adam_pi = fishprobe_nn::Adam::new(policy.pi.num_params(), cfg.lr);
+    let mut adam_vf = fishprobe_nn::Adam::new(policy.vf.num_params(), cfg.lr);
+    let mut scratch = Scratch::default();
+    let minibatches_per_call = cfg.num_sgd_iter * (cfg.train_batch_size / cfg.sgd_minibatch_size);
+    let (calls, secs) = timed(3.0, || {
+        update(&cfg, &mut policy, &mut adam_pi, &mut adam_vf, 0.2, &mut roll, &mut rng, &mut scratch)
+            .map_err(|_| fishprobe_sim::SimError::NeedsReset)?;
+        Ok(1)
+    })?;
+    let mb_per_s = (calls as usize * minibatches_per_call) as f64 / secs;
+    let flops_mb = mlp_flops(&policy.pi.spec().sizes, cfg.sgd_minibatch_size) + mlp_flops(&policy.vf.spec().sizes, cfg.sgd_minibatch_size);
+    let update_gflops = flops_mb * mb_per_s / 1e9;
+
+    // 3. End to end: `iterations` paper-preset iterations against Zone.
+    let dir = std::env::temp_dir().join(format!("fishprobe-bench-train-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let spec = RunSpec {
+        ppo: PpoConfig::default(),
+        env: fishprobe_sim::EnvConfig::default(),
+        model: ModelSpec::by_name("Zone")?,
+        seed: 0,
+        preset: "paper".into(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+    };
+    let total = spec.ppo.total_timesteps;
+    let mut t = Trainer::create(&dir, spec)?;
+    let start = Instant::now();
+    for _ in 0..iterations.max(1) {
+        t.iterate()?;
+    }
+    let e2e_secs = start.elapsed().as_secs_f64();
+    let _ = std::fs::remove_dir_all(&dir);
+    let steps_per_s = t.timesteps() as f64 / e2e_secs;
+    let projected_min = total as f64 / steps_per_s / 60.0;
+    let text = if json {
+        serde_json::to_string_pretty(&serde_json::json!({
+            "bench": "train", "machine": m, "gemm_gflops_single_core": gemm_gflops,
+            "update_minibatches_per_s": mb_per_s, "update_gflops": update_gflops,
+            "update_gflops_per_core": update_gflops / m.cores as f64,
+            "train_steps_per_s": steps_per_s, "paper_run_minutes_projected": projected_min,
+            "command": "fishprobe bench train --json",
+        }))? + "\n"
+    } else {
+        format!(
+            "fishprobe bench train — {} cores, {} ({} {})\n\
+             matrix multiply, one core (512x256 · 256x256):  {gemm_gflops:.1} GFLOP/s\n\
+             PPO update (2 x [180, 256, 256, out] MLPs, minibatch 512): {mb_per_s:.1} minibatches/s, {update_gflops:.1} GFLOP/s ({:.1} per core, {:.0} % of the single-core GEMM rate)\n\
+             end to end (paper preset, {} iterations, Zone): {steps_per_s:.0} steps/s -> a full {total}-step run takes {projected_min:.1} min\n",
+            m.cores, m.cpu, m.os, m.arch,
+            update_gflops / m.cores as f64,
+            100.0 * update_gflops / m.cores as f64 / gemm_gflops,
+            iterations.max(1)
+        )
+    };
+    emit(&text)
 }
