@@ -329,7 +329,15 @@ fn bench_train(json: bool, iterations: u64) -> Result<()> {
     let mut c = vec![0.0f32; 512 * 256];
     let per = 2.0 * 512.0 * 256.0 * 256.0;
     let (reps, secs) = timed(1.0, || {
-        fishprobe_nn::gemm::gemm(1.0, fishprobe_nn::gemm::Mat::new(&a, 512, 256), fishprobe_nn::gemm::Mat::new(&b, 256, 256), 0.0, &mut c, 512, 256);
+        fishprobe_nn::gemm::gemm(
+            1.0,
+            fishprobe_nn::gemm::Mat::new(&a, 512, 256),
+            fishprobe_nn::gemm::Mat::new(&b, 256, 256),
+            0.0,
+            &mut c,
+            512,
+            256,
+        );
         Ok(1)
     })?;
     let gemm_gflops = per * reps as f64 / secs / 1e9;
@@ -352,12 +360,22 @@ fn bench_train(json: bool, iterations: u64) -> Result<()> {
     let mut scratch = Scratch::default();
     let minibatches_per_call = cfg.num_sgd_iter * (cfg.train_batch_size / cfg.sgd_minibatch_size);
     let (calls, secs) = timed(3.0, || {
-        update(&cfg, &mut policy, &mut adam_pi, &mut adam_vf, 0.2, &mut roll, &mut rng, &mut scratch)
-            .map_err(|_| fishprobe_sim::SimError::NeedsReset)?;
+        update(
+            &cfg,
+            &mut policy,
+            &mut adam_pi,
+            &mut adam_vf,
+            0.2,
+            &mut roll,
+            &mut rng,
+            &mut scratch,
+        )
+        .map_err(|_| fishprobe_sim::SimError::NeedsReset)?;
         Ok(1)
     })?;
     let mb_per_s = (calls as usize * minibatches_per_call) as f64 / secs;
-    let flops_mb = mlp_flops(&policy.pi.spec().sizes, cfg.sgd_minibatch_size) + mlp_flops(&policy.vf.spec().sizes, cfg.sgd_minibatch_size);
+    let flops_mb = mlp_flops(&policy.pi.spec().sizes, cfg.sgd_minibatch_size)
+        + mlp_flops(&policy.vf.spec().sizes, cfg.sgd_minibatch_size);
     let update_gflops = flops_mb * mb_per_s / 1e9;
 
     // 3. End to end: `iterations` paper-preset iterations against Zone.
