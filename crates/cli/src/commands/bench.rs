@@ -343,8 +343,10 @@ fn bench_train(json: bool, iterations: u64) -> Result<()> {
     let gemm_gflops = per * reps as f64 / secs / 1e9;
 
     // 2. PPO update on a synthetic batch (paper network, minibatch and batch sizes).
-    let mut cfg = PpoConfig::default();
-    cfg.num_sgd_iter = 2;
+    let cfg = PpoConfig {
+        num_sgd_iter: 2,
+        ..PpoConfig::default()
+    };
     let mut rng = stream(0, "bench-train", 0);
     let mut policy = GaussianPolicy::new(180, &cfg, &mut rng);
     let mut roll = Rollout::new(cfg.num_envs, cfg.train_batch_size / cfg.num_envs, 180);
