@@ -47,6 +47,21 @@ pub struct Wald {
 }
 
 impl Nb2Fit {
+    /// A fit from its coefficients, dispersion, covariance of (β, α) and log-likelihood.
+    fn assemble(beta: Vec<f64>, alpha: f64, cov: Vec<f64>, llf: f64, iterations: usize) -> Self {
+        let p = beta.len() + 1;
+        let mut params = beta;
+        params.push(alpha);
+        let se = (0..p).map(|i| cov[i * p + i].sqrt()).collect();
+        Self {
+            params,
+            cov,
+            se,
+            llf,
+            iterations,
+        }
+    }
+
     /// Wald summary of parameter `j`.
     pub fn wald(&self, j: usize) -> Wald {
         let (b, s) = (self.params[j], self.se[j]);
@@ -295,16 +310,7 @@ fn fit_poisson(
     for a in 0..k {
         cov[a * p..a * p + k].copy_from_slice(&cov_b[a * k..(a + 1) * k]);
     }
-    let mut params = beta;
-    params.push(0.0);
-    let se = (0..p).map(|i| cov[i * p + i].sqrt()).collect();
-    Ok(Nb2Fit {
-        params,
-        cov,
-        se,
-        llf,
-        iterations,
-    })
+    Ok(Nb2Fit::assemble(beta, 0.0, cov, llf, iterations))
 }
 
 /// Fits NB2 to counts `y` with design matrix `x` (row-major, n x k, include the intercept
@@ -380,14 +386,5 @@ pub fn fit_nb2(
         );
     })
     .map_err(|e| StatsError::NoConvergence(format!("nb2: {e}")))?;
-    let mut params = beta.to_vec();
-    params.push(alpha);
-    let se = (0..p).map(|i| cov[i * p + i].sqrt()).collect();
-    Ok(Nb2Fit {
-        params,
-        cov,
-        se,
-        llf,
-        iterations,
-    })
+    Ok(Nb2Fit::assemble(beta.to_vec(), alpha, cov, llf, iterations))
 }
