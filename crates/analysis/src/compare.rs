@@ -340,6 +340,7 @@ fn trend(trials: &[&TrialData]) -> Result<Trend, String> {
         ci: [w.ci[0].exp(), w.ci[1].exp()],
         p: w.p,
         alpha: fit.params[2],
+        first_minute: fit.params[0].exp(),
     })
 }
 

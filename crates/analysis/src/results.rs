@@ -77,6 +77,9 @@ pub struct Trend {
     pub p: f64,
     /// NB2 dispersion α.
     pub alpha: f64,
+    /// exp(intercept): the fitted goals in the first minute (with `rate_ratio`, the dashed
+    /// trend line of the report's figure).
+    pub first_minute: f64,
 }
 
 /// Mean and sample s.d.
@@ -356,6 +359,7 @@ impl Results {
                             f(t.ci[1]),
                             f(t.p),
                             f(t.alpha),
+                            f(t.first_minute),
                         ]
                     })
                 })
@@ -371,6 +375,7 @@ impl Results {
                         "ci_high",
                         "p",
                         "alpha",
+                        "first_minute",
                     ],
                     rows,
                 ),
