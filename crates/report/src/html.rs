@@ -1,0 +1,686 @@
+//! The HTML page and the Markdown summary.
+
+use crate::data::StudyData;
+use crate::figures::{Figure, METRIC_LABELS};
+use crate::svg::esc;
+use base64::Engine as _;
+use fishprobe_analysis::METRICS;
+use serde_json::Value;
+use std::fmt::Write as _;
+use std::path::Path;
+
+const STYLE: &str = r#"
+body { font-family: "DejaVu Sans", "Helvetica Neue", Arial, sans-serif; max-width: 1100px; margin: 0 auto; padding: 1em 2em 4em; color: #111; line-height: 1.45; }
+h1 { margin-bottom: 0.1em; } h2 { border-bottom: 1px solid #ccc; padding-bottom: 0.2em; margin-top: 2em; }
+table { border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
+th { background: #f0f0f0; } td:first-child, th:first-child { text-align: left; }
+figure { margin: 1.2em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { font-size: 0.9em; color: #333; margin-top: 0.4em; }
+.banner { background: #fff3cd; border: 3px solid #b8860b; padding: 0.8em 1em; font-size: 1.15em; font-weight: bold; }
+.missing { background: #f6f6f6; border-left: 4px solid #999; padding: 0.5em 1em; }
+code { background: #f3f3f3; padding: 0 0.25em; }
+nav ul { columns: 2; } .small { font-size: 0.85em; color: #555; }
+"#;
+
+const CHECK_SCRIPT: &str = r#"
+window.addEventListener('load', function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var broken = imgs.filter(function (i) { return !i.complete || i.naturalWidth === 0; });
+  broken.forEach(function (i) { console.error('broken image: ' + i.alt); });
+  document.body.setAttribute('data-images', String(imgs.length));
+  document.body.setAttribute('data-broken-images', String(broken.length));
+  if (broken.length) {
+    var p = document.getElementById('broken');
+    p.hidden = false;
+    p.textContent = broken.length + ' figure(s) failed to display.';
+  }
+});
+"#;
+
+fn num(v: Option<&Value>) -> f64 {
+    v.and_then(Value::as_f64).unwrap_or(f64::NAN)
+}
+
+fn f(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "–".into()
+    }
+}
+
+fn p_fmt(p: f64) -> String {
+    if !p.is_finite() {
+        "–".into()
+    } else if p < 0.001 {
+        format!("{p:.1e}")
+    } else {
+        format!("{p:.4}")
+    }
+}
+
+fn ci(v: Option<&Value>, digits: usize) -> String {
+    let a = v.and_then(Value::as_array);
+    let at = |i: usize| num(a.and_then(|a| a.get(i)));
+    format!("[{}, {}]", f(at(0), digits), f(at(1), digits))
+}
+
+fn table(out: &mut String, header: &[&str], rows: &[Vec<String>]) {
+    out.push_str("<table><thead><tr>");
+    for h in header {
+        let _ = write!(out, "<th>{}</th>", esc(h));
+    }
+    out.push_str("</tr></thead><tbody>");
+    for r in rows {
+        out.push_str("<tr>");
+        for c in r {
+            let _ = write!(out, "<td>{}</td>", esc(c));
+        }
+        out.push_str("</tr>");
+    }
+    out.push_str("</tbody></table>\n");
+}
+
+fn mean_of(v: Option<&Value>) -> f64 {
+    let a: Vec<f64> = v
+        .and_then(Value::as_array)
+        .map(|a| a.iter().filter_map(Value::as_f64).collect())
+        .unwrap_or_default();
+    if a.is_empty() {
+        f64::NAN
+    } else {
+        a.iter().sum::<f64>() / a.len() as f64
+    }
+}
+
+fn figure(out: &mut String, fig: &Figure, portable_svg: &str) {
+    let b64 = base64::engine::general_purpose::STANDARD.encode(portable_svg.as_bytes());
+    let _ = writeln!(
+        out,
+        "<figure id=\"fig-{name}\"><img alt=\"{title}\" src=\"data:image/svg+xml;base64,{b64}\">\
+         <figcaption><b>{title}.</b> {caption} <span class=\"small\">Files: \
+         <a href=\"figures/{name}.svg\">SVG</a>, <a href=\"figures/{name}.png\">PNG</a>.</span>\
+         </figcaption></figure>",
+        name = fig.name,
+        title = esc(&fig.title),
+        caption = esc(&fig.caption),
+    );
+}
+
+/// A link target for `file` as seen from the report directory.
+fn href(report_dir: &Path, file: &Path) -> String {
+    let parent = report_dir.parent();
+    match parent.and_then(|p| file.strip_prefix(p).ok()) {
+        Some(rel) => format!("../{}", rel.display()),
+        None => format!("file://{}", file.display()),
+    }
+}
+
+/// What the sections of the page need beyond the data: the figures, each with its portable
+/// SVG, by name.
+pub struct Page<'a> {
+    /// The inputs.
+    pub data: &'a StudyData,
+    /// The figures made, with their portable SVG.
+    pub figures: Vec<(Figure, String)>,
+    /// The report directory.
+    pub report_dir: &'a Path,
+    /// fishprobe's version.
+    pub version: &'a str,
+}
+
+impl Page<'_> {
+    fn fig(&self, out: &mut String, name: &str) -> bool {
+        match self.figures.iter().find(|(f, _)| f.name == name) {
+            Some((fig, svg)) => {
+                figure(out, fig, svg);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The HTML document.
+    pub fn html(&self) -> String {
+        let d = self.data;
+        let r = d.results.as_ref();
+        let get = |k: &str| r.and_then(|v| v.get(k));
+        let mut o = String::with_capacity(1 << 20);
+        let _ = write!(
+            o,
+            "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
+             <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
+             <title>fishprobe report: {}</title><style>{STYLE}</style></head><body>\n\
+             <h1>fishprobe report</h1><p class=\"small\">Study <code>{}</code> · fishprobe {}</p>\n\
+             <p id=\"broken\" class=\"banner\" hidden></p>\n",
+            esc(&d.root.display().to_string()),
+            esc(&d.root.display().to_string()),
+            esc(self.version)
+        );
+        match d.arm.as_deref() {
+            Some("VirtualLab") => o.push_str(
+                "<p class=\"banner\" id=\"virtual\">VIRTUAL LAB: the reality arm of this study is the \
+                 simulated lab (virtual guppies through the live bridge), not live fish. Nothing here \
+                 is a result about real fish.</p>\n",
+            ),
+            Some(a) => {
+                let _ = writeln!(o, "<p>Reality arm: <b>{}</b> (live-fish trials).</p>", esc(a));
+                let odd: Vec<String> = d
+                    .conditions
+                    .iter()
+                    .filter(|c| c.model == a)
+                    .filter(|c| c.recorded.as_deref().is_some_and(|r| !r.starts_with("real")))
+                    .map(|c| format!("{}__{}", c.policy, c.model))
+                    .collect();
+                if !odd.is_empty() {
+                    let _ = writeln!(
+                        o,
+                        "<p class=\"banner\" id=\"not-real\">Check the reality arm: the files of {} do \
+                         not record kind \"real\" (see “What was run”). Results labelled real here may \
+                         not come from live fish.</p>",
+                        esc(&odd.join(", "))
+                    );
+                }
+            }
+            None => o.push_str("<p>No reality arm: only simulation results are shown.</p>\n"),
+        }
+        o.push_str(
+            "<nav><b>Contents</b><ul><li><a href=\"#run\">What was run</a></li>\
+             <li><a href=\"#missing\">Missing parts</a></li><li><a href=\"#sim-to-real\">Sim-to-real gap</a></li>\
+             <li><a href=\"#metrics\">Per-metric gaps</a></li><li><a href=\"#sim-to-sim\">Sim-to-sim</a></li>\
+             <li><a href=\"#temporal\">Goals over time</a></li><li><a href=\"#time-to-goal\">Time to goal</a></li>\
+             <li><a href=\"#approach\">Approach assay</a></li><li><a href=\"#stability\">Retraining stability</a></li>\
+             <li><a href=\"#iid\">Robot-fish distance</a></li><li><a href=\"#trajectories\">Trajectories</a></li>\
+             <li><a href=\"#training\">Training</a></li><li><a href=\"#files\">Data files</a></li></ul></nav>\n",
+        );
+
+        // What was run.
+        o.push_str("<h2 id=\"run\">What was run</h2>\n");
+        if !d.training.is_empty() {
+            let rows: Vec<Vec<String>> = d
+                .training
+                .iter()
+                .map(|(m, log)| {
+                    let pv = |k: &str| -> String {
+                        log.params
+                            .as_ref()
+                            .and_then(|p| p.get(k))
+                            .map(|v| match v {
+                                Value::String(s) => s.clone(),
+                                other => other.to_string(),
+                            })
+                            .unwrap_or_else(|| "–".into())
+                    };
+                    vec![
+                        format!("π_{m}"),
+                        pv("seed"),
+                        pv("preset"),
+                        log.rows
+                            .last()
+                            .map_or("–".into(), |r| format!("{:.0}", r.0)),
+                        pv("program_version"),
+                    ]
+                })
+                .collect();
+            o.push_str("<p>Policies (from <code>policies/&lt;Model&gt;/params.json</code>):</p>");
+            table(
+                &mut o,
+                &[
+                    "policy",
+                    "training seed",
+                    "preset",
+                    "environment steps",
+                    "fishprobe",
+                ],
+                &rows,
+            );
+        }
+        if !d.conditions.is_empty() {
+            let mut models: Vec<&str> = d.conditions.iter().map(|c| c.model.as_str()).collect();
+            models.sort_by_key(|m| (m.ends_with("Real") || m.ends_with("VirtualLab"), *m));
+            models.dedup();
+            let mut policies: Vec<&str> = d.conditions.iter().map(|c| c.policy.as_str()).collect();
+            policies.dedup();
+            let mut header = vec!["policy".to_string()];
+            header.extend(models.iter().map(|m| match *m {
+                "Real" => "live fish".to_string(),
+                "VirtualLab" => "VIRTUAL LAB".to_string(),
+                m => format!("M_{m}"),
+            }));
+            let rows: Vec<Vec<String>> = policies
+                .iter()
+                .map(|p| {
+                    let mut row = vec![format!("π_{p}")];
+                    row.extend(models.iter().map(|m| {
+                        d.conditions
+                            .iter()
+                            .find(|c| c.policy == *p && c.model == *m)
+                            .map_or("–".into(), |c| c.files.to_string())
+                    }));
+                    row
+                })
+                .collect();
+            o.push_str(
+                "<p>Trial files per condition (<code>rollouts/&lt;Policy&gt;__&lt;Model&gt;/</code>; \
+                 rows: the policy, columns: the fish it was run with):</p>",
+            );
+            let h: Vec<&str> = header.iter().map(String::as_str).collect();
+            table(&mut o, &h, &rows);
+            let mut notes: Vec<String> = d
+                .conditions
+                .iter()
+                .filter(|c| matches!(c.model.as_str(), "Real" | "VirtualLab"))
+                .filter_map(|c| {
+                    c.recorded
+                        .as_ref()
+                        .map(|r| format!("{}__{}: {r}", c.policy, c.model))
+                })
+                .collect();
+            notes.dedup();
+            if !notes.is_empty() {
+                o.push_str("<p class=\"small\">What the reality-arm files record (kind; set-up): ");
+                o.push_str(&esc(&notes.join(" · ")));
+                o.push_str("</p>\n");
+            }
+        }
+        if let Some(c) = get("config") {
+            let _ = writeln!(
+                o,
+                "<p>Analysis: master seed {}, {} sim trials per policy, {} bootstrap replicates, {} \
+                 permutations, {} % intervals.</p>",
+                get("seed").map_or("–".into(), Value::to_string),
+                num(c.get("sim_trials")),
+                num(c.get("bootstrap_reps")),
+                num(c.get("permutations")),
+                num(c.get("ci_level")) * 100.0
+            );
+        }
+
+        // Missing.
+        o.push_str("<h2 id=\"missing\">Missing parts</h2>\n");
+        if d.missing.is_empty() && d.unreadable.is_empty() && self.skipped().is_empty() {
+            o.push_str("<p>Nothing: every part of the report has its inputs.</p>\n");
+        } else {
+            o.push_str("<div class=\"missing\"><ul>");
+            for m in &d.missing {
+                let _ = write!(
+                    o,
+                    "<li><b>{}</b>: {}. To produce it: <code>{}</code></li>",
+                    esc(&m.what),
+                    esc(&m.why),
+                    esc(&m.remedy)
+                );
+            }
+            for (p, why) in &d.unreadable {
+                let _ = write!(
+                    o,
+                    "<li>unreadable: <code>{}</code>: {}</li>",
+                    esc(&p.display().to_string()),
+                    esc(why)
+                );
+            }
+            for (what, why) in self.skipped() {
+                let _ = write!(
+                    o,
+                    "<li>left out by the analysis: <code>{}</code>: {}</li>",
+                    esc(&what),
+                    esc(&why)
+                );
+            }
+            o.push_str("</ul></div>\n");
+        }
+
+        // Sim-to-real, goals.
+        o.push_str("<h2 id=\"sim-to-real\">Sim-to-real gap in goals reached</h2>\n");
+        if let Some(s2r) = get("sim_to_real").and_then(Value::as_object) {
+            let rows: Vec<Vec<String>> = s2r
+                .iter()
+                .map(|(p, g)| {
+                    let pair = get("goals").and_then(|x| x.get(p));
+                    vec![
+                        format!("π_{p}"),
+                        f(mean_of(pair.and_then(|x| x.get("sim"))), 1),
+                        f(mean_of(pair.and_then(|x| x.get("real"))), 1),
+                        f(num(g.get("w")), 2),
+                        ci(g.get("ci"), 2),
+                        p_fmt(num(g.get("p"))),
+                        format!(
+                            "{} ({})",
+                            f(num(g.get("cliffs_delta")), 2),
+                            g.get("magnitude").and_then(Value::as_str).unwrap_or("–")
+                        ),
+                        format!("{} / {}", num(g.get("n_sim")), num(g.get("n_real"))),
+                    ]
+                })
+                .collect();
+            table(
+                &mut o,
+                &[
+                    "policy",
+                    "sim mean",
+                    "real mean",
+                    "W",
+                    "95 % CI",
+                    "p (one-sided)",
+                    "Cliff's δ",
+                    "trials sim / real",
+                ],
+                &rows,
+            );
+            o.push_str("<p class=\"small\">W: 1-Wasserstein distance between the per-trial goal counts of simulation and reality; CI: percentile bootstrap; p: permutation test of W; Cliff's δ = P(sim &gt; real) − P(sim &lt; real).</p>\n");
+        } else {
+            o.push_str("<p class=\"missing\">Needs simulation and reality-arm trials and <code>fishprobe analyze</code>.</p>\n");
+        }
+        self.fig(&mut o, "goals");
+
+        // Per-metric gaps.
+        o.push_str("<h2 id=\"metrics\">Per-metric sim-to-real gaps and ranks</h2>\n");
+        if let Some(mg) = get("metric_gaps").and_then(Value::as_object) {
+            let mut policies: Vec<String> = mg
+                .values()
+                .filter_map(Value::as_object)
+                .flat_map(|m| m.keys().cloned())
+                .collect();
+            policies.sort();
+            policies.dedup();
+            let mut header = vec!["metric".to_string()];
+            header.extend(policies.iter().map(|p| format!("π_{p}")));
+            let rows: Vec<Vec<String>> = METRICS
+                .iter()
+                .zip(METRIC_LABELS)
+                .filter_map(|(m, label)| {
+                    let per = mg.get(*m)?;
+                    let mut row = vec![label.to_string()];
+                    for p in &policies {
+                        row.push(match per.get(p) {
+                            Some(c) => format!(
+                                "{} {} (rank {})",
+                                f(num(c.get("median")), 2),
+                                ci(c.get("ci"), 2),
+                                f(num(c.get("rank")), 1)
+                            ),
+                            None => "–".into(),
+                        });
+                    }
+                    Some(row)
+                })
+                .chain(std::iter::once({
+                    let mut row = vec!["mean rank".to_string()];
+                    for p in &policies {
+                        row.push(f(num(get("mean_ranks").and_then(|m| m.get(p))), 2));
+                    }
+                    row
+                }))
+                .collect();
+            let h: Vec<&str> = header.iter().map(String::as_str).collect();
+            table(&mut o, &h, &rows);
+        } else {
+            o.push_str("<p class=\"missing\">Needs reality-arm trials and <code>fishprobe analyze</code>.</p>\n");
+        }
+        self.fig(&mut o, "gap_heatmap");
+
+        // Sim-to-sim.
+        o.push_str(
+            "<h2 id=\"sim-to-sim\">Sim-to-sim: do the models teach different strategies?</h2>\n",
+        );
+        if let Some(s2s) = get("sim_to_sim").and_then(Value::as_object) {
+            let rows: Vec<Vec<String>> = s2s
+                .iter()
+                .flat_map(|(p, per)| {
+                    per.as_object().into_iter().flatten().map(move |(m, c)| {
+                        vec![
+                            format!("π_{p}"),
+                            format!("M_{m}"),
+                            f(num(c.get("median")), 2),
+                            ci(c.get("ci"), 2),
+                            c.get("p_holm")
+                                .and_then(Value::as_f64)
+                                .map_or("(diagonal)".into(), p_fmt),
+                        ]
+                    })
+                })
+                .collect();
+            table(
+                &mut o,
+                &["policy", "rollout model", "median W", "95 % CI", "p (Holm)"],
+                &rows,
+            );
+            if let Some(k) = get("kruskal").and_then(Value::as_object) {
+                let rows: Vec<Vec<String>> = k
+                    .iter()
+                    .map(|(p, v)| {
+                        vec![
+                            format!("π_{p}"),
+                            f(num(v.get("h")), 2),
+                            p_fmt(num(v.get("p"))),
+                        ]
+                    })
+                    .collect();
+                o.push_str("<p>Kruskal-Wallis across rollout models (goals per episode):</p>");
+                table(&mut o, &["policy", "H", "p"], &rows);
+            }
+        } else {
+            o.push_str("<p class=\"missing\">Needs rollouts of each policy on the other models (<code>rollouts/&lt;P&gt;__&lt;M&gt;/</code>) and <code>fishprobe analyze</code>.</p>\n");
+        }
+        self.fig(&mut o, "sim_to_sim");
+
+        // Temporal.
+        o.push_str("<h2 id=\"temporal\">Goals per minute over time</h2>\n");
+        if let Some(t) = get("temporal").and_then(Value::as_object) {
+            let rows: Vec<Vec<String>> = t
+                .iter()
+                .flat_map(|(arm, per)| {
+                    per.as_object().into_iter().flatten().map(move |(p, v)| {
+                        vec![
+                            arm.clone(),
+                            if p == "total" {
+                                "all policies".into()
+                            } else {
+                                format!("π_{p}")
+                            },
+                            f(num(v.get("rate_ratio")), 3),
+                            ci(v.get("ci"), 3),
+                            p_fmt(num(v.get("p"))),
+                            f(num(v.get("alpha")), 3),
+                        ]
+                    })
+                })
+                .collect();
+            table(
+                &mut o,
+                &[
+                    "arm",
+                    "policy",
+                    "rate ratio per minute",
+                    "95 % CI",
+                    "p",
+                    "NB2 α",
+                ],
+                &rows,
+            );
+            o.push_str("<p class=\"small\">Negative-binomial (NB2) regression of goals per minute on the minute of control, standard errors clustered by trial. A rate ratio below 1 means goals become rarer as the trial goes on.</p>\n");
+        }
+        if !self.fig(&mut o, "goals_over_time") && get("temporal").is_none() {
+            o.push_str("<p class=\"missing\">Needs trials with at least one complete minute of control.</p>\n");
+        }
+
+        // Time to goal.
+        o.push_str("<h2 id=\"time-to-goal\">Time to goal</h2>\n");
+        if let Some(t) = get("time_to_goal").and_then(Value::as_object) {
+            let cell = |v: Option<&Value>| match v {
+                Some(m) if !m.is_null() => format!(
+                    "{} ± {} (n = {})",
+                    f(num(m.get("mean")), 1),
+                    f(num(m.get("sd")), 1),
+                    num(m.get("n"))
+                ),
+                _ => "–".into(),
+            };
+            let rows: Vec<Vec<String>> = t
+                .iter()
+                .map(|(p, v)| vec![format!("π_{p}"), cell(v.get("sim")), cell(v.get("real"))])
+                .collect();
+            table(
+                &mut o,
+                &["policy", "sim (s, mean ± s.d. of trial means)", "real (s)"],
+                &rows,
+            );
+        } else {
+            o.push_str("<p class=\"missing\">Needs <code>fishprobe analyze</code>.</p>\n");
+        }
+
+        // Approach.
+        o.push_str("<h2 id=\"approach\">Approach assay</h2>\n");
+        if let Some(a) = get("approach").and_then(Value::as_object) {
+            let rows: Vec<Vec<String>> = a
+                .iter()
+                .map(|(p, v)| {
+                    vec![
+                        format!("π_{p}"),
+                        f(num(v.get("min_iid")), 1),
+                        f(num(v.get("mean_iid")), 1),
+                        f(num(v.get("frac_closer_to_fish")), 3),
+                        num(v.get("episodes")).to_string(),
+                    ]
+                })
+                .collect();
+            table(
+                &mut o,
+                &[
+                    "policy",
+                    "min distance to fish (cm)",
+                    "mean distance (cm)",
+                    "fraction closer to fish than goal",
+                    "episodes",
+                ],
+                &rows,
+            );
+        }
+        if !self.fig(&mut o, "approach") && get("approach").is_none() {
+            o.push_str("<p class=\"missing\">No approach-assay episodes (<code>approach_test/&lt;Policy&gt;/</code>).</p>\n");
+        }
+
+        // Stability.
+        o.push_str("<h2 id=\"stability\">Retraining stability</h2>\n");
+        match get("stability") {
+            Some(s) => {
+                let _ = writeln!(
+                    o,
+                    "<p>R = σ²<sub>between models</sub> / σ²<sub>within model (seeds)</sub> = <b>{}</b> {}, permutation p = {}. \
+                     R well above 1 means that which model a policy was trained on matters more than the training seed.</p>",
+                    f(num(s.get("r")), 2),
+                    ci(s.get("ci"), 2),
+                    p_fmt(num(s.get("p")))
+                );
+            }
+            None => o.push_str("<p class=\"missing\">Needs <code>stability/&lt;Model&gt;/&lt;seed&gt;/</code> episodes and <code>fishprobe analyze</code>.</p>\n"),
+        }
+
+        o.push_str("<h2 id=\"iid\">Robot-fish distance</h2>\n");
+        if !self.fig(&mut o, "iid_density") {
+            o.push_str("<p class=\"missing\">No sim or reality-arm trials to draw.</p>\n");
+        }
+        o.push_str("<h2 id=\"trajectories\">Trajectories</h2>\n");
+        if !self.fig(&mut o, "trajectories") {
+            o.push_str("<p class=\"missing\">No readable trials to draw.</p>\n");
+        }
+        o.push_str("<h2 id=\"training\">Training</h2>\n");
+        if !self.fig(&mut o, "training") {
+            o.push_str("<p class=\"missing\">No training logs (<code>policies/&lt;Model&gt;/progress.csv</code>).</p>\n");
+        }
+
+        // Files.
+        o.push_str("<h2 id=\"files\">Data files</h2><ul>\n");
+        let mut any = false;
+        for name in [
+            "results.json",
+            "summary.md",
+            "goals.csv",
+            "sim_to_real.csv",
+            "metric_gaps.csv",
+            "mean_ranks.csv",
+            "sim_to_sim.csv",
+            "kruskal.csv",
+            "temporal.csv",
+            "time_to_goal.csv",
+            "approach.csv",
+            "stability.csv",
+        ] {
+            let p = d.analysis_dir.join(name);
+            if p.is_file() {
+                any = true;
+                let _ = writeln!(
+                    o,
+                    "<li><a href=\"{}\">{name}</a></li>",
+                    esc(&href(self.report_dir, &p))
+                );
+            }
+        }
+        if !any {
+            o.push_str("<li>No analysis files yet.</li>\n");
+        }
+        o.push_str("<li>Figures: <code>figures/*.svg</code> (text as outlines, for papers) and <code>figures/*.png</code> (for slides).</li></ul>\n");
+        let _ = write!(o, "<script>{CHECK_SCRIPT}</script>\n</body></html>\n");
+        o
+    }
+
+    /// What `results.json` says it left out.
+    fn skipped(&self) -> Vec<(String, String)> {
+        self.data
+            .results
+            .as_ref()
+            .and_then(|r| r.get("skipped"))
+            .and_then(Value::as_array)
+            .map(|a| {
+                a.iter()
+                    .map(|s| {
+                        let t =
+                            |k: &str| s.get(k).and_then(Value::as_str).unwrap_or("").to_string();
+                        (t("what"), t("reason"))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// `report/summary.md`: the analysis summary (when present), the figures and what is
+    /// missing.
+    pub fn markdown(&self) -> String {
+        let d = self.data;
+        let mut s = String::from("# fishprobe report\n\n");
+        let _ = writeln!(s, "Study: `{}`\n", d.root.display());
+        if d.arm.as_deref() == Some("VirtualLab") {
+            s += "**VIRTUAL LAB: the reality arm is simulated. These are not live-fish results.**\n\n";
+        }
+        match std::fs::read_to_string(d.analysis_dir.join("summary.md")) {
+            Ok(a) => {
+                s += &a.replacen("# fishprobe analysis", "## Analysis", 1);
+                s.push('\n');
+            }
+            Err(_) => s += "No analysis summary (run `fishprobe analyze`).\n\n",
+        }
+        s += "## Figures\n\n";
+        for (fig, _) in &self.figures {
+            let _ = writeln!(
+                s,
+                "- {}: `figures/{}.svg`, `figures/{}.png`",
+                fig.title, fig.name, fig.name
+            );
+        }
+        if !d.missing.is_empty() || !d.unreadable.is_empty() {
+            s += "\n## Missing\n\n";
+            for m in &d.missing {
+                let _ = writeln!(
+                    s,
+                    "- {}: {}. Produce it with: `{}`",
+                    m.what, m.why, m.remedy
+                );
+            }
+            for (p, why) in &d.unreadable {
+                let _ = writeln!(s, "- unreadable `{}`: {why}", p.display());
+            }
+        }
+        s
+    }
+}
