@@ -8,6 +8,7 @@ mod export;
 mod import_legacy;
 mod inspect;
 mod models;
+mod report;
 mod simulate;
 pub(crate) mod synth;
 mod train;
@@ -47,6 +48,8 @@ enum Command {
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
     Analyze(analyze::AnalyzeArgs),
+    /// Figures (SVG, PNG) and the self-contained HTML report of an analysed study.
+    Report(report::ReportArgs),
 }
 
 /// Writes a command's output to stdout. A closed pipe (`fishprobe models | head`) ends the
@@ -88,6 +91,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Inspect(a) => inspect::run(a),
         Command::ImportLegacy(a) => import_legacy::run(a),
         Command::Analyze(a) => analyze::run(a),
+        Command::Report(a) => report::run(a),
         Command::Train(a) => train::run(a),
         Command::Evaluate(a) => evaluate::run(a),
         Command::Export(a) => export::run(a),
