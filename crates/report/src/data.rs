@@ -218,6 +218,17 @@ pub fn gather(
     };
     d.arm = study.reality().map(str::to_string);
     d.policies = study.policies();
+    if !d.training.is_empty() {
+        for p in &d.policies {
+            if !d.training.contains_key(p) {
+                d.missing.push(Missing {
+                    what: format!("training log of π_{p}"),
+                    why: format!("no policies/{p}/progress.csv"),
+                    remedy: format!("fishprobe train --model {p} --out {root_s}/policies/{p}"),
+                });
+            }
+        }
+    }
     d.conditions = study
         .rollouts
         .iter()

@@ -95,7 +95,7 @@ pub fn goals(d: &StudyData) -> Option<Figure> {
             .flat_map(|p| arr(p, "sim").into_iter().chain(arr(p, "real"))),
     );
     let w = 120.0 + 150.0 * policies.len() as f64;
-    let mut svg = Svg::new(w.max(420.0), 380.0);
+    let mut svg = Svg::new(w.max(420.0) + 120.0, 380.0);
     let ax = Axes::new(
         (70.0, 30.0, w.max(420.0) - 100.0, 290.0),
         (-0.5, policies.len() as f64 - 0.5),
@@ -143,7 +143,7 @@ pub fn goals(d: &StudyData) -> Option<Figure> {
     }
     legend(
         &mut svg,
-        ax.x + 8.0,
+        ax.x + ax.w + 10.0,
         ax.y + 6.0,
         &[
             (SIM, "simulation".into(), Key::Marker),
@@ -1017,12 +1017,18 @@ pub fn trajectories(d: &StudyData, cfg: &ReportConfig) -> Option<Figure> {
     }
     let side = 220.0;
     let n = rows.len() as f64;
-    let mut svg = Svg::new(40.0 + n * (side + 30.0), 40.0 + 2.0 * (side + 50.0) + 20.0);
+    // A reality row only when some policy has a reality-arm trial.
+    let arms = if d.arm.is_some() { 2 } else { 1 };
+    let mut svg = Svg::new(
+        40.0 + n * (side + 30.0),
+        40.0 + arms as f64 * (side + 50.0) + 20.0,
+    );
     let real_name = arm_label(d);
     let mut files = Vec::new();
     for (i, (p, t)) in rows.iter().enumerate() {
         for (j, (tr, look, arm)) in [(&t.sim_track, SIM, "sim"), (&t.real_track, REAL, real_name)]
             .into_iter()
+            .take(arms)
             .enumerate()
         {
             let ax = Axes::new(
@@ -1042,7 +1048,11 @@ pub fn trajectories(d: &StudyData, cfg: &ReportConfig) -> Option<Figure> {
                         &ax,
                         tr,
                         look,
-                        &format!("π_{p}, {arm}: {} goals", tr.reached.len()),
+                        &format!(
+                            "π_{p}, {arm}: {} goal{}",
+                            tr.reached.len(),
+                            if tr.reached.len() == 1 { "" } else { "s" }
+                        ),
                     );
                     files.push(format!(
                         "π_{p} {arm}: {}",
@@ -1064,7 +1074,7 @@ pub fn trajectories(d: &StudyData, cfg: &ReportConfig) -> Option<Figure> {
             }
         }
     }
-    let ly = 40.0 + 2.0 * (side + 50.0) - 5.0;
+    let ly = 40.0 + arms as f64 * (side + 50.0) - 5.0;
     svg.line((40.0, ly), (62.0, ly), "#000000", 1.5, None);
     svg.text(66.0, ly + 4.0, "robot", TextStyle::new(11.0, Anchor::Start));
     svg.line((120.0, ly), (142.0, ly), SIM.color, 1.5, None);
@@ -1112,7 +1122,7 @@ pub fn training(d: &StudyData) -> Option<Figure> {
         ("mean episode return", |r| r.1),
     ];
     let (pw, ph) = (380.0, 250.0);
-    let mut svg = Svg::new(90.0 + 2.0 * (pw + 60.0), 350.0);
+    let mut svg = Svg::new(90.0 + 2.0 * (pw + 60.0) + 100.0, 350.0);
     for (k, (label, get)) in panels_def.iter().enumerate() {
         let (lo, hi) = range(d.training.values().flat_map(|l| l.rows.iter().map(get)));
         let ax = Axes::new(
@@ -1128,8 +1138,8 @@ pub fn training(d: &StudyData) -> Option<Figure> {
             svg.polyline(&pts, look.color, 1.8, look.dash, 1.0);
             leg.push((look, format!("π_{m}"), Key::Line));
         }
-        if k == 0 {
-            legend(&mut svg, ax.x + 8.0, ax.y + 6.0, &leg);
+        if k == 1 {
+            legend(&mut svg, ax.x + ax.w + 10.0, ax.y, &leg);
         }
     }
     Some(Figure {

@@ -165,7 +165,11 @@ impl Page<'_> {
                  is a result about real fish.</p>\n",
             ),
             Some(a) => {
-                let _ = writeln!(o, "<p>Reality arm: <b>{}</b> (live-fish trials).</p>", esc(a));
+                let _ = writeln!(
+                    o,
+                    "<p>Reality arm: <b>{0}</b> (the <code>&lt;Policy&gt;__{0}</code> trial directories).</p>",
+                    esc(a)
+                );
                 let odd: Vec<String> = d
                     .conditions
                     .iter()
