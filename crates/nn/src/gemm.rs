@@ -50,6 +50,45 @@ impl<'a> Mat<'a> {
     }
 }
 
+/// Up to this many rows of C, [`gemm`] uses plain loops: `sgemm` allocates packing buffers
+/// on every call, which a per-frame inference of one or two fish (the ConvNet fish, a policy
+/// acting alone) must not do, and its packing does not pay off for a matrix-vector product.
+const SMALL_ROWS: usize = 4;
+
+/// C = alpha · A · B + beta · C by rows, for few rows; `beta == 0` ignores C's contents, as
+/// `sgemm` does.
+fn small_gemm(
+    alpha: f32,
+    a: Mat<'_>,
+    b: Mat<'_>,
+    beta: f32,
+    c: &mut [f32],
+    (m, k, n): (usize, usize, usize),
+) {
+    let (rsa, csa) = a.strides();
+    let (rsb, csb) = b.strides();
+    let (rsa, csa, rsb, csb) = (rsa as usize, csa as usize, rsb as usize, csb as usize);
+    for i in 0..m {
+        let ci = &mut c[i * n..(i + 1) * n];
+        if beta == 0.0 {
+            ci.fill(0.0);
+        } else if beta != 1.0 {
+            ci.iter_mut().for_each(|x| *x *= beta);
+        }
+        for kk in 0..k {
+            let av = alpha * a.data[i * rsa + kk * csa];
+            if csb == 1 {
+                let row = &b.data[kk * rsb..kk * rsb + n];
+                ci.iter_mut().zip(row).for_each(|(x, y)| *x += av * y);
+            } else {
+                for (j, x) in ci.iter_mut().enumerate() {
+                    *x += av * b.data[kk * rsb + j * csb];
+                }
+            }
+        }
+    }
+}
+
 /// C (m x n, row-major) = alpha · A · B + beta · C.
 ///
 /// # Panics
@@ -68,6 +107,10 @@ pub fn gemm(alpha: f32, a: Mat<'_>, b: Mat<'_>, beta: f32, c: &mut [f32], m: usi
     );
     assert!(c.len() >= m * n, "gemm output too short");
     if m == 0 || n == 0 {
+        return;
+    }
+    if m <= SMALL_ROWS {
+        small_gemm(alpha, a, b, beta, c, (m, ak, n));
         return;
     }
     let (rsa, csa) = a.strides();
@@ -97,6 +140,43 @@ pub fn gemm(alpha: f32, a: Mat<'_>, b: Mat<'_>, beta: f32, c: &mut [f32], m: usi
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_few_rows_path_agrees_with_sgemm() {
+        let (k, n) = (7, 5);
+        let a: Vec<f32> = (0..8 * k)
+            .map(|i| ((i * 13 % 17) as f32 - 8.0) / 7.0)
+            .collect();
+        let b: Vec<f32> = (0..k * n)
+            .map(|i| ((i * 7 % 11) as f32 - 5.0) / 3.0)
+            .collect();
+        for (m, bt) in [(1, false), (3, false), (2, true), (4, true)] {
+            let bm = if bt {
+                Mat::new(&b, n, k).t()
+            } else {
+                Mat::new(&b, k, n)
+            };
+            let mut small = vec![1.0f32; m * n];
+            gemm(0.5, Mat::new(&a[..m * k], m, k), bm, 2.0, &mut small, m, n);
+            // The same rows inside a taller product take the sgemm path.
+            let mut big = vec![1.0f32; 8 * n];
+            gemm(0.5, Mat::new(&a, 8, k), bm, 2.0, &mut big, 8, n);
+            for (x, y) in small.iter().zip(&big[..m * n]) {
+                assert!((x - y).abs() < 1e-5, "m {m}, transposed {bt}: {x} vs {y}");
+            }
+        }
+        let mut c = vec![f32::NAN; 2];
+        gemm(
+            1.0,
+            Mat::new(&[1.0, 2.0], 1, 2),
+            Mat::new(&[1.0, 0.0, 0.0, 1.0], 2, 2),
+            0.0,
+            &mut c,
+            1,
+            2,
+        );
+        assert_eq!(c, [1.0, 2.0], "beta = 0 ignores C");
+    }
 
     #[test]
     fn matches_naive_products_with_transposes() {
