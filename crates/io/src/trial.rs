@@ -81,6 +81,42 @@ impl Entity {
             .collect()
     }
 
+    /// Headings checked against motion: the recorded heading, except where the entity moves at
+    /// least `min_step_cm` to the next frame in a direction more than `max_disagreement_rad`
+    /// away from it (the tracker confused head and tail) or has no recorded heading: there the
+    /// direction of motion. NaN where neither is known. Also returns how many frames took the
+    /// direction of motion.
+    pub fn headings_checked(
+        &self,
+        min_step_cm: f32,
+        max_disagreement_rad: f32,
+    ) -> (Vec<f32>, usize) {
+        let recorded = self.headings();
+        let mut replaced = 0;
+        let out = (0..self.positions.len())
+            .map(|t| {
+                let p = self.positions[t];
+                let motion = self.positions.get(t + 1).and_then(|q| {
+                    let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+                    ((dx * dx + dy * dy).sqrt() >= min_step_cm).then(|| dy.atan2(dx))
+                });
+                match (recorded[t].is_finite(), motion) {
+                    (true, Some(m)) if wrap_angle(recorded[t] - m).abs() > max_disagreement_rad => {
+                        replaced += 1;
+                        m
+                    }
+                    (true, _) => recorded[t],
+                    (false, Some(m)) => {
+                        replaced += 1;
+                        m
+                    }
+                    (false, None) => f32::NAN,
+                }
+            })
+            .collect();
+        (out, replaced)
+    }
+
     /// Headings from motion: the direction of the displacement to the next frame when it is at
     /// least `min_step_cm` long, else the last such direction (the first ones take the first
     /// available). NaN only when the entity never moves that far. Use it where recorded
