@@ -16,12 +16,14 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod convnet;
 pub mod follow;
 pub mod force;
 pub mod measure;
 pub mod stationary;
 pub mod zone;
 
+pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError};
 pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
 pub use stationary::{Stationary, StationaryParams};
@@ -49,6 +51,9 @@ pub enum ModelError {
     /// A simulation error while measuring.
     #[error(transparent)]
     Sim(#[from] fishprobe_sim::SimError),
+    /// ConvNet weights that cannot be used.
+    #[error(transparent)]
+    Weights(#[from] WeightsError),
 }
 
 /// A fish model and its parameters, as written in config files: `{"model": "Zone", ...}`.
@@ -63,11 +68,13 @@ pub enum ModelSpec {
     Force(ForceParams),
     /// A fish that never moves (approach assay).
     Stationary(StationaryParams),
+    /// M_ConvNet: behavioural cloning of live guppy pairs.
+    ConvNet(ConvNetParams),
 }
 
 impl ModelSpec {
     /// Names of every model, in the paper's order (candidate models first).
-    pub const NAMES: [&'static str; 4] = ["Follow", "Zone", "Force", "Stationary"];
+    pub const NAMES: [&'static str; 5] = ["Follow", "Zone", "Force", "Stationary", "ConvNet"];
 
     /// The rule-based candidate models of the paper.
     pub const RULE_BASED: [&'static str; 3] = ["Follow", "Zone", "Force"];
@@ -79,6 +86,7 @@ impl ModelSpec {
             "zone" => Ok(Self::Zone(ZoneParams::default())),
             "force" => Ok(Self::Force(ForceParams::default())),
             "stationary" => Ok(Self::Stationary(StationaryParams::default())),
+            "convnet" => Ok(Self::ConvNet(ConvNetParams::default())),
             _ => Err(ModelError::Unknown {
                 name: name.to_string(),
                 known: Self::NAMES.join(", "),
@@ -93,6 +101,7 @@ impl ModelSpec {
             Self::Zone(_) => "Zone",
             Self::Force(_) => "Force",
             Self::Stationary(_) => "Stationary",
+            Self::ConvNet(_) => "ConvNet",
         }
     }
 
@@ -107,6 +116,9 @@ impl ModelSpec {
                 "Klamser et al. 2021 variable-speed force model with noise and a wall module"
             }
             Self::Stationary(_) => "never moves (approach assay)",
+            Self::ConvNet(_) => {
+                "behavioural cloning of live guppy pairs: (speed, turn) sampled from a ConvNet"
+            }
         }
     }
 
@@ -117,6 +129,7 @@ impl ModelSpec {
             Self::Zone(_) => ZoneParams::field_docs(),
             Self::Force(_) => ForceParams::field_docs(),
             Self::Stationary(_) => StationaryParams::field_docs(),
+            Self::ConvNet(_) => ConvNetParams::field_docs(),
         }
     }
 
@@ -128,6 +141,7 @@ impl ModelSpec {
             Self::Zone(p) => p.validate(prefix),
             Self::Force(p) => p.validate(prefix),
             Self::Stationary(p) => p.validate(prefix),
+            Self::ConvNet(_) => Ok(()),
         }
     }
 
@@ -139,6 +153,7 @@ impl ModelSpec {
             Self::Zone(p) => Arc::new(Zone::new(p.clone())?),
             Self::Force(p) => Arc::new(Force::new(p.clone())?),
             Self::Stationary(_) => Arc::new(Stationary),
+            Self::ConvNet(p) => Arc::new(ConvNetFish::new(p)?),
         })
     }
 }

@@ -42,6 +42,8 @@ fn stepping_does_not_allocate() {
         let mut env = TankEnv::new(cfg, model).unwrap();
         let mut obs = vec![0.0; 180];
         env.reset(Some(1), &mut obs).unwrap();
+        // One step first: a network model sizes its buffers on its first inference.
+        env.step(&[0.0], &mut obs).unwrap();
         COUNT.with(|c| c.set(0));
         COUNTING.with(|c| c.set(true));
         for t in 0..600 {

@@ -1,0 +1,579 @@
+//! M_ConvNet (SPEC §6): a fish whose next speed and turn rate are sampled from a network
+//! trained by behavioural cloning on pairs of live guppies (`fishprobe fit-convnet`).
+//!
+//! The fish sees an egocentric view of 72 bins of 5° around its heading with three channels:
+//! wall intensity along the bin's ray, the closest other agent's intensity in the bin holding
+//! it, and that agent's heading relative to the fish's (divided by π) in the same bin
+//! ([`encode_view`]). The network is a circular 1-D convolution, two fully connected Leaky-ReLU
+//! layers and a linear layer giving the logits of a 2-D grid of (speed, turn rate) cells
+//! ([`ConvNet`]). The fish samples a cell, then a value uniformly inside it. Inference is
+//! batched over all fish of a vector environment ([`FishModel::infer_batch`]).
+//!
+//! The weights shipped with fishprobe (`assets/convnet.safetensors` and its sidecar `assets/convnet.safetensors.json`)
+//! were trained by `fishprobe fit-convnet` on the shared pair recordings; the command, the data
+//! split and the validation loss are in the sidecar and in the README.
+
+use fishprobe_nn::{Activation, Conv1d, Mlp, MlpSpec, MlpWorkspace};
+use fishprobe_sim::params::ConfigError;
+use fishprobe_sim::{AgentState, FishMind, FishModel, FishMotion, FishView, SimRng, Tank};
+use rand::{Rng, RngExt};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::sync::Mutex;
+
+static SHIPPED_WEIGHTS: &[u8] = include_bytes!("../assets/convnet.safetensors");
+static SHIPPED_META: &str = include_str!("../assets/convnet.safetensors.json");
+
+/// The network's shape and the (v, ω) grid; saved in the weights' sidecar, so a weights file
+/// always says what it was trained as.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConvNetArch {
+    /// Angular bins of the view over 360° (SPEC choice: 72 of 5°).
+    pub bins: usize,
+    /// Far plane of the intensity 1 - d/D (cm; SPEC choice: the tank diagonal).
+    pub far_plane_cm: f32,
+    /// Output channels of the convolution (choice).
+    pub conv_channels: usize,
+    /// Kernel width of the convolution, in bins (choice; odd).
+    pub kernel: usize,
+    /// Widths of the two fully connected hidden layers (choice).
+    pub hidden: [usize; 2],
+    /// Negative slope of the Leaky-ReLUs (choice: PyTorch's default).
+    pub leaky_slope: f32,
+    /// Speed cells over [0, v_max) (SPEC choice: 25).
+    pub v_bins: usize,
+    /// Upper end of the speed grid (cm/s; SPEC choice: 25).
+    pub v_max_cm_s: f32,
+    /// Turn-rate cells over [-w_max, w_max) (SPEC choice: 41).
+    pub w_bins: usize,
+    /// Half-width of the turn-rate grid (rad/s; SPEC choice: 10).
+    pub w_max_rad_s: f32,
+}
+
+impl Default for ConvNetArch {
+    fn default() -> Self {
+        Self {
+            bins: 72,
+            far_plane_cm: 141.421_36,
+            conv_channels: 8,
+            kernel: 5,
+            hidden: [128, 128],
+            leaky_slope: 0.01,
+            v_bins: 25,
+            v_max_cm_s: 25.0,
+            w_bins: 41,
+            w_max_rad_s: 10.0,
+        }
+    }
+}
+
+/// View channels.
+pub const CHANNELS: usize = 3;
+
+impl ConvNetArch {
+    /// Floats of one view.
+    pub fn view_len(&self) -> usize {
+        CHANNELS * self.bins
+    }
+
+    /// Cells of the (v, ω) grid.
+    pub fn cells(&self) -> usize {
+        self.v_bins * self.w_bins
+    }
+
+    /// Checks the shape.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |field: &str, v: String, why: &str| {
+            Err(ConfigError::new("ConvNet.arch", field, v, why))
+        };
+        if !(8..=720).contains(&self.bins) {
+            return bad("bins", self.bins.to_string(), "must lie in [8, 720]");
+        }
+        if self.kernel.is_multiple_of(2) || self.kernel > self.bins {
+            return bad(
+                "kernel",
+                self.kernel.to_string(),
+                "must be odd and at most `bins`",
+            );
+        }
+        if self.conv_channels == 0
+            || self.hidden.contains(&0)
+            || self.v_bins == 0
+            || self.w_bins == 0
+        {
+            return bad(
+                "conv_channels/hidden/v_bins/w_bins",
+                "0".into(),
+                "must be at least 1",
+            );
+        }
+        for (f, v) in [
+            ("far_plane_cm", self.far_plane_cm),
+            ("v_max_cm_s", self.v_max_cm_s),
+            ("w_max_rad_s", self.w_max_rad_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(f, v.to_string(), "must be finite and greater than 0");
+            }
+        }
+        Ok(())
+    }
+
+    /// The grid cell of a (speed, turn rate) pair (values outside the grid go to its edge).
+    pub fn cell_of(&self, v: f32, w: f32) -> usize {
+        let vi = ((v / self.v_max_cm_s) * self.v_bins as f32).floor();
+        let wi = ((w + self.w_max_rad_s) / (2.0 * self.w_max_rad_s) * self.w_bins as f32).floor();
+        let vi = (vi.max(0.0) as usize).min(self.v_bins - 1);
+        let wi = (wi.max(0.0) as usize).min(self.w_bins - 1);
+        vi * self.w_bins + wi
+    }
+
+    /// The lower corner and size of a cell: ((v0, dv), (w0, dw)).
+    pub fn cell_bounds(&self, cell: usize) -> ((f32, f32), (f32, f32)) {
+        let (vi, wi) = (cell / self.w_bins, cell % self.w_bins);
+        let dv = self.v_max_cm_s / self.v_bins as f32;
+        let dw = 2.0 * self.w_max_rad_s / self.w_bins as f32;
+        (
+            (vi as f32 * dv, dv),
+            (-self.w_max_rad_s + wi as f32 * dw, dw),
+        )
+    }
+}
+
+/// The egocentric view of a fish at `me`, with the closest other agent `other` (position and
+/// heading) if any, into `out` (`3 x bins`, channel-major).
+pub fn encode_view(
+    arch: &ConvNetArch,
+    tank: &Tank,
+    me: &AgentState,
+    other: Option<&AgentState>,
+    out: &mut [f32],
+) {
+    let n = arch.bins;
+    let width = std::f32::consts::TAU / n as f32;
+    let (walls, rest) = out[..CHANNELS * n].split_at_mut(n);
+    let (near, rel) = rest.split_at_mut(n);
+    for (i, w) in walls.iter_mut().enumerate() {
+        let phi = me.heading - std::f32::consts::PI + (i as f32 + 0.5) * width;
+        let (s, c) = phi.sin_cos();
+        let d = tank.raycast(me.x, me.y, c, s);
+        *w = (1.0 - d / arch.far_plane_cm).max(0.0);
+    }
+    near.fill(0.0);
+    rel.fill(0.0);
+    if let Some(o) = other {
+        let (dx, dy) = (o.x - me.x, o.y - me.y);
+        let d = (dx * dx + dy * dy).sqrt();
+        if d.is_finite() {
+            let bearing = fishprobe_sim::wrap_angle(dy.atan2(dx) - me.heading);
+            let i = (((bearing + std::f32::consts::PI) / width) as usize).min(n - 1);
+            near[i] = (1.0 - d / arch.far_plane_cm).max(0.0);
+            rel[i] = fishprobe_sim::wrap_angle(o.heading - me.heading) / std::f32::consts::PI;
+        }
+    }
+}
+
+/// Buffers of a forward/backward pass, reused across calls.
+#[derive(Debug, Clone, Default)]
+pub struct ConvNetWorkspace {
+    conv_out: Vec<f32>,
+    conv_delta: Vec<f32>,
+    mlp: MlpWorkspace,
+}
+
+/// The network: circular Conv1d → Leaky-ReLU → dense Leaky-ReLU x 2 → linear logits.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConvNet {
+    /// Shape.
+    pub arch: ConvNetArch,
+    /// The convolution.
+    pub conv: Conv1d,
+    /// The dense layers (input: the flattened convolution output).
+    pub mlp: Mlp,
+}
+
+/// Why a weights file cannot be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("ConvNet weights {source_name}: {what}")]
+pub struct WeightsError {
+    /// The file (or "shipped weights").
+    pub source_name: String,
+    /// What is wrong.
+    pub what: String,
+}
+
+fn mlp_spec(arch: &ConvNetArch) -> MlpSpec {
+    MlpSpec {
+        sizes: vec![
+            arch.conv_channels * arch.bins,
+            arch.hidden[0],
+            arch.hidden[1],
+            arch.cells(),
+        ],
+        hidden: Activation::LeakyRelu(arch.leaky_slope),
+    }
+}
+
+impl ConvNet {
+    /// A freshly initialised network (He-initialised convolution; normc dense layers, the
+    /// output layer at 0.01 so the initial distribution is near uniform).
+    pub fn new<R: Rng>(arch: ConvNetArch, rng: &mut R) -> Self {
+        let conv = Conv1d::new(CHANNELS, arch.conv_channels, arch.kernel, rng);
+        let mlp = Mlp::new(mlp_spec(&arch), 0.01, rng);
+        Self { arch, conv, mlp }
+    }
+
+    /// Logits (`batch x cells`) of `batch` views.
+    pub fn forward<'w>(&self, x: &[f32], batch: usize, ws: &'w mut ConvNetWorkspace) -> &'w [f32] {
+        let len = self.arch.bins;
+        ws.conv_out
+            .resize(batch * self.arch.conv_channels * len, 0.0);
+        self.conv.forward(x, batch, len, &mut ws.conv_out);
+        Activation::LeakyRelu(self.arch.leaky_slope).apply(&mut ws.conv_out);
+        self.mlp.forward(&ws.conv_out, batch, &mut ws.mlp)
+    }
+
+    /// After [`ConvNet::forward`] on the same `x`: adds the gradients of `sum(dlogits ·
+    /// logits)` into `g_conv` and `g_mlp`.
+    pub fn backward(
+        &self,
+        x: &[f32],
+        batch: usize,
+        dlogits: &[f32],
+        ws: &mut ConvNetWorkspace,
+        g_conv: &mut [f32],
+        g_mlp: &mut [f32],
+    ) {
+        let len = self.arch.bins;
+        ws.conv_delta
+            .resize(batch * self.arch.conv_channels * len, 0.0);
+        let ConvNetWorkspace {
+            conv_out,
+            conv_delta,
+            mlp,
+        } = ws;
+        self.mlp
+            .backward(conv_out, batch, dlogits, mlp, g_mlp, Some(conv_delta));
+        Activation::LeakyRelu(self.arch.leaky_slope).backprop(conv_out, conv_delta);
+        self.conv.backward(x, batch, len, conv_delta, g_conv, None);
+    }
+
+    /// The tensors and sidecar of a weights file.
+    pub fn to_tensors(&self) -> fishprobe_nn::store::Tensors {
+        let mut t = fishprobe_nn::store::Tensors::new();
+        t.insert(
+            "conv".into(),
+            (vec![self.conv.params.len()], self.conv.params.clone()),
+        );
+        t.insert(
+            "mlp".into(),
+            (vec![self.mlp.num_params()], self.mlp.params().to_vec()),
+        );
+        t
+    }
+
+    /// Rebuilds a network from a weights file's tensors and sidecar (which holds `arch`).
+    pub fn from_parts(
+        tensors: &fishprobe_nn::store::Tensors,
+        meta: &serde_json::Value,
+        source_name: &str,
+    ) -> Result<Self, WeightsError> {
+        let err = |what: String| WeightsError {
+            source_name: source_name.to_string(),
+            what,
+        };
+        let arch: ConvNetArch = meta
+            .get("arch")
+            .ok_or_else(|| err("the sidecar has no `arch` (not a ConvNet weights file?)".into()))
+            .and_then(|a| {
+                serde_json::from_value(a.clone()).map_err(|e| err(format!("`arch`: {e}")))
+            })?;
+        arch.validate().map_err(|e| err(e.to_string()))?;
+        let get = |name: &str, want: usize| -> Result<Vec<f32>, WeightsError> {
+            let (_, v) = tensors
+                .get(name)
+                .ok_or_else(|| err(format!("no tensor `{name}`")))?;
+            if v.len() != want {
+                return Err(err(format!(
+                    "tensor `{name}` has {} values, the architecture in the sidecar needs {want}",
+                    v.len()
+                )));
+            }
+            Ok(v.clone())
+        };
+        let mut conv = Conv1d {
+            c_in: CHANNELS,
+            c_out: arch.conv_channels,
+            k: arch.kernel,
+            params: Vec::new(),
+        };
+        conv.params = get(
+            "conv",
+            CHANNELS * arch.conv_channels * arch.kernel + arch.conv_channels,
+        )?;
+        let spec = mlp_spec(&arch);
+        let n_mlp: usize = spec.sizes.windows(2).map(|w| w[0] * w[1] + w[1]).sum();
+        let mlp = Mlp::from_params(spec, get("mlp", n_mlp)?)
+            .ok_or_else(|| err("dense layers do not match the architecture".into()))?;
+        if conv
+            .params
+            .iter()
+            .chain(mlp.params())
+            .any(|v| !v.is_finite())
+        {
+            return Err(err("non-finite weights".into()));
+        }
+        Ok(Self { arch, conv, mlp })
+    }
+
+    /// Loads a weights file written by `fishprobe fit-convnet`.
+    pub fn load(path: &Path) -> Result<Self, WeightsError> {
+        let name = path.display().to_string();
+        let (t, meta) = fishprobe_nn::store::load(path).map_err(|e| WeightsError {
+            source_name: name.clone(),
+            what: e.to_string(),
+        })?;
+        Self::from_parts(&t, &meta, &name)
+    }
+
+    /// The weights shipped with fishprobe.
+    pub fn shipped() -> Result<Self, WeightsError> {
+        let name = "shipped with fishprobe";
+        let err = |what: String| WeightsError {
+            source_name: name.into(),
+            what,
+        };
+        let t = fishprobe_nn::store::from_bytes(SHIPPED_WEIGHTS).map_err(|e| err(e.to_string()))?;
+        let meta: serde_json::Value =
+            serde_json::from_str(SHIPPED_META).map_err(|e| err(e.to_string()))?;
+        Self::from_parts(&t, &meta, name)
+    }
+
+    /// The sidecar of the shipped weights (training command, data split, validation NLL).
+    pub fn shipped_meta() -> serde_json::Value {
+        serde_json::from_str(SHIPPED_META).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+fishprobe_sim::documented_params! {
+    /// M_ConvNet's settings: which weights to use.
+    pub struct ConvNetParams {
+        /// Weights file written by `fishprobe fit-convnet` (safetensors with its `.json`
+        /// sidecar); empty: the weights shipped with fishprobe.
+        pub weights: String = String::new(); "-",
+    }
+}
+
+/// The ConvNet fish.
+#[derive(Debug)]
+pub struct ConvNetFish {
+    net: ConvNet,
+    scratch: Mutex<(Vec<f32>, ConvNetWorkspace)>,
+}
+
+impl ConvNetFish {
+    /// The fish with the weights `p` names.
+    pub fn new(p: &ConvNetParams) -> Result<Self, WeightsError> {
+        let net = if p.weights.is_empty() {
+            ConvNet::shipped()?
+        } else {
+            ConvNet::load(Path::new(&p.weights))?
+        };
+        Ok(Self::from_net(net))
+    }
+
+    /// The fish with a given network.
+    pub fn from_net(net: ConvNet) -> Self {
+        Self {
+            net,
+            scratch: Mutex::new((Vec::new(), ConvNetWorkspace::default())),
+        }
+    }
+
+    /// The network.
+    pub fn net(&self) -> &ConvNet {
+        &self.net
+    }
+}
+
+impl FishModel for ConvNetFish {
+    fn name(&self) -> &str {
+        "ConvNet"
+    }
+
+    fn inference_width(&self) -> usize {
+        self.net.arch.cells()
+    }
+
+    fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
+        let arch = &self.net.arch;
+        let len = arch.view_len();
+        // A poisoned lock only means another thread panicked mid-inference; the buffers are
+        // overwritten below, so they are still usable.
+        let mut guard = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
+        let (x, ws) = &mut *guard;
+        x.resize(views.len() * len, 0.0);
+        for (v, row) in views.iter().zip(x.chunks_exact_mut(len)) {
+            let other = v.closest_other().map(|(o, _)| o);
+            encode_view(arch, &v.tank, &v.me, other, row);
+        }
+        let logits = self.net.forward(x, views.len(), ws);
+        out[..logits.len()].copy_from_slice(logits);
+        for row in out.chunks_exact_mut(arch.cells()) {
+            fishprobe_nn::dist::softmax_in_place(row);
+        }
+    }
+
+    fn decide(
+        &self,
+        view: &FishView,
+        inferred: &[f32],
+        mind: &mut FishMind,
+        rng: &mut SimRng,
+    ) -> FishMotion {
+        let u: f32 = rng.random();
+        let mut acc = 0.0;
+        let mut cell = inferred.len().saturating_sub(1);
+        for (i, p) in inferred.iter().enumerate() {
+            acc += p;
+            if u < acc {
+                cell = i;
+                break;
+            }
+        }
+        let ((v0, dv), (w0, dw)) = self.net.arch.cell_bounds(cell);
+        let v = v0 + dv * rng.random::<f32>();
+        let w = w0 + dw * rng.random::<f32>();
+        mind.speed = v;
+        mind.turn_rate = w;
+        FishMotion {
+            heading: view.me.heading + w * view.dt,
+            speed: v,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn grid_cells_round_trip_and_clamp() {
+        let a = ConvNetArch::default();
+        let c = a.cell_of(5.5, 0.3);
+        let ((v0, dv), (w0, dw)) = a.cell_bounds(c);
+        assert!(v0 <= 5.5 && 5.5 < v0 + dv && w0 <= 0.3 && 0.3 < w0 + dw);
+        assert_eq!(a.cell_of(-3.0, -50.0), 0);
+        assert_eq!(a.cell_of(99.0, 50.0), a.cells() - 1);
+    }
+
+    #[test]
+    fn view_puts_the_neighbour_in_the_right_bin() {
+        let a = ConvNetArch::default();
+        let tank = Tank::new(&fishprobe_sim::TankParams::default());
+        let me = AgentState::at(0.0, 0.0, 0.0);
+        // Straight ahead (bearing 0): bin 36 of 72 covers [0°, 5°).
+        let other = AgentState::at(10.0, 0.1, std::f32::consts::FRAC_PI_2);
+        let mut v = vec![0.0; a.view_len()];
+        encode_view(&a, &tank, &me, Some(&other), &mut v);
+        let near = &v[72..144];
+        let (i, _) = near
+            .iter()
+            .enumerate()
+            .fold((0, 0.0), |b, (i, &x)| if x > b.1 { (i, x) } else { b });
+        assert_eq!(i, 36);
+        assert!((near[36] - (1.0 - 10.0 / 141.421_36)).abs() < 1e-3);
+        assert!(
+            (v[144 + 36] - 0.5).abs() < 1e-5,
+            "relative heading π/2 → 0.5"
+        );
+        // The wall straight ahead is 50 cm away; behind too.
+        assert!((v[36] - (1.0 - 50.0 / 141.421_36)).abs() < 2e-2);
+        assert!(v[..72].iter().all(|w| (0.0..=1.0).contains(w)));
+    }
+
+    #[test]
+    fn backward_matches_finite_differences() {
+        let arch = ConvNetArch {
+            bins: 12,
+            conv_channels: 2,
+            kernel: 3,
+            hidden: [5, 4],
+            v_bins: 2,
+            w_bins: 3,
+            ..ConvNetArch::default()
+        };
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(3);
+        let mut net = ConvNet::new(arch.clone(), &mut rng);
+        // Larger output weights so the check is not dominated by rounding.
+        for p in net.mlp.params_mut() {
+            *p *= 3.0;
+        }
+        let batch = 2;
+        let x: Vec<f32> = (0..batch * arch.view_len())
+            .map(|i| ((i * 37 % 11) as f32 / 11.0) - 0.3)
+            .collect();
+        let targets = [1usize, 4];
+        let loss = |n: &ConvNet| {
+            let mut ws = ConvNetWorkspace::default();
+            let l = n.forward(&x, batch, &mut ws).to_vec();
+            let mut g = vec![0.0; l.len()];
+            f64::from(fishprobe_nn::dist::softmax_cross_entropy(
+                &l,
+                arch.cells(),
+                &targets,
+                &mut g,
+            ))
+        };
+        let mut ws = ConvNetWorkspace::default();
+        let logits = net.forward(&x, batch, &mut ws).to_vec();
+        let mut dl = vec![0.0; logits.len()];
+        fishprobe_nn::dist::softmax_cross_entropy(&logits, arch.cells(), &targets, &mut dl);
+        let mut gc = vec![0.0; net.conv.params.len()];
+        let mut gm = vec![0.0; net.mlp.num_params()];
+        net.backward(&x, batch, &dl, &mut ws, &mut gc, &mut gm);
+        let h = 1e-2f32;
+        for k in (0..gc.len()).step_by(3) {
+            let mut a = net.clone();
+            a.conv.params[k] += h;
+            let mut b = net.clone();
+            b.conv.params[k] -= h;
+            let fd = (loss(&a) - loss(&b)) / (2.0 * f64::from(h));
+            assert!(
+                (fd - f64::from(gc[k])).abs() < 2e-3 + 2e-2 * fd.abs(),
+                "conv {k}: {fd} vs {}",
+                gc[k]
+            );
+        }
+        for k in (0..gm.len()).step_by(7) {
+            let mut a = net.clone();
+            a.mlp.params_mut()[k] += h;
+            let mut b = net.clone();
+            b.mlp.params_mut()[k] -= h;
+            let fd = (loss(&a) - loss(&b)) / (2.0 * f64::from(h));
+            assert!(
+                (fd - f64::from(gm[k])).abs() < 2e-3 + 2e-2 * fd.abs(),
+                "mlp {k}: {fd} vs {}",
+                gm[k]
+            );
+        }
+        let _ = &mut net;
+    }
+
+    #[test]
+    fn shipped_weights_load_and_a_mismatch_is_a_clear_error() {
+        let net = ConvNet::shipped().expect("the shipped weights load");
+        assert_eq!(net.arch, ConvNetArch::default());
+        let mut t = net.to_tensors();
+        t.insert("conv".into(), (vec![3], vec![0.0; 3]));
+        let meta = ConvNet::shipped_meta();
+        let e = ConvNet::from_parts(&t, &meta, "x.safetensors")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("x.safetensors") && e.contains("conv"), "{e}");
+        let e = ConvNet::from_parts(&net.to_tensors(), &serde_json::json!({}), "y").unwrap_err();
+        assert!(e.to_string().contains("arch"), "{e}");
+    }
+}
