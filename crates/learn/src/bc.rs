@@ -1,0 +1,514 @@
+//! Behavioural cloning of live guppy pairs for M_ConvNet (SPEC §6): the dataset and the
+//! training loop behind `fishprobe fit-convnet`.
+//!
+//! **Dataset.** Every file of two fish (robofish.io or the lab's legacy layout) gives, for each
+//! fish and frame t, its egocentric view at t (with the other fish as the neighbour) and the
+//! grid cell of its next (v, ω): v = |p(t+1) - p(t)| · rate, ω = wrap(θ(t+1) - θ(t)) · rate.
+//! Frames are left out when a position needed (own at t, t+1, t+2; the other's at t) is NaN, or
+//! when the tracker interpolated the fish's own frame t or t+1 (`interp_frames` of legacy files,
+//! counted from the start of `tracking_interval`). The heading θ(t) is the recorded orientation,
+//! except where the fish moves (a step of at least `motion_min_step_cm`) in a direction more
+//! than `heading_disagreement_rad` away from it: there the tracker confused head and tail, and
+//! the direction of motion is used. Files that are not 100 x 100 cm, do not hold exactly two
+//! fish, are shorter than `min_frames` or all NaN are skipped with the reason.
+//!
+//! **Training.** Softmax cross-entropy (the negative log-likelihood of the recorded cell),
+//! Adam, minibatches split over two threads, early stopping on the validation NLL (the best
+//! epoch's weights are kept), all seeded.
+
+use crate::error::LearnError;
+use fishprobe_io::{read_legacy, read_trial, Attr, TrialFile};
+use fishprobe_models::convnet::{encode_view, ConvNet, ConvNetArch, ConvNetWorkspace, CHANNELS};
+use fishprobe_nn::Adam;
+use fishprobe_sim::params::{check, ConfigError};
+use fishprobe_sim::{wrap_angle, AgentState, SimRng, Tank, TankParams};
+use rand::RngExt;
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+fishprobe_sim::documented_params! {
+    /// How pair recordings become training examples, and how the network is fitted.
+    pub struct CloneConfig {
+        /// A step at least this long (cm per frame) shows the direction of motion (choice:
+        /// 0.1 cm per frame = 2.5 cm/s).
+        pub motion_min_step_cm: f32 = 0.1; "cm",
+        /// Recorded orientation and direction of motion further apart than this: use the
+        /// direction of motion (choice: 90°).
+        pub heading_disagreement_rad: f32 = std::f32::consts::FRAC_PI_2; "rad",
+        /// Files with fewer frames are skipped (choice: 10 s at 25 Hz).
+        pub min_frames: usize = 250; "frames",
+        /// Minibatch size (choice).
+        pub batch_size: usize = 512; "examples",
+        /// Adam learning rate (choice).
+        pub learning_rate: f32 = 0.001; "1",
+        /// Most epochs (choice).
+        pub max_epochs: usize = 30; "epochs",
+        /// Stop after this many epochs without a better validation NLL (choice).
+        pub patience: usize = 3; "epochs",
+    }
+}
+
+impl CloneConfig {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        check::positive("clone", "motion_min_step_cm", self.motion_min_step_cm)?;
+        check::positive(
+            "clone",
+            "heading_disagreement_rad",
+            self.heading_disagreement_rad,
+        )?;
+        check::positive("clone", "learning_rate", self.learning_rate)?;
+        for (f, v) in [
+            ("batch_size", self.batch_size),
+            ("max_epochs", self.max_epochs),
+            ("patience", self.patience),
+            ("min_frames", self.min_frames),
+        ] {
+            if v == 0 {
+                return Err(ConfigError::new("clone", f, 0, "must be at least 1"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Examples: views and target cells.
+#[derive(Debug, Clone, Default)]
+pub struct PairDataset {
+    /// Views, `n x view_len`.
+    pub x: Vec<f32>,
+    /// Target cells.
+    pub y: Vec<usize>,
+    /// Files used.
+    pub files: Vec<PathBuf>,
+    /// Files skipped, with the reason.
+    pub skipped: Vec<(PathBuf, String)>,
+    /// Frames left out (NaN or interpolated).
+    pub frames_left_out: usize,
+    /// Frames whose heading came from motion.
+    pub headings_from_motion: usize,
+}
+
+impl PairDataset {
+    /// Number of examples.
+    pub fn len(&self) -> usize {
+        self.y.len()
+    }
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.y.is_empty()
+    }
+}
+
+/// Reads robofish.io, or else the legacy layout.
+pub fn read_any(path: &Path) -> Result<TrialFile, String> {
+    match read_trial(path) {
+        Ok(t) => Ok(t),
+        Err(e1) => read_legacy(path).map_err(|e2| format!("{e1}; as a legacy file: {e2}")),
+    }
+}
+
+/// Trial files under `dirs` (files given directly are taken as they are), sorted.
+pub fn list_files(dirs: &[PathBuf]) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for d in dirs {
+        if d.is_file() {
+            out.push(d.clone());
+            continue;
+        }
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
+            .into_iter()
+            .flatten()
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
+            .collect();
+        v.sort();
+        out.extend(v);
+    }
+    out
+}
+
+/// Per-frame poses of one fish with corrected headings; NaN where unknown.
+struct Track {
+    pos: Vec<[f32; 2]>,
+    heading: Vec<f32>,
+    interpolated: Vec<bool>,
+    from_motion: usize,
+}
+
+fn track(e: &fishprobe_io::Entity, offset: i64, cfg: &CloneConfig) -> Track {
+    let n = e.positions.len();
+    let (heading, from_motion) =
+        e.headings_checked(cfg.motion_min_step_cm, cfg.heading_disagreement_rad);
+    let mut interpolated = vec![false; n];
+    if let Some(Attr::Ints(frames)) = e.attributes.get("interp_frames") {
+        for &f in frames {
+            if let Ok(i) = usize::try_from(f - offset) {
+                if let Some(s) = interpolated.get_mut(i) {
+                    *s = true;
+                }
+            }
+        }
+    }
+    Track {
+        pos: e.positions.clone(),
+        heading,
+        interpolated,
+        from_motion,
+    }
+}
+
+/// Examples of one pair file appended to `d`, or why the file is skipped.
+fn add_file(
+    path: &Path,
+    arch: &ConvNetArch,
+    cfg: &CloneConfig,
+    d: &mut PairDataset,
+) -> Result<(), String> {
+    let t = read_any(path)?;
+    if (t.world_size_cm[0] - 100.0).abs() > 0.5 || (t.world_size_cm[1] - 100.0).abs() > 0.5 {
+        return Err(format!(
+            "world size {} x {} cm, not the 100 x 100 cm tank",
+            t.world_size_cm[0], t.world_size_cm[1]
+        ));
+    }
+    let fish: Vec<&fishprobe_io::Entity> = t.fish().collect();
+    if fish.len() != 2 {
+        return Err(format!("{} fish, not a pair", fish.len()));
+    }
+    let frames = fish[0].frames().min(fish[1].frames());
+    if frames < cfg.min_frames {
+        return Err(format!("{frames} frames, shorter than {}", cfg.min_frames));
+    }
+    if fish.iter().any(|f| f.nan_fraction() >= 1.0) {
+        return Err("a fish track is all NaN".into());
+    }
+    let offset = match t.attributes.get("tracking_interval") {
+        Some(Attr::Ints(v)) if !v.is_empty() => v[0],
+        Some(Attr::Floats(v)) if !v.is_empty() => v[0] as i64,
+        _ => 0,
+    };
+    let rate = t.frame_rate_hz;
+    let tracks: Vec<Track> = fish.iter().map(|f| track(f, offset, cfg)).collect();
+    let tank = Tank::new(&TankParams::default());
+    let len = arch.view_len();
+    let mut view = vec![0.0; len];
+    let ok = |p: [f32; 2]| p[0].is_finite() && p[1].is_finite();
+    for (me, other) in [(0usize, 1usize), (1, 0)] {
+        let (a, b) = (&tracks[me], &tracks[other]);
+        d.headings_from_motion += a.from_motion;
+        for i in 0..frames.saturating_sub(2) {
+            let usable = ok(a.pos[i])
+                && ok(a.pos[i + 1])
+                && ok(a.pos[i + 2])
+                && ok(b.pos[i])
+                && a.heading[i].is_finite()
+                && a.heading[i + 1].is_finite()
+                && b.heading[i].is_finite()
+                && !a.interpolated[i]
+                && !a.interpolated[i + 1];
+            if !usable {
+                d.frames_left_out += 1;
+                continue;
+            }
+            let s_me = AgentState::at(a.pos[i][0], a.pos[i][1], a.heading[i]);
+            let s_other = AgentState::at(b.pos[i][0], b.pos[i][1], b.heading[i]);
+            encode_view(arch, &tank, &s_me, Some(&s_other), &mut view);
+            let (dx, dy) = (a.pos[i + 1][0] - a.pos[i][0], a.pos[i + 1][1] - a.pos[i][1]);
+            let v = (dx * dx + dy * dy).sqrt() * rate;
+            let w = wrap_angle(a.heading[i + 1] - a.heading[i]) * rate;
+            d.x.extend_from_slice(&view);
+            d.y.push(arch.cell_of(v, w));
+        }
+    }
+    Ok(())
+}
+
+/// Builds the dataset of the pair files under `dirs`. An empty result is an error naming what
+/// was skipped.
+pub fn load_pairs(
+    dirs: &[PathBuf],
+    arch: &ConvNetArch,
+    cfg: &CloneConfig,
+) -> Result<PairDataset, LearnError> {
+    let files = list_files(dirs);
+    let parts: Vec<(PathBuf, Result<PairDataset, String>)> = files
+        .par_iter()
+        .map(|f| {
+            let mut d = PairDataset::default();
+            let r = add_file(f, arch, cfg, &mut d).map(|()| d);
+            (f.clone(), r)
+        })
+        .collect();
+    let mut d = PairDataset::default();
+    for (f, r) in parts {
+        match r {
+            Ok(p) => {
+                d.x.extend(p.x);
+                d.y.extend(p.y);
+                d.frames_left_out += p.frames_left_out;
+                d.headings_from_motion += p.headings_from_motion;
+                d.files.push(f);
+            }
+            Err(why) => d.skipped.push((f, why)),
+        }
+    }
+    if d.is_empty() {
+        let dirs: Vec<String> = dirs.iter().map(|p| p.display().to_string()).collect();
+        let why: Vec<String> = d
+            .skipped
+            .iter()
+            .take(5)
+            .map(|(f, w)| format!("{}: {w}", f.display()))
+            .collect();
+        return Err(LearnError::Run(format!(
+            "no training examples in {} ({} files; {})",
+            dirs.join(", "),
+            files.len(),
+            if why.is_empty() {
+                "no trial files found".into()
+            } else {
+                why.join("; ")
+            }
+        )));
+    }
+    Ok(d)
+}
+
+/// Zeroes the neighbour channels (the "no neighbour" baseline network sees walls only).
+pub fn blind(x: &mut [f32], arch: &ConvNetArch) {
+    for row in x.chunks_exact_mut(arch.view_len()) {
+        row[arch.bins..CHANNELS * arch.bins].fill(0.0);
+    }
+}
+
+/// Mean NLL (nats per example) of the network on a dataset.
+pub fn nll(net: &ConvNet, d: &PairDataset) -> f64 {
+    let len = net.arch.view_len();
+    let cells = net.arch.cells();
+    let chunk = 4096;
+    let total: f64 =
+        d.x.par_chunks(chunk * len)
+            .zip(d.y.par_chunks(chunk))
+            .map(|(x, y)| {
+                let mut ws = ConvNetWorkspace::default();
+                let logits = net.forward(x, y.len(), &mut ws);
+                let mut g = vec![0.0; logits.len()];
+                f64::from(fishprobe_nn::dist::softmax_cross_entropy(
+                    logits, cells, y, &mut g,
+                )) * y.len() as f64
+            })
+            .sum();
+    total / d.len().max(1) as f64
+}
+
+/// NLL of the training data's marginal cell histogram on `val` (add-½ smoothing: every cell
+/// gets half a count, so unseen cells do not give infinite loss).
+pub fn marginal_nll(train: &PairDataset, val: &PairDataset, cells: usize) -> f64 {
+    let mut counts = vec![0.5f64; cells];
+    for &c in &train.y {
+        counts[c] += 1.0;
+    }
+    let total: f64 = counts.iter().sum();
+    -val.y.iter().map(|&c| (counts[c] / total).ln()).sum::<f64>() / val.len().max(1) as f64
+}
+
+/// One epoch's log line.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct EpochLog {
+    /// Epoch (1-based).
+    pub epoch: usize,
+    /// Mean training NLL over the epoch's minibatches.
+    pub train_nll: f64,
+    /// Validation NLL after the epoch.
+    pub val_nll: f64,
+    /// Seconds since the start.
+    pub seconds: f64,
+}
+
+/// One thread's buffers: workspace, logit gradients, conv and dense parameter gradients.
+type Worker = (ConvNetWorkspace, Vec<f32>, Vec<f32>, Vec<f32>);
+
+/// Fits `net` on `train`, stopping early on `val`; keeps the best epoch's weights. Calls
+/// `on_epoch` after each epoch and `on_batch(done, total)` during it.
+pub fn fit(
+    net: &mut ConvNet,
+    train: &PairDataset,
+    val: &PairDataset,
+    cfg: &CloneConfig,
+    rng: &mut SimRng,
+    mut on_epoch: impl FnMut(&EpochLog),
+    on_batch: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<EpochLog>, LearnError> {
+    cfg.validate()?;
+    let len = net.arch.view_len();
+    let cells = net.arch.cells();
+    let m = cfg.batch_size;
+    let half = m.div_ceil(2);
+    let mut adam_c = Adam::new(net.conv.params.len(), cfg.learning_rate);
+    let mut adam_m = Adam::new(net.mlp.num_params(), cfg.learning_rate);
+    let mut idx: Vec<usize> = (0..train.len()).collect();
+    let (mut xb, mut yb) = (vec![0.0f32; m * len], vec![0usize; m]);
+    let mut workers: Vec<Worker> = (0..2)
+        .map(|_| {
+            (
+                ConvNetWorkspace::default(),
+                vec![0.0; half * cells],
+                vec![0.0; net.conv.params.len()],
+                vec![0.0; net.mlp.num_params()],
+            )
+        })
+        .collect();
+    let started = std::time::Instant::now();
+    let mut best = (nll(net, val), net.clone());
+    let mut logs = Vec::new();
+    let mut since_best = 0;
+    for epoch in 1..=cfg.max_epochs {
+        for i in (1..idx.len()).rev() {
+            idx.swap(i, rng.random_range(0..=i));
+        }
+        let batches = idx.len() / m;
+        let mut loss_sum = 0.0f64;
+        for (b, chunk) in idx.chunks_exact(m).enumerate() {
+            for (j, &k) in chunk.iter().enumerate() {
+                xb[j * len..(j + 1) * len].copy_from_slice(&train.x[k * len..(k + 1) * len]);
+                yb[j] = train.y[k];
+            }
+            let net_ref = &*net;
+            let losses: Vec<f64> = workers
+                .par_iter_mut()
+                .zip(xb.par_chunks(half * len).zip(yb.par_chunks(half)))
+                .map(|((ws, dl, gc, gm), (x, y))| {
+                    let n = y.len();
+                    let logits = net_ref.forward(x, n, ws);
+                    let l = fishprobe_nn::dist::softmax_cross_entropy(
+                        logits,
+                        cells,
+                        y,
+                        &mut dl[..n * cells],
+                    );
+                    // Each half's gradient is a mean over its half: scale to the minibatch mean.
+                    let scale = n as f32 / m as f32;
+                    dl[..n * cells].iter_mut().for_each(|g| *g *= scale);
+                    gc.fill(0.0);
+                    gm.fill(0.0);
+                    net_ref.backward(x, n, &dl[..n * cells], ws, gc, gm);
+                    f64::from(l) * n as f64
+                })
+                .collect();
+            loss_sum += losses.iter().sum::<f64>() / m as f64;
+            let (w0, w1) = workers.split_at_mut(1);
+            for (a, b) in w0[0].2.iter_mut().zip(&w1[0].2) {
+                *a += b;
+            }
+            for (a, b) in w0[0].3.iter_mut().zip(&w1[0].3) {
+                *a += b;
+            }
+            adam_c.step(&mut net.conv.params, &w0[0].2);
+            adam_m.step(net.mlp.params_mut(), &w0[0].3);
+            if b % 64 == 0 {
+                on_batch(b, batches);
+            }
+        }
+        let train_nll = loss_sum / batches.max(1) as f64;
+        if !train_nll.is_finite() {
+            return Err(LearnError::Diverged {
+                iteration: epoch as u64,
+                what: "training NLL is not finite".into(),
+            });
+        }
+        let val_nll = nll(net, val);
+        let log = EpochLog {
+            epoch,
+            train_nll,
+            val_nll,
+            seconds: started.elapsed().as_secs_f64(),
+        };
+        on_epoch(&log);
+        logs.push(log);
+        if val_nll < best.0 {
+            best = (val_nll, net.clone());
+            since_best = 0;
+        } else {
+            since_best += 1;
+            if since_best >= cfg.patience {
+                break;
+            }
+        }
+    }
+    *net = best.1;
+    Ok(logs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn marginal_baseline_is_the_entropy_of_the_histogram() {
+        let train = PairDataset {
+            y: vec![0, 0, 1, 1],
+            ..PairDataset::default()
+        };
+        // Smoothed counts (2.5, 2.5, 0.5 ...) over 4 cells: p(0) = 2.5 / 6.
+        let v = marginal_nll(&train, &train, 4);
+        assert!((v - -(2.5f64 / 6.0).ln()).abs() < 1e-12, "{v}");
+    }
+
+    #[test]
+    fn fitting_learns_a_neighbour_dependent_rule() {
+        // Synthetic examples: the cell is 0 when the neighbour is ahead, 1 when behind. A
+        // network that sees the neighbour learns it; the blind one cannot beat log 2.
+        let arch = ConvNetArch {
+            bins: 8,
+            conv_channels: 2,
+            kernel: 3,
+            hidden: [8, 8],
+            v_bins: 1,
+            w_bins: 2,
+            ..ConvNetArch::default()
+        };
+        let mut r = fishprobe_sim::stream(1, "test", 0);
+        let mut d = PairDataset::default();
+        let tank = Tank::new(&TankParams::default());
+        let mut view = vec![0.0; arch.view_len()];
+        for _ in 0..2000 {
+            let ahead = r.random::<bool>();
+            let me = AgentState::at(0.0, 0.0, 0.0);
+            let o = AgentState::at(if ahead { 10.0 } else { -10.0 }, 1.0, 0.0);
+            encode_view(&arch, &tank, &me, Some(&o), &mut view);
+            d.x.extend_from_slice(&view);
+            d.y.push(usize::from(!ahead));
+        }
+        let cfg = CloneConfig {
+            batch_size: 64,
+            learning_rate: 0.01,
+            max_epochs: 15,
+            ..CloneConfig::default()
+        };
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(2);
+        let mut net = ConvNet::new(arch.clone(), &mut rng);
+        let before = nll(&net, &d);
+        fit(&mut net, &d, &d, &cfg, &mut r, |_| {}, &|_, _| {}).expect("fits");
+        let after = nll(&net, &d);
+        assert!(before > 0.6 && after < 0.05, "{before} -> {after}");
+        let mut blind_d = d.clone();
+        blind(&mut blind_d.x, &arch);
+        let mut net2 = ConvNet::new(arch, &mut rng);
+        fit(
+            &mut net2,
+            &blind_d,
+            &blind_d,
+            &cfg,
+            &mut r,
+            |_| {},
+            &|_, _| {},
+        )
+        .expect("fits");
+        assert!(
+            nll(&net2, &blind_d) > 0.65,
+            "the blind network cannot see the rule"
+        );
+    }
+}
