@@ -16,6 +16,7 @@ pub mod approach;
 pub mod compare;
 pub mod config;
 pub mod error;
+pub mod offline;
 pub mod results;
 pub mod study;
 pub mod trial;

@@ -34,6 +34,7 @@ pub mod data;
 pub mod error;
 pub mod figures;
 pub mod html;
+pub mod offline;
 pub mod render;
 pub mod svg;
 
@@ -64,6 +65,20 @@ fn write(path: &Path, bytes: &[u8]) -> Result<(), ReportError> {
         path: path.to_path_buf(),
         what: e.to_string(),
     })
+}
+
+/// Writes `dir/NAME.svg` (text as outlines) and `dir/NAME.png` (`png_scale` device pixels per
+/// SVG pixel); returns the outlined SVG.
+pub fn write_figure(
+    f: &figures::Figure,
+    dir: &Path,
+    png_scale: f32,
+) -> Result<String, ReportError> {
+    let portable = render::portable_svg(&f.svg, f.name)?;
+    let png = render::png(&f.svg, f.name, png_scale)?;
+    write(&dir.join(format!("{}.svg", f.name)), portable.as_bytes())?;
+    write(&dir.join(format!("{}.png", f.name)), &png)?;
+    Ok(portable)
 }
 
 /// Makes the report of the study at `root` into `out` (default `root/report`), reading the
@@ -99,13 +114,7 @@ pub fn build_report(
     let rendered: Vec<(figures::Figure, String)> = figs
         .into_par_iter()
         .map(|f| {
-            let portable = render::portable_svg(&f.svg, f.name)?;
-            let png = render::png(&f.svg, f.name, cfg.png_scale)?;
-            write(
-                &fig_dir.join(format!("{}.svg", f.name)),
-                portable.as_bytes(),
-            )?;
-            write(&fig_dir.join(format!("{}.png", f.name)), &png)?;
+            let portable = write_figure(&f, &fig_dir, cfg.png_scale)?;
             Ok((f, portable))
         })
         .collect::<Result<_, ReportError>>()?;
