@@ -40,6 +40,10 @@ enum BenchWhat {
         /// Training iterations of the end-to-end measurement (8192 steps, 100 epochs each).
         #[arg(long, default_value_t = 2)]
         iterations: u64,
+        /// Fish model of the end-to-end measurement (e.g. ConvNet, to compare its batched
+        /// inference with Zone).
+        #[arg(long, default_value = "Zone")]
+        model: String,
     },
     /// The whole analysis of a paper-sized study of synthetic trials (scripted robots), file
     /// reading included, with the paper's replicate counts.
@@ -116,7 +120,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
             seconds,
             envs,
         } => bench_sim(json, seconds, envs),
-        BenchWhat::Train { json, iterations } => bench_train(json, iterations),
+        BenchWhat::Train {
+            json,
+            iterations,
+            model,
+        } => bench_train(json, iterations, &model),
         BenchWhat::Stats {
             json,
             dir,
@@ -320,7 +328,7 @@ fn mlp_flops(sizes: &[usize], m: usize) -> f64 {
     forward + backward
 }
 
-fn bench_train(json: bool, iterations: u64) -> Result<()> {
+fn bench_train(json: bool, iterations: u64, model_name: &str) -> Result<()> {
     use fishprobe_learn::ppo::{update, Rollout, Scratch};
     use fishprobe_learn::{GaussianPolicy, PpoConfig, RunSpec, Trainer};
     let m = machine();
@@ -380,13 +388,13 @@ fn bench_train(json: bool, iterations: u64) -> Result<()> {
         + mlp_flops(&policy.vf.spec().sizes, cfg.sgd_minibatch_size);
     let update_gflops = flops_mb * mb_per_s / 1e9;
 
-    // 3. End to end: `iterations` paper-preset iterations against Zone.
+    // 3. End to end: `iterations` paper-preset iterations against the model (Zone by default).
     let dir = std::env::temp_dir().join(format!("fishprobe-bench-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let spec = RunSpec {
         ppo: PpoConfig::default(),
         env: fishprobe_sim::EnvConfig::default(),
-        model: ModelSpec::by_name("Zone")?,
+        model: ModelSpec::by_name(model_name)?,
         seed: 0,
         preset: "paper".into(),
         program_version: env!("CARGO_PKG_VERSION").into(),
@@ -406,7 +414,7 @@ fn bench_train(json: bool, iterations: u64) -> Result<()> {
             "bench": "train", "machine": m, "gemm_gflops_single_core": gemm_gflops,
             "update_minibatches_per_s": mb_per_s, "update_gflops": update_gflops,
             "update_gflops_per_core": update_gflops / m.cores as f64,
-            "train_steps_per_s": steps_per_s, "paper_run_minutes_projected": projected_min,
+            "model": model_name, "train_steps_per_s": steps_per_s, "paper_run_minutes_projected": projected_min,
             "command": "fishprobe bench train --json",
         }))? + "\n"
     } else {
@@ -414,7 +422,7 @@ fn bench_train(json: bool, iterations: u64) -> Result<()> {
             "fishprobe bench train — {} cores, {} ({} {})\n\
              matrix multiply, one core (512x256 · 256x256):  {gemm_gflops:.1} GFLOP/s\n\
              PPO update (2 x [180, 256, 256, out] MLPs, minibatch 512): {mb_per_s:.1} minibatches/s, {update_gflops:.1} GFLOP/s ({:.1} per core, {:.0} % of the single-core GEMM rate)\n\
-             end to end (paper preset, {} iterations, Zone): {steps_per_s:.0} steps/s -> a full {total}-step run takes {projected_min:.1} min\n",
+             end to end (paper preset, {} iterations, {model_name}): {steps_per_s:.0} steps/s -> a full {total}-step run takes {projected_min:.1} min\n",
             m.cores, m.cpu, m.os, m.arch,
             update_gflops / m.cores as f64,
             100.0 * update_gflops / m.cores as f64 / gemm_gflops,

@@ -2,9 +2,11 @@
 
 mod analyze;
 mod bench;
+mod compare_offline;
 mod config;
 mod evaluate;
 mod export;
+mod fit_convnet;
 mod import_legacy;
 mod inspect;
 mod models;
@@ -48,6 +50,10 @@ enum Command {
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
     Analyze(analyze::AnalyzeArgs),
+    /// Fit M_ConvNet to recordings of live guppy pairs (behavioural cloning).
+    FitConvnet(fit_convnet::FitConvnetArgs),
+    /// Compare pairs of model fish with recorded pairs of live guppies (the classic offline test).
+    CompareOffline(compare_offline::CompareOfflineArgs),
     /// Figures (SVG, PNG) and the self-contained HTML report of an analysed study.
     Report(report::ReportArgs),
 }
@@ -92,6 +98,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::ImportLegacy(a) => import_legacy::run(a),
         Command::Analyze(a) => analyze::run(a),
         Command::Report(a) => report::run(a),
+        Command::FitConvnet(a) => fit_convnet::run(a),
+        Command::CompareOffline(a) => compare_offline::run(a),
         Command::Train(a) => train::run(a),
         Command::Evaluate(a) => evaluate::run(a),
         Command::Export(a) => export::run(a),

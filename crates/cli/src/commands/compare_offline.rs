@@ -1,0 +1,106 @@
+//! `fishprobe compare-offline`: model pairs vs recorded pairs of live guppies.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_analysis::offline::{compare_offline, read_pairs, OfflineConfig};
+use fishprobe_learn::bc::{list_files, read_any};
+use fishprobe_models::ModelSpec;
+use fishprobe_report::offline::offline_histograms;
+use std::path::PathBuf;
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct CompareOfflineArgs {
+    /// Real pair recordings: directories of pair files (robofish.io or legacy) or files.
+    /// Default: guppy-pairs/legacy/validation of the shared data ($FISHPROBE_DATA).
+    #[arg(long, num_args = 1..)]
+    data: Vec<PathBuf>,
+    /// Output directory: offline.json, offline.csv, offline.md, offline_histograms.svg/png.
+    #[arg(long)]
+    out: PathBuf,
+    /// Models to compare (names, comma-separated).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "Follow,Zone,Force,ConvNet"
+    )]
+    models: Vec<String>,
+    /// Weights for M_ConvNet (default: the shipped weights).
+    #[arg(long)]
+    convnet_weights: Option<PathBuf>,
+    /// Master seed (simulations and bootstrap).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Bootstrap replicates.
+    #[arg(long)]
+    reps: Option<usize>,
+    /// Threads (default: all cores). Results do not depend on it.
+    #[arg(long)]
+    jobs: Option<usize>,
+}
+
+pub fn run(a: CompareOfflineArgs) -> Result<()> {
+    let mut cfg = OfflineConfig::default();
+    if let Some(r) = a.reps {
+        cfg.bootstrap_reps = r;
+    }
+    cfg.validate()?;
+    let data = if a.data.is_empty() {
+        let d = fishprobe_io::shared_data_dir()
+            .context("no --data given and no shared data found (set FISHPROBE_DATA)")?;
+        vec![d.join("guppy-pairs/legacy/validation")]
+    } else {
+        a.data.clone()
+    };
+    let mut models = Vec::new();
+    for name in &a.models {
+        let mut spec = ModelSpec::by_name(name)?;
+        if let (ModelSpec::ConvNet(p), Some(w)) = (&mut spec, &a.convnet_weights) {
+            p.weights = w.display().to_string();
+        }
+        spec.build().with_context(|| format!("model {name}"))?;
+        models.push((spec.name().to_string(), spec));
+    }
+    let files = list_files(&data);
+    if files.is_empty() {
+        bail!(
+            "no trial files in {}",
+            data.iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    let res = super::with_jobs(a.jobs, || -> Result<_> {
+        let (real, skipped) = read_pairs(&files, read_any, &cfg);
+        for (f, why) in &skipped {
+            eprintln!("warning: skipped {f}: {why}");
+        }
+        compare_offline(&real, skipped, &models, &cfg, a.seed).map_err(anyhow::Error::msg)
+    })??;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let put = |name: &str, text: &str| -> Result<()> {
+        let p = a.out.join(name);
+        fishprobe_io::write_atomically(&p, text.as_bytes())
+            .with_context(|| format!("writing {}", p.display()))
+    };
+    put("offline.json", &serde_json::to_string_pretty(&res)?)?;
+    put("offline.csv", &res.csv())?;
+    let table = res.markdown();
+    put(
+        "offline.md",
+        &format!(
+            "# Offline comparison: model pairs vs {} real pair recordings\n\n1-Wasserstein distance [95 % bootstrap CI over recordings]; smallest per metric in bold.\n\n{table}",
+            res.recordings.len()
+        ),
+    )?;
+    if let Some(f) = offline_histograms(&res) {
+        fishprobe_report::write_figure(&f, &a.out, 2.0)?;
+    }
+    emit(&format!(
+        "{} real pair recordings; 1-Wasserstein distance to them [95 % CI]:\n\n{table}\nwrote {}/offline.json, offline.csv, offline.md, offline_histograms.svg/.png\n",
+        res.recordings.len(),
+        a.out.display()
+    ))
+}

@@ -1,0 +1,255 @@
+//! End-to-end tests of `fishprobe fit-convnet` and `fishprobe compare-offline` on the shared
+//! recordings of live guppy pairs.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir as dir, stderr, stdout};
+use fishprobe_io::{write_trial, Category, Entity, TrialFile};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The shared pair data (`None`: not configured, skip; configured but missing: fail).
+fn pairs() -> Option<PathBuf> {
+    let Some(d) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return None;
+    };
+    let p = d.join("guppy-pairs/legacy");
+    assert!(p.join("train").is_dir(), "{} is missing", p.display());
+    Some(p)
+}
+
+fn first_file(dir: &Path) -> PathBuf {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    v.sort();
+    v[0].clone()
+}
+
+fn fish(name: &str, frames: usize, world: f32) -> Entity {
+    Entity {
+        name: name.into(),
+        category: Category::Fish,
+        category_label: "organism".into(),
+        positions: (0..frames)
+            .map(|t| [(t as f32 * 0.1) % (world / 2.0 - 2.0), 1.0])
+            .collect(),
+        orientations: vec![[1.0, 0.0]; frames],
+        attributes: BTreeMap::new(),
+    }
+}
+
+fn write_pair(path: &Path, n_fish: usize, frames: usize, world: f32) {
+    let t = TrialFile {
+        world_size_cm: [world, world],
+        frame_rate_hz: 25.0,
+        entities: (0..n_fish)
+            .map(|i| fish(&format!("fish_{i}"), frames, world))
+            .collect(),
+        attributes: BTreeMap::new(),
+        task: None,
+    };
+    write_trial(path, &t).unwrap();
+}
+
+#[test]
+fn fit_convnet_writes_weights_a_sidecar_and_a_log_that_the_fish_model_uses() {
+    let Some(p) = pairs() else { return };
+    let d = dir("fit-convnet");
+    let out = d.join("w/convnet.safetensors");
+    let train = first_file(&p.join("train"));
+    let val = first_file(&p.join("validation"));
+    let o = fishprobe(&[
+        "fit-convnet",
+        "--data",
+        train.to_str().unwrap(),
+        "--validation",
+        val.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--max-epochs",
+        "2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    for needle in ["ConvNet", "marginal histogram", "no-neighbour ConvNet"] {
+        assert!(text.contains(needle), "{text}");
+    }
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(d.join("w/convnet.safetensors.json")).unwrap(),
+    )
+    .unwrap();
+    let nll = meta["validation_nll"].as_f64().unwrap();
+    let marginal = meta["baselines"]["marginal_histogram_nll"]
+        .as_f64()
+        .unwrap();
+    assert!(nll.is_finite() && nll < (1025f64).ln(), "{nll}");
+    assert!(marginal.is_finite());
+    assert_eq!(meta["validation_files"].as_array().unwrap().len(), 1);
+    assert!(meta["command"]
+        .as_str()
+        .unwrap()
+        .starts_with("fishprobe fit-convnet"));
+    let log = std::fs::read_to_string(d.join("w/convnet.training.csv")).unwrap();
+    assert!(
+        log.starts_with("epoch,train_nll,val_nll") && log.lines().count() >= 2,
+        "{log}"
+    );
+    // The weights drive the fish model (here in the offline comparison).
+    let o = fishprobe(&[
+        "compare-offline",
+        "--data",
+        val.to_str().unwrap(),
+        "--models",
+        "ConvNet",
+        "--convnet-weights",
+        out.to_str().unwrap(),
+        "--reps",
+        "20",
+        "--out",
+        d.join("off").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+#[test]
+fn bad_pair_files_are_skipped_by_name_and_an_empty_dataset_is_an_error() {
+    let d = dir("convnet-bad");
+    let bad = d.join("bad");
+    std::fs::create_dir_all(&bad).unwrap();
+    write_pair(&bad.join("one_fish.hdf5"), 1, 400, 100.0);
+    write_pair(&bad.join("three_fish.hdf5"), 3, 400, 100.0);
+    write_pair(&bad.join("short.hdf5"), 2, 20, 100.0);
+    write_pair(&bad.join("big_tank.hdf5"), 2, 400, 200.0);
+    std::fs::write(bad.join("garbage.hdf5"), b"not hdf5 at all").unwrap();
+    let good = d.join("good");
+    std::fs::create_dir_all(&good).unwrap();
+    write_pair(&good.join("pair.hdf5"), 2, 400, 100.0);
+    let o = fishprobe(&[
+        "fit-convnet",
+        "--data",
+        bad.to_str().unwrap(),
+        "--validation",
+        good.to_str().unwrap(),
+        "--out",
+        d.join("w.safetensors").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("no training examples"), "{e}");
+    // With one usable file, the others are skipped with warnings that name file and reason.
+    std::fs::copy(good.join("pair.hdf5"), bad.join("pair.hdf5")).unwrap();
+    let o = fishprobe(&[
+        "fit-convnet",
+        "--data",
+        bad.to_str().unwrap(),
+        "--validation",
+        good.to_str().unwrap(),
+        "--out",
+        d.join("w.safetensors").to_str().unwrap(),
+        "--max-epochs",
+        "1",
+        "--no-baselines",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = stderr(&o);
+    for (file, why) in [
+        ("one_fish.hdf5", "1 fish"),
+        ("three_fish.hdf5", "3 fish"),
+        ("short.hdf5", "shorter than"),
+        ("big_tank.hdf5", "200 x 200"),
+        ("garbage.hdf5", "garbage"),
+    ] {
+        assert!(
+            e.lines().any(|l| l.contains(file) && l.contains(why)),
+            "no warning for {file} ({why}): {e}"
+        );
+    }
+    // Training and validation must not mix.
+    let o = fishprobe(&[
+        "fit-convnet",
+        "--data",
+        good.to_str().unwrap(),
+        "--validation",
+        good.to_str().unwrap(),
+        "--out",
+        d.join("w2.safetensors").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("must not mix"), "{}", stderr(&o));
+    // Weights that do not match the architecture: a clear error.
+    let meta = d.join("w.safetensors.json");
+    let text = std::fs::read_to_string(&meta)
+        .unwrap()
+        .replace("\"conv_channels\": 8", "\"conv_channels\": 9");
+    std::fs::write(&meta, text).unwrap();
+    let o = fishprobe(&[
+        "compare-offline",
+        "--data",
+        good.to_str().unwrap(),
+        "--models",
+        "ConvNet",
+        "--convnet-weights",
+        d.join("w.safetensors").to_str().unwrap(),
+        "--out",
+        d.join("off").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("w.safetensors") && e.contains("architecture"),
+        "{e}"
+    );
+}
+
+#[test]
+fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest() {
+    let Some(p) = pairs() else { return };
+    let d = dir("offline");
+    let o = fishprobe(&[
+        "compare-offline",
+        "--data",
+        p.join("validation").to_str().unwrap(),
+        "--reps",
+        "200",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(d.join("offline.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4 * 6, "{csv}");
+    assert!(d.join("offline_histograms.png").is_file());
+    assert!(d.join("offline_histograms.svg").is_file());
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("offline.json")).unwrap()).unwrap();
+    assert_eq!(r["recordings"].as_array().unwrap().len(), 5);
+    let w = |m: &str, k: &str| r["gaps"][m][k]["w"].as_f64().unwrap();
+    let metrics = [
+        "speed",
+        "turn_rate",
+        "wall_distance",
+        "iid",
+        "alignment",
+        "paused",
+    ];
+    let closer = |other: &str| {
+        metrics
+            .iter()
+            .filter(|k| w("ConvNet", k) < w(other, k))
+            .count()
+    };
+    assert!(
+        closer("Zone") >= 4,
+        "ConvNet closer than Zone on only {} of 6",
+        closer("Zone")
+    );
+    assert!(
+        closer("Force") >= 4,
+        "ConvNet closer than Force on only {} of 6",
+        closer("Force")
+    );
+}
