@@ -68,7 +68,11 @@ fn models_measure_reports_distributions() {
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let ms = v["measurements"].as_array().unwrap();
-    assert_eq!(ms.len(), 8, "4 models (Follow, Zone, Force, ConvNet) x 2 conditions");
+    assert_eq!(
+        ms.len(),
+        8,
+        "4 models (Follow, Zone, Force, ConvNet) x 2 conditions"
+    );
     let zone_alone = ms
         .iter()
         .find(|m| m["model"] == "Zone" && m["condition"] == "solitary")

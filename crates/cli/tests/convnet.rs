@@ -43,13 +43,16 @@ fn fish(name: &str, frames: usize, world: f32) -> Entity {
     }
 }
 
+/// `world` NaN: a 100 x 100 cm file whose tracks are all NaN.
 fn write_pair(path: &Path, n_fish: usize, frames: usize, world: f32) {
+    let mut entities: Vec<Entity> = (0..n_fish)
+        .map(|i| fish(&format!("fish_{i}"), frames, world))
+        .collect();
+    let world = if world.is_nan() { 100.0 } else { world };
     let t = TrialFile {
         world_size_cm: [world, world],
         frame_rate_hz: 25.0,
-        entities: (0..n_fish)
-            .map(|i| fish(&format!("fish_{i}"), frames, world))
-            .collect(),
+        entities: std::mem::take(&mut entities),
         attributes: BTreeMap::new(),
         task: None,
     };
@@ -125,6 +128,7 @@ fn bad_pair_files_are_skipped_by_name_and_an_empty_dataset_is_an_error() {
     write_pair(&bad.join("three_fish.hdf5"), 3, 400, 100.0);
     write_pair(&bad.join("short.hdf5"), 2, 20, 100.0);
     write_pair(&bad.join("big_tank.hdf5"), 2, 400, 200.0);
+    write_pair(&bad.join("all_nan.hdf5"), 2, 400, f32::NAN);
     std::fs::write(bad.join("garbage.hdf5"), b"not hdf5 at all").unwrap();
     let good = d.join("good");
     std::fs::create_dir_all(&good).unwrap();
@@ -162,6 +166,7 @@ fn bad_pair_files_are_skipped_by_name_and_an_empty_dataset_is_an_error() {
         ("three_fish.hdf5", "3 fish"),
         ("short.hdf5", "shorter than"),
         ("big_tank.hdf5", "200 x 200"),
+        ("all_nan.hdf5", "NaN"),
         ("garbage.hdf5", "garbage"),
     ] {
         assert!(
