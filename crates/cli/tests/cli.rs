@@ -70,8 +70,8 @@ fn models_measure_reports_distributions() {
     let ms = v["measurements"].as_array().unwrap();
     assert_eq!(
         ms.len(),
-        8,
-        "4 models (Follow, Zone, Force, ConvNet) x 2 conditions"
+        10,
+        "5 models (Follow, Zone, Force, ConvNet, Guppy) x 2 conditions"
     );
     let zone_alone = ms
         .iter()

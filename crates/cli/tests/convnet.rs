@@ -258,3 +258,35 @@ fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest(
         closer("Force")
     );
 }
+
+#[test]
+fn the_virtual_guppy_matches_validation_pairs_better_than_zone_and_force() {
+    // Calibrated on the training pairs only; checked here on the validation pairs (issue 8).
+    let Some(p) = pairs() else { return };
+    let d = dir("guppy-offline");
+    let o = fishprobe(&[
+        "compare-offline",
+        "--data",
+        p.join("validation").to_str().unwrap(),
+        "--models",
+        "Zone,Force,Guppy",
+        "--reps",
+        "100",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("offline.json")).unwrap()).unwrap();
+    let w = |m: &str, k: &str| r["gaps"][m][k]["w"].as_f64().unwrap();
+    for k in ["speed", "turn_rate", "wall_distance", "paused"] {
+        for other in ["Zone", "Force"] {
+            assert!(
+                w("Guppy", k) < w(other, k),
+                "{k}: virtual guppy {} vs {other} {}",
+                w("Guppy", k),
+                w(other, k)
+            );
+        }
+    }
+}

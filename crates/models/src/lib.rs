@@ -19,6 +19,7 @@
 pub mod convnet;
 pub mod follow;
 pub mod force;
+pub mod guppy;
 pub mod measure;
 pub mod stationary;
 pub mod zone;
@@ -26,6 +27,7 @@ pub mod zone;
 pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError};
 pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
+pub use guppy::{Guppy, GuppyParams};
 pub use stationary::{Stationary, StationaryParams};
 pub use zone::{Zone, ZoneConvention, ZoneParams};
 
@@ -70,11 +72,14 @@ pub enum ModelSpec {
     Stationary(StationaryParams),
     /// M_ConvNet: behavioural cloning of live guppy pairs.
     ConvNet(ConvNetParams),
+    /// The virtual guppy of the virtual lab (not a candidate model).
+    Guppy(GuppyParams),
 }
 
 impl ModelSpec {
     /// Names of every model, in the paper's order (candidate models first).
-    pub const NAMES: [&'static str; 5] = ["Follow", "Zone", "Force", "Stationary", "ConvNet"];
+    pub const NAMES: [&'static str; 6] =
+        ["Follow", "Zone", "Force", "Stationary", "ConvNet", "Guppy"];
 
     /// The rule-based candidate models of the paper.
     pub const RULE_BASED: [&'static str; 3] = ["Follow", "Zone", "Force"];
@@ -87,6 +92,7 @@ impl ModelSpec {
             "force" => Ok(Self::Force(ForceParams::default())),
             "stationary" => Ok(Self::Stationary(StationaryParams::default())),
             "convnet" => Ok(Self::ConvNet(ConvNetParams::default())),
+            "guppy" | "virtualguppy" => Ok(Self::Guppy(GuppyParams::default())),
             _ => Err(ModelError::Unknown {
                 name: name.to_string(),
                 known: Self::NAMES.join(", "),
@@ -102,6 +108,7 @@ impl ModelSpec {
             Self::Force(_) => "Force",
             Self::Stationary(_) => "Stationary",
             Self::ConvNet(_) => "ConvNet",
+            Self::Guppy(_) => "Guppy",
         }
     }
 
@@ -119,6 +126,9 @@ impl ModelSpec {
             Self::ConvNet(_) => {
                 "behavioural cloning of live guppy pairs: (speed, turn) sampled from a ConvNet"
             }
+            Self::Guppy(_) => {
+                "the virtual lab's guppy: burst and glide, pauses, thigmotaxis, individual sociability"
+            }
         }
     }
 
@@ -130,6 +140,7 @@ impl ModelSpec {
             Self::Force(_) => ForceParams::field_docs(),
             Self::Stationary(_) => StationaryParams::field_docs(),
             Self::ConvNet(_) => ConvNetParams::field_docs(),
+            Self::Guppy(_) => GuppyParams::field_docs(),
         }
     }
 
@@ -142,6 +153,7 @@ impl ModelSpec {
             Self::Force(p) => p.validate(prefix),
             Self::Stationary(p) => p.validate(prefix),
             Self::ConvNet(_) => Ok(()),
+            Self::Guppy(p) => p.validate(prefix),
         }
     }
 
@@ -154,6 +166,7 @@ impl ModelSpec {
             Self::Force(p) => Arc::new(Force::new(p.clone())?),
             Self::Stationary(_) => Arc::new(Stationary),
             Self::ConvNet(p) => Arc::new(ConvNetFish::new(p)?),
+            Self::Guppy(p) => Arc::new(Guppy::new(p.clone())?),
         })
     }
 }
