@@ -1,0 +1,295 @@
+//! The virtual lab (SPEC §9): tank, tracker, robot and a virtual guppy played over the live
+//! protocol, so that the bridge runs exactly as with the real lab, faster than real time.
+//!
+//! Each frame (25 Hz) the lab moves the robot by its low-level controller under the last
+//! command (holding still while stopped), moves the fish (kept in its container in a corner
+//! until the release), adds tracking noise and occasional dropouts, and sends the frame. When a
+//! scheduled command is due it waits for it, so the run is deterministic for a seed and as
+//! fast as the bridge answers.
+
+use crate::error::LiveError;
+use crate::protocol::{to_line, ClientMsg, FishPose, Pose, ServerMsg, PROTOCOL_VERSION};
+use fishprobe_models::{Guppy, GuppyParams};
+use fishprobe_sim::params::{check, ConfigError};
+use fishprobe_sim::{
+    apply_motion, stream, wrap_angle, AgentState, FishMind, FishModel, FishView, Robot,
+    RobotParams, SimRng, Tank, TankParams,
+};
+use rand::RngExt;
+use rand_distr::{Distribution, StandardNormal};
+use std::io::{BufRead, BufReader, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::sync::mpsc;
+use std::time::Duration;
+
+fishprobe_sim::documented_params! {
+    /// The virtual lab's tracker and set-up (choices).
+    pub struct LabConfig {
+        /// Tracking rate (the real set-up: 25 Hz).
+        pub tracking_hz: f32 = 25.0; "Hz",
+        /// Tracking noise on positions (s.d.).
+        pub position_noise_cm: f32 = 0.1; "cm",
+        /// Tracking noise on headings (s.d.).
+        pub heading_noise_rad: f32 = 0.05; "rad",
+        /// Fish dropouts start at this rate.
+        pub dropouts_per_min: f32 = 2.0; "1/min",
+        /// A dropout lasts uniformly between this and `dropout_max_s`.
+        pub dropout_min_s: f32 = 0.1; "s",
+        /// See `dropout_min_s`.
+        pub dropout_max_s: f32 = 1.2; "s",
+        /// Where the fish waits in its container until the release (a corner).
+        pub container: [f32; 2] = [-40.0, -40.0]; "cm",
+        /// Seconds to wait for a due command before giving up (the bridge is gone).
+        pub command_timeout_s: f32 = 10.0; "s",
+    }
+}
+
+impl LabConfig {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        check::positive("lab", "tracking_hz", self.tracking_hz)?;
+        check::non_negative("lab", "position_noise_cm", self.position_noise_cm)?;
+        check::non_negative("lab", "heading_noise_rad", self.heading_noise_rad)?;
+        check::non_negative("lab", "dropouts_per_min", self.dropouts_per_min)?;
+        check::non_negative("lab", "dropout_min_s", self.dropout_min_s)?;
+        check::positive("lab", "command_timeout_s", self.command_timeout_s)?;
+        if self.dropout_max_s < self.dropout_min_s {
+            return Err(ConfigError::new(
+                "lab",
+                "dropout_max_s",
+                self.dropout_max_s,
+                "must be at least dropout_min_s",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What one virtual trial did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LabTrial {
+    /// The trial file the bridge wrote.
+    pub file: String,
+    /// Goals reached (the bridge's count).
+    pub goals_reached: u32,
+    /// Frames sent.
+    pub frames_sent: u64,
+    /// Frames in which the fish was reported lost.
+    pub frames_lost: u64,
+    /// Stop commands received.
+    pub stops: u64,
+}
+
+fn normal(rng: &mut SimRng) -> f32 {
+    StandardNormal.sample(rng)
+}
+
+fn reader_thread(stream: TcpStream) -> mpsc::Receiver<Result<ServerMsg, String>> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines() {
+            let m = match line {
+                Ok(l) => serde_json::from_str::<ServerMsg>(&l)
+                    .map_err(|e| format!("bad message from the bridge: {e}")),
+                Err(_) => break,
+            };
+            if tx.send(m).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Runs one virtual trial against the bridge at `addr`.
+pub fn run_trial(
+    addr: SocketAddr,
+    cfg: &LabConfig,
+    guppy: &GuppyParams,
+    seed: u64,
+) -> Result<LabTrial, LiveError> {
+    cfg.validate()?;
+    let net = |e: std::io::Error| LiveError::Net(format!("{addr}: {e}"));
+    let mut conn = TcpStream::connect(addr).map_err(net)?;
+    let _ = conn.set_nodelay(true);
+    let rx = reader_thread(conn.try_clone().map_err(net)?);
+    let hello = ClientMsg::Hello {
+        protocol: PROTOCOL_VERSION,
+        world_size_cm: [100.0, 100.0],
+        tracking_hz: cfg.tracking_hz,
+        source: "virtual_lab".into(),
+        token: None,
+    };
+    conn.write_all(to_line(&hello).as_bytes()).map_err(net)?;
+    let wait = Duration::from_secs_f32(cfg.command_timeout_s);
+    let (habituation, release, control, hz) = match rx.recv_timeout(wait) {
+        Ok(Ok(ServerMsg::Welcome {
+            habituation_s,
+            release_s,
+            control_s,
+            command_hz,
+            ..
+        })) => (habituation_s, release_s, control_s, command_hz),
+        Ok(Ok(ServerMsg::Error { reason })) => return Err(LiveError::Refused(reason)),
+        Ok(Ok(other)) => return Err(LiveError::Net(format!("expected welcome, got {other:?}"))),
+        Ok(Err(e)) => return Err(LiveError::Net(e)),
+        Err(_) => return Err(LiveError::Net("no welcome from the bridge".into())),
+    };
+    let tank = Tank::new(&TankParams::default());
+    let rp = RobotParams::default();
+    let dt = 1.0 / cfg.tracking_hz;
+    let mut rng_fish = stream(seed, "lab/fish", 0);
+    let mut rng_track = stream(seed, "lab/tracking", 0);
+    let mut robot = Robot::at(
+        0.0,
+        0.0,
+        rng_track.random_range(-std::f32::consts::PI..std::f32::consts::PI),
+    );
+    let mut fish = AgentState::at(
+        cfg.container[0],
+        cfg.container[1],
+        std::f32::consts::FRAC_PI_4,
+    );
+    let model = Guppy::new(guppy.clone())?;
+    let mut mind = FishMind::default();
+    model.begin_episode(&fish, &mut mind, &mut rng_fish);
+    let mut stopped = false;
+    let mut next_seq: u64 = 0;
+    let mut dropout_left = 0.0f32;
+    let mut out = LabTrial {
+        file: String::new(),
+        goals_reached: 0,
+        frames_sent: 0,
+        frames_lost: 0,
+        stops: 0,
+    };
+    let apply = |m: ServerMsg,
+                 robot: &mut Robot,
+                 stopped: &mut bool,
+                 out: &mut LabTrial|
+     -> Option<(Option<u64>, bool)> {
+        match m {
+            ServerMsg::Command {
+                seq, turn, stop, ..
+            } => {
+                if stop {
+                    if !*stopped {
+                        out.stops += 1;
+                    }
+                    *stopped = true;
+                    robot.speed = 0.0;
+                    robot.turn_rate = 0.0;
+                } else {
+                    *stopped = false;
+                    if seq.is_some() {
+                        robot.begin_action(turn);
+                    }
+                }
+                Some((seq, false))
+            }
+            ServerMsg::Done {
+                file,
+                goals_reached,
+            } => {
+                out.file = file;
+                out.goals_reached = goals_reached;
+                Some((None, true))
+            }
+            _ => None,
+        }
+    };
+    let total = ((habituation + control) * f64::from(cfg.tracking_hz)).ceil() as u64 + 2;
+    for k in 0..total + 50 {
+        let t = k as f64 / f64::from(cfg.tracking_hz);
+        if k > 0 {
+            if !stopped {
+                robot.advance(&rp, &tank, dt);
+            }
+            if t >= release {
+                let view =
+                    FishView::build(0, &[fish], &[robot.state], tank, dt, (t - release) as f32);
+                let m = model.decide(&view, &[], &mut mind, &mut rng_fish);
+                apply_motion(&tank, &mut fish, m, dt);
+            }
+        }
+        // Tracking: noise, and fish dropouts.
+        if dropout_left > 0.0 {
+            dropout_left -= dt;
+        } else if rng_track.random::<f32>() < cfg.dropouts_per_min / 60.0 * dt {
+            dropout_left = cfg.dropout_min_s
+                + (cfg.dropout_max_s - cfg.dropout_min_s) * rng_track.random::<f32>();
+        }
+        let noisy = |s: &AgentState, r: &mut SimRng| Pose {
+            x: s.x + cfg.position_noise_cm * normal(r),
+            y: s.y + cfg.position_noise_cm * normal(r),
+            heading: wrap_angle(s.heading + cfg.heading_noise_rad * normal(r)),
+        };
+        let robot_pose = noisy(&robot.state, &mut rng_track);
+        let fish_pose = noisy(&fish, &mut rng_track);
+        let lost = dropout_left > 0.0;
+        if lost {
+            out.frames_lost += 1;
+        }
+        let frame = ClientMsg::Frame {
+            t,
+            robot: Some(robot_pose),
+            fish: vec![FishPose {
+                id: "fish_1".into(),
+                pose: (!lost).then_some(fish_pose),
+            }],
+        };
+        if conn.write_all(to_line(&frame).as_bytes()).is_err() {
+            break;
+        }
+        out.frames_sent += 1;
+        // Apply whatever has arrived; wait for a due command.
+        let due = t + 1e-9 >= next_seq as f64 / hz;
+        let mut got_due = !due;
+        let mut done = false;
+        loop {
+            let m = if got_due {
+                match rx.try_recv() {
+                    Ok(m) => m,
+                    Err(_) => break,
+                }
+            } else {
+                match rx.recv_timeout(wait) {
+                    Ok(m) => m,
+                    Err(_) => {
+                        return Err(LiveError::Net(format!(
+                            "no command from the bridge for {:.0} s",
+                            cfg.command_timeout_s
+                        )))
+                    }
+                }
+            };
+            let m = m.map_err(LiveError::Net)?;
+            if let Some((seq, is_done)) = apply(m, &mut robot, &mut stopped, &mut out) {
+                if is_done {
+                    done = true;
+                    break;
+                }
+                if seq.is_some_and(|s| s >= next_seq) {
+                    next_seq = seq.unwrap_or(next_seq) + 1;
+                    got_due = true;
+                }
+            }
+        }
+        if done {
+            let _ = conn.shutdown(std::net::Shutdown::Both);
+            return Ok(out);
+        }
+    }
+    // The bridge never said done (it was killed, or the trial ran past its end).
+    match rx.recv_timeout(wait) {
+        Ok(Ok(ServerMsg::Done {
+            file,
+            goals_reached,
+        })) => {
+            out.file = file;
+            out.goals_reached = goals_reached;
+            Ok(out)
+        }
+        _ => Err(LiveError::Net("the bridge did not finish the trial".into())),
+    }
+}

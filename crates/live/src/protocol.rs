@@ -1,0 +1,216 @@
+//! The wire format (docs/live-protocol.md): newline-delimited JSON over TCP. The client is the
+//! lab side (tracker and robot, or the virtual lab); the server is the bridge running the
+//! policy.
+
+use serde::{Deserialize, Serialize};
+
+/// Protocol version spoken by this build.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// A pose as the tracker reports it (cm, rad); absent or `null` when lost.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// x (cm, tank centre origin, x right).
+    pub x: f32,
+    /// y (cm, y up).
+    pub y: f32,
+    /// Heading (rad, counter-clockwise from +x).
+    pub heading: f32,
+}
+
+impl Pose {
+    /// All three values finite and inside a 100 x 100 cm tank (with 5 cm of slack).
+    pub fn is_valid(&self) -> bool {
+        self.x.is_finite()
+            && self.y.is_finite()
+            && self.heading.is_finite()
+            && self.x.abs() <= 55.0
+            && self.y.abs() <= 55.0
+    }
+}
+
+/// A tracked fish.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FishPose {
+    /// The tracker's id of the fish.
+    pub id: String,
+    /// Its pose, or `null` when lost.
+    #[serde(flatten)]
+    pub pose: Option<Pose>,
+}
+
+/// Messages from the lab side.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum ClientMsg {
+    /// First message: who is talking and what the tank is.
+    Hello {
+        /// Protocol version.
+        protocol: u32,
+        /// Tank size (cm).
+        world_size_cm: [f32; 2],
+        /// Tracking rate (Hz).
+        tracking_hz: f32,
+        /// "lab" (live fish) or "virtual_lab".
+        source: String,
+        /// Shared secret, required when the bridge listens beyond loopback.
+        #[serde(default)]
+        token: Option<String>,
+    },
+    /// One tracking frame.
+    Frame {
+        /// Tracking time stamp (s, monotonic within a trial).
+        t: f64,
+        /// The robot's pose, `null` when lost.
+        robot: Option<Pose>,
+        /// The fish.
+        #[serde(default)]
+        fish: Vec<FishPose>,
+    },
+    /// The lab ends the trial early.
+    End,
+}
+
+/// Trial phases.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    /// Robot mills in the centre; the fish is released after `release_s`.
+    Habituation,
+    /// The policy leads.
+    Control,
+    /// The trial is over.
+    Done,
+}
+
+/// Messages from the bridge.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServerMsg {
+    /// Handshake accepted.
+    Welcome {
+        /// Protocol version.
+        protocol: u32,
+        /// The policy in control.
+        policy: String,
+        /// Habituation length (s).
+        habituation_s: f64,
+        /// When the fish is released, from the start (s).
+        release_s: f64,
+        /// Control length (s).
+        control_s: f64,
+        /// Commands per second of tracking time.
+        command_hz: f64,
+    },
+    /// A robot command. Scheduled ones (`seq` = the second of the trial) come once per
+    /// 1 / command_hz of tracking time; unscheduled ones (`seq` null) stop the robot at once.
+    Command {
+        /// Tracking time of the frame that triggered it.
+        t: f64,
+        /// Schedule index, or null for an immediate stop.
+        seq: Option<u64>,
+        /// Relative turn (rad) to execute within the next second.
+        turn: f32,
+        /// Stop the robot (tracking lost or input malformed) and hold still.
+        stop: bool,
+        /// Why it stops.
+        #[serde(skip_serializing_if = "Option::is_none")]
+        reason: Option<String>,
+        /// Current phase.
+        phase: Phase,
+        /// Whether the fish has been released.
+        released: bool,
+        /// The active goal during control.
+        active_goal: Option<[f32; 2]>,
+        /// Goals reached so far.
+        goals_reached: u32,
+    },
+    /// The trial is over; where it was written.
+    Done {
+        /// The trial file.
+        file: String,
+        /// Goals reached.
+        goals_reached: u32,
+    },
+    /// A refused handshake or a fatal problem.
+    Error {
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Parses one line from the lab side.
+pub fn parse_client(line: &str) -> Result<ClientMsg, String> {
+    serde_json::from_str(line.trim()).map_err(|e| {
+        let head: String = line.chars().take(80).collect();
+        format!("malformed message ({e}): {head}")
+    })
+}
+
+/// One line of JSON (with the newline) for the wire.
+pub fn to_line<T: Serialize>(m: &T) -> String {
+    let mut s = serde_json::to_string(m).unwrap_or_else(|e| {
+        format!("{{\"type\":\"error\",\"reason\":\"cannot encode message: {e}\"}}")
+    });
+    s.push('\n');
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_parse_with_lost_agents_and_unknown_messages_are_refused() {
+        let m = parse_client(
+            r#"{"type":"frame","t":1.04,"robot":{"x":1,"y":2,"heading":0.5},"fish":[{"id":"f1","x":3,"y":4,"heading":1},{"id":"f2"}]}"#,
+        )
+        .expect("parses");
+        match m {
+            ClientMsg::Frame { t, robot, fish } => {
+                assert_eq!(t, 1.04);
+                assert!(robot.is_some_and(|p| p.is_valid()));
+                assert_eq!(fish.len(), 2);
+                assert!(fish[1].pose.is_none());
+            }
+            other => panic!("{other:?}"),
+        }
+        let lost = parse_client(r#"{"type":"frame","t":2,"robot":null}"#).expect("parses");
+        assert!(matches!(lost, ClientMsg::Frame { robot: None, .. }));
+        assert!(parse_client(r#"{"type":"dance"}"#)
+            .unwrap_err()
+            .contains("malformed"));
+        assert!(parse_client("{not json").is_err());
+        assert!(!Pose {
+            x: f32::NAN,
+            y: 0.0,
+            heading: 0.0
+        }
+        .is_valid());
+        assert!(!Pose {
+            x: 90.0,
+            y: 0.0,
+            heading: 0.0
+        }
+        .is_valid());
+    }
+
+    #[test]
+    fn commands_round_trip() {
+        let c = ServerMsg::Command {
+            t: 3.0,
+            seq: Some(3),
+            turn: 0.5,
+            stop: false,
+            reason: None,
+            phase: Phase::Control,
+            released: true,
+            active_goal: Some([-20.0, -20.0]),
+            goals_reached: 2,
+        };
+        let line = to_line(&c);
+        assert!(line.ends_with('\n') && line.contains("\"type\":\"command\""));
+        let back: ServerMsg = serde_json::from_str(&line).expect("parses");
+        assert_eq!(back, c);
+    }
+}

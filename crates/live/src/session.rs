@@ -1,0 +1,627 @@
+//! One live trial as a state machine, free of sockets: tracking frames in, robot commands out,
+//! and at the end the trial file. Decisions use the tracking time stamps only, so the same
+//! session runs at real time with the lab and faster than real time with the virtual lab.
+
+use crate::protocol::{ClientMsg, FishPose, Phase, Pose, ServerMsg};
+use fishprobe_io::{Attr, Category, Entity, TaskRecord, TrialFile, TrialKind};
+use fishprobe_sim::params::{check, ConfigError};
+use fishprobe_sim::{
+    stream, wrap_angle, AgentState, GoalTracker, ObservationEncoder, ObservationParams, Scene,
+    Tank, TankParams, TaskMode, TaskParams,
+};
+use std::collections::BTreeMap;
+
+fishprobe_sim::documented_params! {
+    /// The trial protocol of SPEC §4 and the bridge's safety settings.
+    pub struct LiveConfig {
+        /// Habituation: the robot mills in the centre (paper: 2 min).
+        pub habituation_s: f64 = 120.0; "s",
+        /// The fish is released from its container this long after the start (paper: 1 min).
+        pub release_s: f64 = 60.0; "s",
+        /// Closed-loop control after habituation (paper: 15 min).
+        pub control_s: f64 = 900.0; "s",
+        /// Policy commands per second of tracking time (paper: 1 Hz).
+        pub command_hz: f64 = 1.0; "Hz",
+        /// Tracking of robot or fish missing for this long: stop the robot (choice).
+        pub stale_s: f64 = 0.5; "s",
+        /// Radius of the robot's milling circle during habituation (choice).
+        pub mill_radius_cm: f32 = 15.0; "cm",
+        /// Rate at which frames are stored in the trial file (the tracking rate, 25 Hz).
+        pub file_rate_hz: f32 = 25.0; "Hz",
+        /// Longest accepted message (bytes); longer lines are dropped and the robot stopped.
+        pub max_message_bytes: usize = 65_536; "bytes",
+    }
+}
+
+impl LiveConfig {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        for (f, v) in [
+            ("habituation_s", self.habituation_s),
+            ("control_s", self.control_s),
+            ("command_hz", self.command_hz),
+            ("stale_s", self.stale_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(ConfigError::new(
+                    "live",
+                    f,
+                    v,
+                    "must be finite and greater than 0",
+                ));
+            }
+        }
+        if !(self.release_s >= 0.0 && self.release_s <= self.habituation_s) {
+            return Err(ConfigError::new(
+                "live",
+                "release_s",
+                self.release_s,
+                "must lie within the habituation",
+            ));
+        }
+        check::positive("live", "mill_radius_cm", self.mill_radius_cm)?;
+        check::positive("live", "file_rate_hz", self.file_rate_hz)?;
+        if self.max_message_bytes < 256 {
+            return Err(ConfigError::new(
+                "live",
+                "max_message_bytes",
+                self.max_message_bytes,
+                "must be at least 256",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What drives the robot during control: observation (180 floats) in, relative turn out.
+pub trait Pilot: Send {
+    /// Its name in trial files ("Zone" for π_Zone, ...).
+    fn name(&self) -> String;
+    /// The turn (rad) for an observation.
+    fn turn(&mut self, obs: &[f32]) -> f32;
+}
+
+/// A stop the bridge ordered.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StopEvent {
+    /// File frame at which it was ordered.
+    pub frame: u64,
+    /// Why.
+    pub reason: String,
+}
+
+/// One trial in progress.
+pub struct Session {
+    cfg: LiveConfig,
+    task: TaskParams,
+    pilot: Box<dyn Pilot>,
+    kind: TrialKind,
+    tank: Tank,
+    encoder: ObservationEncoder,
+    prev: Vec<f32>,
+    first_obs: bool,
+    obs: Vec<f32>,
+    goals: GoalTracker,
+    t0: Option<f64>,
+    last_t: f64,
+    next_seq: u64,
+    last_good: Option<f64>,
+    last_robot: Option<Pose>,
+    last_fish: Option<Pose>,
+    stopped: Option<String>,
+    robot: Vec<[f32; 3]>,
+    fish: Vec<[f32; 3]>,
+    active: Vec<i32>,
+    goal_frames: Vec<u64>,
+    command_frames: Vec<u64>,
+    command_turns: Vec<f32>,
+    stops: Vec<StopEvent>,
+    gaps: Vec<[u64; 2]>,
+    malformed: u64,
+    goals_reached: u32,
+}
+
+impl std::fmt::Debug for Session {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Session")
+            .field("pilot", &self.pilot.name())
+            .field("frames", &self.robot.len())
+            .field("goals_reached", &self.goals_reached)
+            .finish()
+    }
+}
+
+const LOST: [f32; 3] = [f32::NAN; 3];
+
+impl Session {
+    /// A session for a peer that said it is `source` ("lab" or "virtual_lab").
+    pub fn new(
+        cfg: LiveConfig,
+        task: TaskParams,
+        pilot: Box<dyn Pilot>,
+        source: &str,
+    ) -> Result<Self, ConfigError> {
+        cfg.validate()?;
+        let tank = Tank::new(&TankParams::default());
+        let encoder = ObservationEncoder::new(&ObservationParams::default());
+        let n = encoder.size();
+        let mut rng = stream(0, "live-goals", 0);
+        let goals = GoalTracker::start(TaskMode::Evaluation, &task, &tank, &[], &mut rng);
+        Ok(Self {
+            kind: if source == "virtual_lab" {
+                TrialKind::Virtual
+            } else {
+                TrialKind::Real
+            },
+            cfg,
+            task,
+            pilot,
+            tank,
+            prev: vec![0.0; 2 * encoder.sectors()],
+            obs: vec![0.0; n],
+            encoder,
+            first_obs: true,
+            goals,
+            t0: None,
+            last_t: f64::NEG_INFINITY,
+            next_seq: 0,
+            last_good: None,
+            last_robot: None,
+            last_fish: None,
+            stopped: None,
+            robot: Vec::new(),
+            fish: Vec::new(),
+            active: Vec::new(),
+            goal_frames: Vec::new(),
+            command_frames: Vec::new(),
+            command_turns: Vec::new(),
+            stops: Vec::new(),
+            gaps: Vec::new(),
+            malformed: 0,
+            goals_reached: 0,
+        })
+    }
+
+    /// Trial kind (real or virtual).
+    pub fn kind(&self) -> TrialKind {
+        self.kind
+    }
+
+    /// The pilot's name.
+    pub fn policy(&self) -> String {
+        self.pilot.name()
+    }
+
+    /// Goals reached so far.
+    pub fn goals_reached(&self) -> u32 {
+        self.goals_reached
+    }
+
+    /// Frames stored so far.
+    pub fn frames(&self) -> usize {
+        self.robot.len()
+    }
+
+    /// Stops ordered so far.
+    pub fn stops(&self) -> &[StopEvent] {
+        &self.stops
+    }
+
+    fn rel(&self, t: f64) -> f64 {
+        t - self.t0.unwrap_or(t)
+    }
+
+    fn phase_at(&self, rel: f64) -> Phase {
+        if rel < self.cfg.habituation_s {
+            Phase::Habituation
+        } else if rel < self.cfg.habituation_s + self.cfg.control_s {
+            Phase::Control
+        } else {
+            Phase::Done
+        }
+    }
+
+    /// Whether the trial is complete.
+    pub fn is_done(&self) -> bool {
+        self.t0.is_some() && self.phase_at(self.rel(self.last_t)) == Phase::Done
+    }
+
+    fn frame_index(&self, t: f64) -> u64 {
+        (self.rel(t) * f64::from(self.cfg.file_rate_hz))
+            .round()
+            .max(0.0) as u64
+    }
+
+    fn command(&self, t: f64, seq: Option<u64>, turn: f32, phase: Phase) -> ServerMsg {
+        let rel = self.rel(t);
+        ServerMsg::Command {
+            t,
+            seq,
+            turn,
+            stop: self.stopped.is_some(),
+            reason: self.stopped.clone(),
+            phase,
+            released: rel >= self.cfg.release_s,
+            active_goal: (phase == Phase::Control).then_some(self.goals.active),
+            goals_reached: self.goals_reached,
+        }
+    }
+
+    fn stop(&mut self, t: f64, reason: String, out: &mut Vec<ServerMsg>) {
+        if self.stopped.is_none() {
+            self.stopped = Some(reason.clone());
+            let frame = self.frame_index(t);
+            self.stops.push(StopEvent { frame, reason });
+            let phase = self.phase_at(self.rel(t));
+            out.push(self.command(t, None, 0.0, phase));
+        }
+    }
+
+    /// A line that could not be used: stop the robot and say why.
+    pub fn on_malformed(&mut self, reason: &str) -> Vec<ServerMsg> {
+        self.malformed += 1;
+        let mut out = Vec::new();
+        let t = if self.last_t.is_finite() {
+            self.last_t
+        } else {
+            0.0
+        };
+        self.stop(t, format!("malformed input: {reason}"), &mut out);
+        // A later good frame lifts a stop for malformed input like any other.
+        out
+    }
+
+    /// No frame for `silence_s` of wall-clock time (the lab's tracker hangs): stop.
+    pub fn on_silence(&mut self, silence_s: f64) -> Vec<ServerMsg> {
+        let mut out = Vec::new();
+        if silence_s >= self.cfg.stale_s && self.t0.is_some() {
+            let t = self.last_t;
+            self.stop(
+                t,
+                format!("no tracking frame for {silence_s:.2} s"),
+                &mut out,
+            );
+        }
+        out
+    }
+
+    /// A message from the lab side; returns what to send back.
+    pub fn on_message(&mut self, m: ClientMsg) -> Vec<ServerMsg> {
+        match m {
+            ClientMsg::Frame { t, robot, fish } => self.on_frame(t, robot, &fish),
+            ClientMsg::Hello { .. } => self.on_malformed("a second hello"),
+            ClientMsg::End => Vec::new(),
+        }
+    }
+
+    fn on_frame(&mut self, t: f64, robot: Option<Pose>, fish: &[FishPose]) -> Vec<ServerMsg> {
+        let mut out = Vec::new();
+        if !t.is_finite() || t <= self.last_t {
+            return self.on_malformed(&format!("time stamp {t} not after {}", self.last_t));
+        }
+        if self.t0.is_none() {
+            self.t0 = Some(t);
+        }
+        self.last_t = t;
+        let rel = self.rel(t);
+        let phase = self.phase_at(rel);
+        if phase == Phase::Done {
+            return out;
+        }
+        let robot = robot.filter(Pose::is_valid);
+        let fish_pose = fish.first().and_then(|f| f.pose).filter(Pose::is_valid);
+        // The fish counts from its release on; before, only the robot must be tracked.
+        let need_fish = rel >= self.cfg.release_s;
+        let good = robot.is_some() && (fish_pose.is_some() || !need_fish);
+        if let Some(r) = robot {
+            self.last_robot = Some(r);
+        }
+        if let Some(f) = fish_pose {
+            self.last_fish = Some(f);
+        }
+        // Store the frame (gaps as NaN; frames skipped by the tracker as NaN too).
+        let k = self.frame_index(t) as usize;
+        while self.robot.len() < k {
+            self.robot.push(LOST);
+            self.fish.push(LOST);
+            self.active.push(self.active.last().copied().unwrap_or(0));
+        }
+        if self.robot.len() == k {
+            let p = |x: Option<Pose>| x.map_or(LOST, |p| [p.x, p.y, p.heading]);
+            self.robot.push(p(robot));
+            self.fish.push(p(fish_pose));
+            self.active.push(self.goals.index as i32);
+        }
+        // Safety.
+        if good {
+            if let Some(g) = self.last_good {
+                if t - g >= self.cfg.stale_s {
+                    self.gaps.push([self.frame_index(g), self.frame_index(t)]);
+                }
+            }
+            self.last_good = Some(t);
+            if self.stopped.is_some() {
+                self.stopped = None;
+            }
+        } else {
+            let since = self.last_good.unwrap_or(self.t0.unwrap_or(t));
+            if t - since >= self.cfg.stale_s {
+                let what = if robot.is_none() { "robot" } else { "fish" };
+                self.stop(
+                    t,
+                    format!("{what} not tracked for {:.2} s", t - since),
+                    &mut out,
+                );
+            }
+        }
+        // Goals, during control, on every frame with a tracked fish.
+        if phase == Phase::Control {
+            if let Some(f) = fish_pose {
+                let mut rng = stream(0, "live-goals", 0);
+                let me = [AgentState::at(f.x, f.y, f.heading)];
+                if self
+                    .goals
+                    .check(TaskMode::Evaluation, &self.task, &self.tank, &me, &mut rng)
+                    .is_some()
+                {
+                    self.goals_reached += 1;
+                    self.goal_frames.push(k as u64);
+                    if let Some(a) = self.active.last_mut() {
+                        *a = self.goals.index as i32;
+                    }
+                }
+            }
+        }
+        // The scheduled command.
+        let due = self.next_seq as f64 / self.cfg.command_hz;
+        if rel + 1e-9 >= due {
+            let seq = self.next_seq;
+            self.next_seq += 1;
+            let turn = if self.stopped.is_some() {
+                0.0
+            } else {
+                match phase {
+                    Phase::Habituation => self.mill_turn(),
+                    Phase::Control => self.policy_turn(),
+                    Phase::Done => 0.0,
+                }
+            };
+            if phase == Phase::Control && self.stopped.is_none() {
+                self.command_frames.push(k as u64);
+                self.command_turns.push(turn);
+            }
+            out.push(self.command(t, Some(seq), turn, phase));
+        }
+        out
+    }
+
+    /// Milling: head for a point 0.5 rad ahead on the circle around the centre.
+    fn mill_turn(&self) -> f32 {
+        let Some(r) = self.last_robot else { return 0.0 };
+        let phi = r.y.atan2(r.x) + 0.5;
+        let (tx, ty) = (
+            self.cfg.mill_radius_cm * phi.cos(),
+            self.cfg.mill_radius_cm * phi.sin(),
+        );
+        wrap_angle((ty - r.y).atan2(tx - r.x) - r.heading)
+    }
+
+    fn policy_turn(&mut self) -> f32 {
+        let (Some(r), Some(f)) = (self.last_robot, self.last_fish) else {
+            return 0.0;
+        };
+        let robot = AgentState::at(r.x, r.y, r.heading);
+        let fish = [AgentState::at(f.x, f.y, f.heading)];
+        let scene = Scene {
+            tank: &self.tank,
+            robot: &robot,
+            fish: &fish,
+            goal: self.goals.active,
+        };
+        self.encoder
+            .encode(scene, &mut self.prev, self.first_obs, &mut self.obs);
+        self.first_obs = false;
+        let turn = self.pilot.turn(&self.obs);
+        if turn.is_finite() {
+            turn.clamp(-std::f32::consts::PI, std::f32::consts::PI)
+        } else {
+            0.0
+        }
+    }
+
+    /// The trial file of what was recorded (complete up to the last frame).
+    pub fn trial_file(&self, fish_model: &str) -> TrialFile {
+        let entity = |name: &str, cat: Category, label: &str, poses: &[[f32; 3]]| Entity {
+            name: name.into(),
+            category: cat,
+            category_label: label.into(),
+            positions: poses.iter().map(|p| [p[0], p[1]]).collect(),
+            orientations: poses
+                .iter()
+                .map(|p| {
+                    if p[2].is_finite() {
+                        [p[2].cos(), p[2].sin()]
+                    } else {
+                        [f32::NAN; 2]
+                    }
+                })
+                .collect(),
+            attributes: BTreeMap::new(),
+        };
+        let mut attributes = BTreeMap::new();
+        let setup = match self.kind {
+            TrialKind::Virtual => {
+                "fishprobe virtual lab through the live bridge (VIRTUAL: not live fish)"
+            }
+            _ => "fishprobe live bridge: policy-controlled robot with a live fish",
+        };
+        attributes.insert("experiment_setup".into(), Attr::Text(setup.into()));
+        let config = serde_json::json!({
+            "live": self.cfg,
+            "stops": self.stops,
+            "tracking_gaps_frames": self.gaps,
+            "malformed_messages": self.malformed,
+        });
+        TrialFile {
+            world_size_cm: [100.0, 100.0],
+            frame_rate_hz: self.cfg.file_rate_hz,
+            entities: vec![
+                entity("robot", Category::Robot, "robot", &self.robot),
+                entity("fish_1", Category::Fish, "fish", &self.fish),
+            ],
+            attributes,
+            task: Some(TaskRecord {
+                kind: self.kind,
+                policy: self.pilot.name(),
+                fish_model: fish_model.into(),
+                seed: 0,
+                goal_radius_cm: self.task.goal_radius_cm,
+                goals: self.task.evaluation_goals.to_vec(),
+                active_goal: self.active.clone(),
+                goal_frames: self.goal_frames.clone(),
+                command_frames: self.command_frames.clone(),
+                command_turns: self.command_turns.clone(),
+                control_start_frame: (self.cfg.habituation_s * f64::from(self.cfg.file_rate_hz))
+                    .round() as u64,
+                config_json: config.to_string(),
+                program_version: env!("CARGO_PKG_VERSION").into(),
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Straight;
+    impl Pilot for Straight {
+        fn name(&self) -> String {
+            "Straight".into()
+        }
+        fn turn(&mut self, obs: &[f32]) -> f32 {
+            assert_eq!(obs.len(), 180);
+            0.25
+        }
+    }
+
+    fn frame(t: f64, robot: Option<(f32, f32)>, fish: Option<(f32, f32)>) -> ClientMsg {
+        ClientMsg::Frame {
+            t,
+            robot: robot.map(|(x, y)| Pose { x, y, heading: 0.0 }),
+            fish: vec![FishPose {
+                id: "f".into(),
+                pose: fish.map(|(x, y)| Pose { x, y, heading: 0.0 }),
+            }],
+        }
+    }
+
+    fn short() -> LiveConfig {
+        LiveConfig {
+            habituation_s: 4.0,
+            release_s: 2.0,
+            control_s: 6.0,
+            ..LiveConfig::default()
+        }
+    }
+
+    #[test]
+    fn phases_commands_and_goals_follow_the_time_stamps() {
+        let mut s = Session::new(
+            short(),
+            TaskParams::default(),
+            Box::new(Straight),
+            "virtual_lab",
+        )
+        .unwrap();
+        let mut scheduled = 0;
+        for k in 0..300 {
+            let t = 100.0 + f64::from(k) * 0.04;
+            // The fish sits in the first goal from t = 6 s on.
+            let fish = if k >= 150 {
+                (-20.0, -20.0)
+            } else {
+                (30.0, 30.0)
+            };
+            for m in s.on_message(frame(t, Some((0.0, 0.0)), Some(fish))) {
+                if let ServerMsg::Command {
+                    seq: Some(q),
+                    phase,
+                    turn,
+                    stop,
+                    ..
+                } = m
+                {
+                    assert_eq!(q, scheduled);
+                    assert!(!stop);
+                    let rel = t - 100.0;
+                    assert_eq!(phase == Phase::Control, (4.0..10.0).contains(&rel));
+                    if phase == Phase::Control {
+                        assert_eq!(turn, 0.25);
+                    }
+                    scheduled += 1;
+                }
+            }
+        }
+        assert_eq!(scheduled, 10, "one command per second until the end");
+        assert!(s.is_done());
+        assert_eq!(s.goals_reached(), 1);
+        let f = s.trial_file("Guppy");
+        let task = f.task.as_ref().unwrap();
+        assert_eq!(task.kind, TrialKind::Virtual);
+        assert_eq!(task.control_start_frame, 100);
+        assert_eq!(task.goal_frames, vec![150]);
+        assert_eq!(task.command_frames.len(), 6);
+        assert_eq!(f.entities[0].positions.len(), 250);
+    }
+
+    #[test]
+    fn lost_tracking_stops_within_one_frame_of_the_timeout_and_resumes() {
+        let mut s =
+            Session::new(short(), TaskParams::default(), Box::new(Straight), "lab").unwrap();
+        let mut stop_at = None;
+        let mut resumed = false;
+        for k in 0..200 {
+            let t = f64::from(k) * 0.04;
+            let lost = (120..150).contains(&k);
+            let msgs = s.on_message(frame(t, Some((0.0, 0.0)), (!lost).then_some((10.0, 0.0))));
+            for m in msgs {
+                if let ServerMsg::Command { stop, seq, .. } = m {
+                    if stop && seq.is_none() && stop_at.is_none() {
+                        stop_at = Some(k);
+                    }
+                    if !stop && k >= 150 {
+                        resumed = true;
+                    }
+                }
+            }
+        }
+        // Last good frame 119 (t = 4.76); the stale time 0.5 s is reached at frame 132.
+        assert_eq!(stop_at, Some(132));
+        assert!(resumed);
+        let f = s.trial_file("live");
+        assert!(
+            f.entities[1].positions[125][0].is_nan(),
+            "the gap is recorded as NaN"
+        );
+        assert!(f.task.unwrap().config_json.contains("not tracked"));
+    }
+
+    #[test]
+    fn malformed_input_and_time_going_backwards_stop_the_robot() {
+        let mut s =
+            Session::new(short(), TaskParams::default(), Box::new(Straight), "lab").unwrap();
+        s.on_message(frame(1.0, Some((0.0, 0.0)), Some((1.0, 1.0))));
+        let out = s.on_malformed("garbage");
+        assert!(matches!(out[0], ServerMsg::Command { stop: true, .. }));
+        let out = s.on_message(frame(0.5, Some((0.0, 0.0)), Some((1.0, 1.0))));
+        assert!(out.is_empty(), "already stopped");
+        assert_eq!(s.stops().len(), 1);
+        assert!(LiveConfig {
+            release_s: 500.0,
+            ..LiveConfig::default()
+        }
+        .validate()
+        .is_err());
+    }
+}

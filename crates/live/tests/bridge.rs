@@ -1,0 +1,280 @@
+//! The bridge against the virtual lab and against hostile clients, over loopback.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+use fishprobe_io::{read_trial, TrialKind};
+use fishprobe_live::lab::{run_trial, LabConfig};
+use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
+use fishprobe_live::server::{serve, ServeOptions, TrialOutcome};
+use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_models::GuppyParams;
+use fishprobe_sim::TaskParams;
+use rand::{RngExt, SeedableRng};
+use std::io::{BufRead, BufReader, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::PathBuf;
+use std::thread::JoinHandle;
+
+/// Turns toward the goal sector of the observation (a stand-in for a trained policy).
+struct GoalSeeker;
+impl Pilot for GoalSeeker {
+    fn name(&self) -> String {
+        "Seeker".into()
+    }
+    fn turn(&mut self, obs: &[f32]) -> f32 {
+        let goal = &obs[72..108];
+        let (i, _) = goal
+            .iter()
+            .enumerate()
+            .fold((0, -1.0f32), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+        -std::f32::consts::PI + (i as f32 + 0.5) * std::f32::consts::PI / 18.0
+    }
+}
+
+fn tmp(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fishprobe-live-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn short() -> LiveConfig {
+    LiveConfig {
+        habituation_s: 6.0,
+        release_s: 3.0,
+        control_s: 60.0,
+        ..LiveConfig::default()
+    }
+}
+
+fn bridge(
+    out: PathBuf,
+    trials: usize,
+    live: LiveConfig,
+) -> (SocketAddr, JoinHandle<Vec<TrialOutcome>>) {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let opts = ServeOptions {
+        live,
+        task: TaskParams::default(),
+        out,
+        token: None,
+        max_trials: Some(trials),
+        fish_label: "live guppy".into(),
+    };
+    let h = std::thread::spawn(move || {
+        serve(
+            &listener,
+            &opts,
+            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Pilot>),
+            |_| {},
+        )
+        .unwrap()
+    });
+    (addr, h)
+}
+
+#[test]
+fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
+    let out = tmp("lab");
+    let (addr, h) = bridge(out.clone(), 1, short());
+    let lab = LabConfig {
+        dropouts_per_min: 0.0,
+        ..LabConfig::default()
+    };
+    let t = run_trial(addr, &lab, &GuppyParams::default(), 3).unwrap();
+    let outcomes = h.join().unwrap();
+    assert!(outcomes[0].complete);
+    assert!(t.file.contains("Seeker__VirtualLab"), "{}", t.file);
+    let f = read_trial(std::path::Path::new(&t.file)).unwrap();
+    let task = f.task.as_ref().unwrap();
+    assert_eq!(task.kind, TrialKind::Virtual);
+    assert_eq!(task.control_start_frame, 150);
+    assert_eq!(
+        f.robot().unwrap().positions.len(),
+        66 * 25,
+        "every frame stored"
+    );
+    assert_eq!(
+        task.command_frames.len(),
+        60,
+        "one command per second of control"
+    );
+    assert_eq!(task.goal_frames.len() as u32, t.goals_reached);
+    assert!(
+        t.goals_reached >= 1,
+        "a goal-seeking robot leads a virtual guppy to a goal in a minute"
+    );
+    // Deterministic for a seed.
+    let (addr, h) = bridge(tmp("lab2"), 1, short());
+    let t2 = run_trial(addr, &lab, &GuppyParams::default(), 3).unwrap();
+    h.join().unwrap();
+    assert_eq!(t2.goals_reached, t.goals_reached);
+    let f2 = read_trial(std::path::Path::new(&t2.file)).unwrap();
+    assert_eq!(
+        f2.fish().next().unwrap().positions,
+        f.fish().next().unwrap().positions
+    );
+}
+
+#[test]
+fn dropouts_stop_the_robot_within_one_frame_of_the_timeout() {
+    let out = tmp("dropouts");
+    let (addr, h) = bridge(out, 1, short());
+    let lab = LabConfig {
+        dropouts_per_min: 20.0,
+        dropout_min_s: 0.6,
+        dropout_max_s: 1.5,
+        ..LabConfig::default()
+    };
+    let t = run_trial(addr, &lab, &GuppyParams::default(), 5).unwrap();
+    h.join().unwrap();
+    assert!(t.stops > 0, "no stop despite dropouts");
+    let f = read_trial(std::path::Path::new(&t.file)).unwrap();
+    let fish = &f.fish().next().unwrap().positions;
+    let cfg: serde_json::Value =
+        serde_json::from_str(&f.task.as_ref().unwrap().config_json).unwrap();
+    let stale_frames = (0.5f64 * 25.0).round() as i64;
+    let mut checked = 0;
+    for s in cfg["stops"].as_array().unwrap() {
+        let frame = s["frame"].as_i64().unwrap();
+        if !s["reason"].as_str().unwrap().contains("fish not tracked") {
+            continue;
+        }
+        // Before the release (frame 75) the fish is in its container and not required.
+        let release_frame = 75;
+        let last_tracked = (0..frame)
+            .rev()
+            .find(|&k| fish[k as usize][0].is_finite())
+            .unwrap_or(0);
+        let last_good = last_tracked.max(release_frame - 1);
+        let late = frame - (last_good + stale_frames);
+        assert!(
+            (0..=1).contains(&late),
+            "stop at {frame}, last good {last_good}: {late} frames late"
+        );
+        checked += 1;
+    }
+    assert!(checked > 0);
+    assert!(cfg["tracking_gaps_frames"].as_array().unwrap().len() as u64 >= 1);
+}
+
+fn hello() -> String {
+    to_line(&ClientMsg::Hello {
+        protocol: 1,
+        world_size_cm: [100.0, 100.0],
+        tracking_hz: 25.0,
+        source: "lab".into(),
+        token: None,
+    })
+}
+
+fn frame(t: f64) -> String {
+    to_line(&ClientMsg::Frame {
+        t,
+        robot: Some(Pose {
+            x: 0.0,
+            y: 0.0,
+            heading: 0.0,
+        }),
+        fish: vec![FishPose {
+            id: "f".into(),
+            pose: Some(Pose {
+                x: 10.0,
+                y: 10.0,
+                heading: 1.0,
+            }),
+        }],
+    })
+}
+
+#[test]
+fn hostile_clients_never_crash_the_bridge_nor_lose_frames() {
+    let out = tmp("fuzz");
+    let clients = 12;
+    let (addr, h) = bridge(out, clients, short());
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
+    let mut sent_frames = Vec::new();
+    for c in 0..clients {
+        let mut s = TcpStream::connect(addr).unwrap();
+        s.write_all(hello().as_bytes()).unwrap();
+        let mut r = BufReader::new(s.try_clone().unwrap());
+        let mut welcome = String::new();
+        r.read_line(&mut welcome).unwrap();
+        assert!(welcome.contains("welcome"), "{welcome}");
+        let mut good = 0u64;
+        let n = rng.random_range(10..400);
+        for k in 0..n {
+            let t = f64::from(k) * 0.04;
+            let garbage: Vec<u8> = match rng.random_range(0..10) {
+                0 => (0..rng.random_range(1..200))
+                    .map(|_| rng.random::<u8>())
+                    .filter(|b| *b != b'\n')
+                    .chain([b'\n'])
+                    .collect(),
+                1 => {
+                    let mut v = vec![b'x'; 70_000 + rng.random_range(0..100_000)];
+                    v.push(b'\n');
+                    v
+                }
+                2 => b"{\"type\":\"frame\",\"t\":\"soon\"}\n".to_vec(),
+                _ => Vec::new(),
+            };
+            if !garbage.is_empty() && s.write_all(&garbage).is_err() {
+                break;
+            }
+            if s.write_all(frame(t).as_bytes()).is_err() {
+                break;
+            }
+            good += 1;
+        }
+        // Half the clients leave without a word, half say end.
+        if c % 2 == 0 {
+            let _ = s.write_all(to_line(&ClientMsg::End).as_bytes());
+        }
+        let _ = s.shutdown(std::net::Shutdown::Write);
+        // Wait until the bridge has finished with this client (it closes the connection).
+        let mut rest = String::new();
+        while r.read_line(&mut rest).map(|n| n > 0).unwrap_or(false) {}
+        sent_frames.push(good);
+    }
+    let outcomes = h.join().unwrap();
+    assert_eq!(outcomes.len(), clients);
+    for (o, sent) in outcomes.iter().zip(&sent_frames) {
+        let f = read_trial(o.file.as_ref().unwrap()).unwrap();
+        let recorded = f
+            .fish()
+            .next()
+            .unwrap()
+            .positions
+            .iter()
+            .filter(|p| p[0].is_finite())
+            .count() as u64;
+        assert_eq!(
+            recorded,
+            *sent,
+            "{}: frames lost",
+            o.file.as_ref().unwrap().display()
+        );
+    }
+}
+
+#[test]
+fn a_wrong_handshake_is_refused_with_a_reason() {
+    let (addr, _h) = bridge(tmp("refuse"), 1, short());
+    let mut s = TcpStream::connect(addr).unwrap();
+    let bad = to_line(&ClientMsg::Hello {
+        protocol: 1,
+        world_size_cm: [200.0, 100.0],
+        tracking_hz: 25.0,
+        source: "lab".into(),
+        token: None,
+    });
+    s.write_all(bad.as_bytes()).unwrap();
+    let mut line = String::new();
+    BufReader::new(s).read_line(&mut line).unwrap();
+    assert!(
+        line.contains("error") && line.contains("100 x 100"),
+        "{line}"
+    );
+}
