@@ -9,6 +9,7 @@ mod export;
 mod fit_convnet;
 mod import_legacy;
 mod inspect;
+mod live;
 mod models;
 mod report;
 mod simulate;
@@ -52,6 +53,10 @@ enum Command {
     Analyze(analyze::AnalyzeArgs),
     /// Fit M_ConvNet to recordings of live guppy pairs (behavioural cloning).
     FitConvnet(fit_convnet::FitConvnetArgs),
+    /// Live trials: the bridge between a trained policy and the lab (`serve`), and a replay client.
+    Live(live::LiveArgs),
+    /// The virtual lab: tank, tracker, robot and a virtual guppy through the live bridge.
+    Lab(live::LabArgs),
     /// Compare pairs of model fish with recorded pairs of live guppies (the classic offline test).
     CompareOffline(compare_offline::CompareOfflineArgs),
     /// Figures (SVG, PNG) and the self-contained HTML report of an analysed study.
@@ -100,6 +105,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Report(a) => report::run(a),
         Command::FitConvnet(a) => fit_convnet::run(a),
         Command::CompareOffline(a) => compare_offline::run(a),
+        Command::Live(a) => live::run_live(a),
+        Command::Lab(a) => live::run_lab(a),
         Command::Train(a) => train::run(a),
         Command::Evaluate(a) => evaluate::run(a),
         Command::Export(a) => export::run(a),

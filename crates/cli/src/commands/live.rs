@@ -1,0 +1,313 @@
+//! `fishprobe live serve | replay` and `fishprobe lab`: live trials through the bridge, and the
+//! virtual lab.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use fishprobe_learn::{controller, to_env_action, Controller};
+use fishprobe_live::lab::{run_trial, LabConfig};
+use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
+use fishprobe_live::server::{is_loopback, serve, ServeOptions, TrialOutcome};
+use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_models::GuppyParams;
+use fishprobe_nn::MlpWorkspace;
+use std::io::{BufRead, BufReader, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct LiveArgs {
+    #[command(subcommand)]
+    what: LiveWhat,
+}
+
+#[derive(Debug, Subcommand)]
+enum LiveWhat {
+    /// Run the bridge: a trained policy controls the robot from the lab's tracking frames
+    /// (protocol: docs/live-protocol.md).
+    Serve(ServeArgs),
+    /// Play a recorded trial file as tracking input to a bridge (test and demo tool).
+    Replay(ReplayArgs),
+}
+
+#[derive(Debug, Args)]
+struct ServeArgs {
+    /// The policy directory (or `scripted:goal-seeker`).
+    #[arg(long)]
+    policy: String,
+    /// Address to listen on (loopback by default).
+    #[arg(long, default_value = "127.0.0.1:4500")]
+    listen: SocketAddr,
+    /// Allow a non-loopback address (then --token is required).
+    #[arg(long)]
+    allow_remote: bool,
+    /// Shared secret the lab must send in its hello.
+    #[arg(long)]
+    token: Option<String>,
+    /// Where trial files go (`OUT/<Policy>__Real/` or `OUT/<Policy>__VirtualLab/`).
+    #[arg(long, default_value = "live_trials")]
+    out: PathBuf,
+    /// Stop after this many trials (default: serve until interrupted).
+    #[arg(long)]
+    trials: Option<usize>,
+    /// Trial protocol and safety settings (TOML: the fields of LiveConfig).
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+struct ReplayArgs {
+    /// The trial file to play.
+    file: PathBuf,
+    /// The bridge's address.
+    #[arg(long, default_value = "127.0.0.1:4500")]
+    connect: SocketAddr,
+    /// Say `virtual_lab` instead of `lab` in the hello (the replayed fish is not live).
+    #[arg(long)]
+    as_virtual: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct LabArgs {
+    /// The policy directory (or `scripted:goal-seeker`).
+    #[arg(long)]
+    policy: String,
+    /// Trials to run.
+    #[arg(long, default_value_t = 1)]
+    trials: usize,
+    /// Output directory: trials land in OUT/<Policy>__VirtualLab/.
+    #[arg(long)]
+    out: PathBuf,
+    /// Master seed (one virtual guppy per trial, drawn from the population).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Connect to a running bridge instead of starting one in-process.
+    #[arg(long)]
+    connect: Option<SocketAddr>,
+    /// Minutes of control per trial (paper: 15).
+    #[arg(long)]
+    minutes: Option<f64>,
+}
+
+/// A policy (or the goal-seeker) as the bridge's pilot.
+struct PolicyPilot {
+    c: Controller,
+    name: String,
+    ws: MlpWorkspace,
+}
+
+impl Pilot for PolicyPilot {
+    fn name(&self) -> String {
+        self.name.clone()
+    }
+    fn turn(&mut self, obs: &[f32]) -> f32 {
+        match &self.c {
+            Controller::Policy { policy, .. } => {
+                to_env_action(policy.pi.forward(obs, 1, &mut self.ws)[0])
+            }
+            Controller::GoalSeeker => {
+                // The active goal's sector (the third block of 36) is the one lit.
+                let goal = &obs[72..108];
+                let (i, _) =
+                    goal.iter()
+                        .enumerate()
+                        .fold((0, -1.0f32), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
+                -std::f32::consts::PI + (i as f32 + 0.5) * std::f32::consts::TAU / 36.0
+            }
+        }
+    }
+}
+
+fn pilot_factory(
+    policy: &str,
+) -> Result<impl FnMut() -> Result<Box<dyn Pilot>, fishprobe_live::LiveError>> {
+    let c = controller(policy, false).with_context(|| format!("loading policy {policy}"))?;
+    if let Controller::Policy { policy: p, .. } = &c {
+        p.check_obs_dim(180)
+            .context("the policy's observation size")?;
+    }
+    // Directory names of the study layout: the model the policy was trained on.
+    let name = match &c {
+        Controller::GoalSeeker => "GoalSeeker".to_string(),
+        Controller::Policy { name, .. } => name.split(" (seed").next().unwrap_or(name).to_string(),
+    };
+    Ok(move || {
+        Ok(Box::new(PolicyPilot {
+            c: c.clone(),
+            name: name.clone(),
+            ws: MlpWorkspace::default(),
+        }) as Box<dyn Pilot>)
+    })
+}
+
+fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
+    let cfg: LiveConfig = match path {
+        Some(p) => toml::from_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("settings {}", p.display()))?,
+        None => LiveConfig::default(),
+    };
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+fn report(o: &TrialOutcome) {
+    if let Some(f) = &o.file {
+        eprintln!(
+            "trial {}: {} frames, {} goals{}",
+            f.display(),
+            o.frames,
+            o.goals_reached,
+            if o.complete {
+                ""
+            } else {
+                " (the lab left early; the file holds what was recorded)"
+            }
+        );
+    }
+}
+
+fn serve_cmd(a: ServeArgs) -> Result<()> {
+    let remote_ok = a.allow_remote && a.token.is_some();
+    if !(is_loopback(&a.listen) || remote_ok) {
+        bail!(fishprobe_live::LiveError::Unsafe {
+            addr: a.listen.to_string()
+        });
+    }
+    let opts = ServeOptions {
+        live: live_config(a.config.as_deref())?,
+        task: fishprobe_sim::TaskParams::default(),
+        out: a.out.clone(),
+        token: a.token.clone(),
+        max_trials: a.trials,
+        fish_label: "live guppy".into(),
+    };
+    let mut make = pilot_factory(&a.policy)?;
+    let listener =
+        TcpListener::bind(a.listen).with_context(|| format!("listening on {}", a.listen))?;
+    eprintln!(
+        "bridge for {} listening on {} (trials go to {})",
+        a.policy,
+        a.listen,
+        a.out.display()
+    );
+    let done = serve(&listener, &opts, &mut make, report)?;
+    emit(&format!("{} trials served\n", done.len()))
+}
+
+fn replay_cmd(a: ReplayArgs) -> Result<()> {
+    let t = fishprobe_learn::bc::read_any(&a.file).map_err(anyhow::Error::msg)?;
+    let robot = t.robot().context("the file has no robot")?;
+    let fish = t.fish().next().context("the file has no fish")?;
+    let rh = robot.headings_from_motion(0.1);
+    let fh = fish.headings_checked(0.1, std::f32::consts::FRAC_PI_2).0;
+    let mut s =
+        TcpStream::connect(a.connect).with_context(|| format!("connecting to {}", a.connect))?;
+    let hello = ClientMsg::Hello {
+        protocol: PROTOCOL_VERSION,
+        world_size_cm: t.world_size_cm,
+        tracking_hz: t.frame_rate_hz,
+        source: if a.as_virtual { "virtual_lab" } else { "lab" }.into(),
+        token: None,
+    };
+    s.write_all(to_line(&hello).as_bytes())?;
+    let mut r = BufReader::new(s.try_clone()?);
+    let mut line = String::new();
+    r.read_line(&mut line)?;
+    if !line.contains("welcome") {
+        bail!("the bridge refused: {}", line.trim());
+    }
+    let pose = |p: [f32; 2], h: f32| {
+        (p[0].is_finite() && p[1].is_finite() && h.is_finite()).then_some(Pose {
+            x: p[0],
+            y: p[1],
+            heading: h,
+        })
+    };
+    let frames = robot.frames().min(fish.frames());
+    for k in 0..frames {
+        let m = ClientMsg::Frame {
+            t: k as f64 / f64::from(t.frame_rate_hz),
+            robot: pose(robot.positions[k], rh[k]),
+            fish: vec![FishPose {
+                id: fish.name.clone(),
+                pose: pose(fish.positions[k], fh[k]),
+            }],
+        };
+        if s.write_all(to_line(&m).as_bytes()).is_err() {
+            break;
+        }
+    }
+    let _ = s.write_all(to_line(&ClientMsg::End).as_bytes());
+    let _ = s.shutdown(std::net::Shutdown::Write);
+    let mut last = String::new();
+    for l in r.lines().map_while(Result::ok) {
+        if l.contains("\"done\"") {
+            last = l;
+        }
+    }
+    emit(&format!(
+        "replayed {frames} frames of {}; bridge: {}\n",
+        a.file.display(),
+        if last.is_empty() {
+            "closed".into()
+        } else {
+            last
+        }
+    ))
+}
+
+pub fn run_live(a: LiveArgs) -> Result<()> {
+    match a.what {
+        LiveWhat::Serve(s) => serve_cmd(s),
+        LiveWhat::Replay(r) => replay_cmd(r),
+    }
+}
+
+pub fn run_lab(a: LabArgs) -> Result<()> {
+    let lab = LabConfig::default();
+    let guppy = GuppyParams::default();
+    let mut live = LiveConfig::default();
+    if let Some(m) = a.minutes {
+        live.control_s = m * 60.0;
+    }
+    live.validate()?;
+    let (addr, bridge) = match a.connect {
+        Some(addr) => (addr, None),
+        None => {
+            let listener = TcpListener::bind("127.0.0.1:0").context("binding a loopback port")?;
+            let addr = listener.local_addr()?;
+            let opts = ServeOptions {
+                live,
+                task: fishprobe_sim::TaskParams::default(),
+                out: a.out.clone(),
+                token: None,
+                max_trials: Some(a.trials),
+                fish_label: "virtual guppy".into(),
+            };
+            let mut make = pilot_factory(&a.policy)?;
+            let h = std::thread::spawn(move || serve(&listener, &opts, &mut make, |_| {}));
+            (addr, Some(h))
+        }
+    };
+    let mut text = String::from("VIRTUAL LAB (virtual guppies, not live fish)\n");
+    for k in 0..a.trials {
+        let seed = fishprobe_sim::derive_seed(a.seed, "lab/trial", k as u64);
+        let t =
+            run_trial(addr, &lab, &guppy, seed).with_context(|| format!("virtual trial {k}"))?;
+        let line = format!(
+            "trial {k}: {} goals, {} frames ({} with the fish lost), {} stops -> {}\n",
+            t.goals_reached, t.frames_sent, t.frames_lost, t.stops, t.file
+        );
+        eprint!("{line}");
+        text += &line;
+    }
+    if let Some(h) = bridge {
+        h.join()
+            .map_err(|_| anyhow::anyhow!("the bridge thread panicked"))?
+            .context("the in-process bridge")?;
+    }
+    emit(&text)
+}
