@@ -278,3 +278,30 @@ fn a_wrong_handshake_is_refused_with_a_reason() {
         "{line}"
     );
 }
+
+#[test]
+fn a_bridge_with_a_token_refuses_a_hello_without_it() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let opts = ServeOptions {
+        live: short(),
+        task: TaskParams::default(),
+        out: tmp("token"),
+        token: Some("s3cret".into()),
+        max_trials: Some(1),
+        fish_label: "live guppy".into(),
+    };
+    std::thread::spawn(move || {
+        let _ = serve(
+            &listener,
+            &opts,
+            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Pilot>),
+            |_| {},
+        );
+    });
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.write_all(hello().as_bytes()).unwrap();
+    let mut line = String::new();
+    BufReader::new(s).read_line(&mut line).unwrap();
+    assert!(line.contains("token"), "{line}");
+}
