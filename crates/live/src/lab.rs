@@ -4,8 +4,8 @@
 //! Each frame (25 Hz) the lab moves the robot by its low-level controller under the last
 //! command (holding still while stopped), moves the fish (kept in its container in a corner
 //! until the release), adds tracking noise and occasional dropouts, and sends the frame. When a
-//! scheduled command is due it waits for it, so the run is deterministic for a seed and as
-//! fast as the bridge answers.
+//! frame it waits for the bridge's answer (lockstep, `sync` in the hello), so the run is
+//! deterministic for a seed and as fast as the bridge answers.
 
 use crate::error::LiveError;
 use crate::protocol::{to_line, ClientMsg, FishPose, Pose, ServerMsg, PROTOCOL_VERSION};
@@ -119,17 +119,17 @@ pub fn run_trial(
         tracking_hz: cfg.tracking_hz,
         source: "virtual_lab".into(),
         token: None,
+        sync: true,
     };
     conn.write_all(to_line(&hello).as_bytes()).map_err(net)?;
     let wait = Duration::from_secs_f32(cfg.command_timeout_s);
-    let (habituation, release, control, hz) = match rx.recv_timeout(wait) {
+    let (habituation, release, control) = match rx.recv_timeout(wait) {
         Ok(Ok(ServerMsg::Welcome {
             habituation_s,
             release_s,
             control_s,
-            command_hz,
             ..
-        })) => (habituation_s, release_s, control_s, command_hz),
+        })) => (habituation_s, release_s, control_s),
         Ok(Ok(ServerMsg::Error { reason })) => return Err(LiveError::Refused(reason)),
         Ok(Ok(other)) => return Err(LiveError::Net(format!("expected welcome, got {other:?}"))),
         Ok(Err(e)) => return Err(LiveError::Net(e)),
@@ -154,7 +154,6 @@ pub fn run_trial(
     let mut mind = FishMind::default();
     model.begin_episode(&fish, &mut mind, &mut rng_fish);
     let mut stopped = false;
-    let mut next_seq: u64 = 0;
     let mut dropout_left = 0.0f32;
     let mut out = LabTrial {
         file: String::new(),
@@ -242,36 +241,25 @@ pub fn run_trial(
             break;
         }
         out.frames_sent += 1;
-        // Apply whatever has arrived; wait for a due command.
-        let due = t + 1e-9 >= next_seq as f64 / hz;
-        let mut got_due = !due;
+        // Lockstep: apply everything the bridge says about this frame, up to its ack.
         let mut done = false;
         loop {
-            let m = if got_due {
-                match rx.try_recv() {
-                    Ok(m) => m,
-                    Err(_) => break,
-                }
-            } else {
-                match rx.recv_timeout(wait) {
-                    Ok(m) => m,
-                    Err(_) => {
-                        return Err(LiveError::Net(format!(
-                            "no command from the bridge for {:.0} s",
-                            cfg.command_timeout_s
-                        )))
-                    }
+            let m = match rx.recv_timeout(wait) {
+                Ok(m) => m.map_err(LiveError::Net)?,
+                Err(_) => {
+                    return Err(LiveError::Net(format!(
+                        "no answer from the bridge for {:.0} s",
+                        cfg.command_timeout_s
+                    )))
                 }
             };
-            let m = m.map_err(LiveError::Net)?;
-            if let Some((seq, is_done)) = apply(m, &mut robot, &mut stopped, &mut out) {
+            if matches!(m, ServerMsg::Ack { .. }) {
+                break;
+            }
+            if let Some((_, is_done)) = apply(m, &mut robot, &mut stopped, &mut out) {
                 if is_done {
                     done = true;
                     break;
-                }
-                if seq.is_some_and(|s| s >= next_seq) {
-                    next_seq = seq.unwrap_or(next_seq) + 1;
-                    got_due = true;
                 }
             }
         }

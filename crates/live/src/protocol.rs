@@ -56,6 +56,11 @@ pub enum ClientMsg {
         /// Shared secret, required when the bridge listens beyond loopback.
         #[serde(default)]
         token: Option<String>,
+        /// Lockstep (the virtual lab): the bridge ends its answer to every frame with an
+        /// `ack`, and the peer waits for it, so a simulated trial is deterministic. Time is
+        /// then the peer's alone: the wall-clock silence rule does not apply.
+        #[serde(default)]
+        sync: bool,
     },
     /// One tracking frame.
     Frame {
@@ -131,6 +136,11 @@ pub enum ServerMsg {
         file: String,
         /// Goals reached.
         goals_reached: u32,
+    },
+    /// In lockstep mode: everything the bridge has to say about frame `t` has been said.
+    Ack {
+        /// The frame's time stamp.
+        t: f64,
     },
     /// A refused handshake or a fatal problem.
     Error {

@@ -195,13 +195,14 @@ fn handle(
     let refuse = |stream: &mut TcpStream, reason: String| {
         let _ = send(stream, &ServerMsg::Error { reason });
     };
-    let source = match hello {
+    let (source, sync) = match hello {
         Ok(ClientMsg::Hello {
             protocol,
             world_size_cm,
             tracking_hz,
             source,
             token,
+            sync,
         }) => {
             if protocol != PROTOCOL_VERSION {
                 refuse(
@@ -234,7 +235,7 @@ fn handle(
                 );
                 return Ok(nothing);
             }
-            source
+            (source, sync)
         }
         Ok(other) => {
             refuse(&mut stream, format!("expected hello, got {other:?}"));
@@ -274,7 +275,19 @@ fn handle(
                 last_msg = Instant::now();
                 match parse_client(&l) {
                     Ok(ClientMsg::End) => break,
-                    Ok(m) => session.on_message(m),
+                    Ok(m) => {
+                        let t = match &m {
+                            ClientMsg::Frame { t, .. } => Some(*t),
+                            _ => None,
+                        };
+                        let mut r = session.on_message(m);
+                        if let (true, Some(t)) = (sync, t) {
+                            if !session.is_done() {
+                                r.push(ServerMsg::Ack { t });
+                            }
+                        }
+                        r
+                    }
                     Err(e) => session.on_malformed(&e),
                 }
             }
@@ -286,6 +299,7 @@ fn handle(
                 ))
             }
             Ok(Line::Binary) => session.on_malformed("not UTF-8"),
+            Ok(Line::Timeout) if sync => Vec::new(),
             Ok(Line::Timeout) => session.on_silence(last_msg.elapsed().as_secs_f64()),
             Ok(Line::Closed) | Err(_) => break,
         };

@@ -166,6 +166,7 @@ fn hello() -> String {
         tracking_hz: 25.0,
         source: "lab".into(),
         token: None,
+        sync: false,
     })
 }
 
@@ -269,6 +270,7 @@ fn a_wrong_handshake_is_refused_with_a_reason() {
         tracking_hz: 25.0,
         source: "lab".into(),
         token: None,
+        sync: false,
     });
     s.write_all(bad.as_bytes()).unwrap();
     let mut line = String::new();
