@@ -3,13 +3,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use fishprobe_learn::{controller, to_env_action, Controller};
+use fishprobe_learn::{controller, Controller};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
 use fishprobe_live::server::{is_loopback, serve, ServeOptions, TrialOutcome};
 use fishprobe_live::session::{LiveConfig, Pilot};
 use fishprobe_models::GuppyParams;
-use fishprobe_nn::MlpWorkspace;
+use fishprobe_study::pilot::PolicyPilot;
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -90,35 +90,6 @@ pub struct LabArgs {
     minutes: Option<f64>,
 }
 
-/// A policy (or the goal-seeker) as the bridge's pilot.
-struct PolicyPilot {
-    c: Controller,
-    name: String,
-    ws: MlpWorkspace,
-}
-
-impl Pilot for PolicyPilot {
-    fn name(&self) -> String {
-        self.name.clone()
-    }
-    fn turn(&mut self, obs: &[f32]) -> f32 {
-        match &self.c {
-            Controller::Policy { policy, .. } => {
-                to_env_action(policy.pi.forward(obs, 1, &mut self.ws)[0])
-            }
-            Controller::GoalSeeker => {
-                // The active goal's sector (the third block of 36) is the one lit.
-                let goal = &obs[72..108];
-                let (i, _) =
-                    goal.iter()
-                        .enumerate()
-                        .fold((0, -1.0f32), |b, (i, &v)| if v > b.1 { (i, v) } else { b });
-                -std::f32::consts::PI + (i as f32 + 0.5) * std::f32::consts::TAU / 36.0
-            }
-        }
-    }
-}
-
 fn pilot_factory(
     policy: &str,
 ) -> Result<impl FnMut() -> Result<Box<dyn Pilot>, fishprobe_live::LiveError>> {
@@ -132,13 +103,7 @@ fn pilot_factory(
         Controller::GoalSeeker => "GoalSeeker".to_string(),
         Controller::Policy { name, .. } => name.split(" (seed").next().unwrap_or(name).to_string(),
     };
-    Ok(move || {
-        Ok(Box::new(PolicyPilot {
-            c: c.clone(),
-            name: name.clone(),
-            ws: MlpWorkspace::default(),
-        }) as Box<dyn Pilot>)
-    })
+    Ok(move || Ok(Box::new(PolicyPilot::new(c.clone(), name.clone())) as Box<dyn Pilot>))
 }
 
 fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
@@ -211,6 +176,7 @@ fn replay_cmd(a: ReplayArgs) -> Result<()> {
         tracking_hz: t.frame_rate_hz,
         source: if a.as_virtual { "virtual_lab" } else { "lab" }.into(),
         token: None,
+        sync: false,
     };
     s.write_all(to_line(&hello).as_bytes())?;
     let mut r = BufReader::new(s.try_clone()?);

@@ -12,6 +12,7 @@ mod inspect;
 mod live;
 mod models;
 mod report;
+mod run;
 mod simulate;
 pub(crate) mod synth;
 mod train;
@@ -53,6 +54,8 @@ enum Command {
     Analyze(analyze::AnalyzeArgs),
     /// Fit M_ConvNet to recordings of live guppy pairs (behavioural cloning).
     FitConvnet(fit_convnet::FitConvnetArgs),
+    /// The whole study in one command: train, evaluate, reality arm, analyse, report (resumable).
+    Run(run::RunArgs),
     /// Live trials: the bridge between a trained policy and the lab (`serve`), and a replay client.
     Live(live::LiveArgs),
     /// The virtual lab: tank, tracker, robot and a virtual guppy through the live bridge.
@@ -105,6 +108,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Report(a) => report::run(a),
         Command::FitConvnet(a) => fit_convnet::run(a),
         Command::CompareOffline(a) => compare_offline::run(a),
+        Command::Run(a) => run::run(a),
         Command::Live(a) => live::run_live(a),
         Command::Lab(a) => live::run_lab(a),
         Command::Train(a) => train::run(a),

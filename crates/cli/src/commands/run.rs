@@ -1,0 +1,110 @@
+//! `fishprobe run`: the whole study in one command.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_study::{Event, Study, StudyConfig, StudyFile};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::collections::BTreeSet;
+use std::path::PathBuf;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Budget: `quick` (a complete study in minutes), `paper` (the published protocol, hours)
+    /// or `smoke` (tiny, for tests).
+    #[arg(long, default_value = "quick")]
+    preset: String,
+    /// Study file (TOML): overrides of the preset and extra models, e.g.
+    /// `[[extra_models]] name = "Zone-radii"` with `spec = { model = "Zone", zone_convention = "radii" }`.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The study directory (rerunning the same command resumes it).
+    #[arg(long, default_value = "study")]
+    out: PathBuf,
+    /// Steps run at once (default: the number of cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Where steps run. Only `local` exists so far.
+    #[arg(long, default_value = "local")]
+    executor: String,
+    /// Live trials: a directory of `<Policy>__Real/` trial directories (default: the virtual lab).
+    #[arg(long)]
+    real: Option<PathBuf>,
+    /// Master seed (overrides the study file's).
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+pub fn run(a: RunArgs) -> Result<()> {
+    if a.executor != "local" {
+        bail!(
+            "--executor {}: only `local` is available in this version (SLURM is planned)",
+            a.executor
+        );
+    }
+    let mut cfg: StudyConfig = match &a.config {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            let f: StudyFile =
+                toml::from_str(&text).with_context(|| format!("study file {}", p.display()))?;
+            f.apply(&a.preset)
+                .map_err(anyhow::Error::msg)
+                .with_context(|| format!("study file {}", p.display()))?
+        }
+        None => StudyConfig::preset(&a.preset).with_context(|| {
+            format!("unknown --preset `{}`: use smoke, quick or paper", a.preset)
+        })?,
+    };
+    if let Some(s) = a.seed {
+        cfg.seed = s;
+    }
+    let study = Study::new(a.out.clone(), cfg, a.real.clone())?;
+    let jobs = a
+        .jobs
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} steps  {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let running: Mutex<BTreeSet<String>> = Mutex::new(BTreeSet::new());
+    let started = Instant::now();
+    let on_event = |e: Event| {
+        let mut r = running.lock().unwrap_or_else(|p| p.into_inner());
+        let line = match &e {
+            Event::Planned { total, complete } => {
+                bar.set_length(*total as u64);
+                bar.set_position(*complete as u64);
+                format!("{total} steps, {complete} complete from an earlier run")
+            }
+            Event::Started(id) => {
+                r.insert(id.clone());
+                format!("started {id}")
+            }
+            Event::Finished(id, secs) => {
+                r.remove(id);
+                bar.inc(1);
+                format!("finished {id} in {secs:.1} s")
+            }
+        };
+        bar.set_message(r.iter().cloned().collect::<Vec<_>>().join(", "));
+        if bar.is_hidden() {
+            eprintln!("[{:7.1} s] {line}", started.elapsed().as_secs_f64());
+        }
+    };
+    let result = study.run(jobs, &on_event);
+    bar.finish_and_clear();
+    result.with_context(|| format!("running the study in {}", a.out.display()))?;
+    let summary = std::fs::read_to_string(a.out.join("analysis/summary.md")).unwrap_or_default();
+    emit(&format!(
+        "{summary}\nStudy complete in {:.1} min: {}/report/index.html\n",
+        started.elapsed().as_secs_f64() / 60.0,
+        a.out.display()
+    ))
+}

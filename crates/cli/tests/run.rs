@@ -1,0 +1,142 @@
+//! End-to-end tests of `fishprobe run` with the smoke preset.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir as dir, stderr, stdout};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn results(study: &Path) -> String {
+    // Paths differ between studies; everything else must not.
+    std::fs::read_to_string(study.join("analysis/results.json"))
+        .unwrap()
+        .replace(study.to_str().unwrap(), "STUDY")
+}
+
+#[test]
+fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
+    let base = dir("run");
+    let a = base.join("a");
+    let start = Instant::now();
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    eprintln!("smoke study: {:.1} s", start.elapsed().as_secs_f64());
+    assert!(stdout(&o).contains("Study complete"), "{}", stdout(&o));
+    for p in [
+        "study.json",
+        "policies/Zone/params.json",
+        "policies/ConvNet/progress.csv",
+        "policies_stability/Force/seed1/policy.safetensors",
+        "rollouts/Zone__Force",
+        "rollouts/Follow__VirtualLab",
+        "approach_test/ConvNet",
+        "stability/Follow/seed1",
+        "analysis/results.json",
+        "report/index.html",
+        "logs/train-Zone-0.log",
+    ] {
+        assert!(a.join(p).exists(), "{p} missing");
+    }
+    let r: serde_json::Value = serde_json::from_str(&results(&a)).unwrap();
+    assert_eq!(r["reality"], "VirtualLab");
+    assert_eq!(r["sim_to_sim"].as_object().unwrap().len(), 4);
+    assert!(r["stability"]["r"].is_number());
+    let html = std::fs::read_to_string(a.join("report/index.html")).unwrap();
+    assert!(html.contains("id=\"virtual\""));
+    // A rerun finds everything complete and changes nothing.
+    let before = results(&a);
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("42 steps, 42 complete"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(results(&a) == before, "a rerun changed the results");
+
+    // Killed (SIGKILL) once some steps are done, then rerun: the same results.
+    let b = base.join("b");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(["run", "--preset", "smoke", "--out", b.to_str().unwrap()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    loop {
+        let markers = std::fs::read_dir(b.join(".fishprobe/done"))
+            .map(|d| d.count())
+            .unwrap_or(0);
+        if markers >= 12 || t0.elapsed() > Duration::from_secs(60) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(
+        !b.join("report/index.html").exists(),
+        "killed too late to test resuming"
+    );
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", b.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        results(&b),
+        before,
+        "a resumed study differs from an uninterrupted one"
+    );
+}
+
+#[test]
+fn bad_study_inputs_fail_before_any_work() {
+    let d = dir("run-bad");
+    let cfg = d.join("study.toml");
+    std::fs::write(
+        &cfg,
+        "[[extra_models]]\nname = \"Mystery\"\nspec = { model = \"Couzin\" }\n",
+    )
+    .unwrap();
+    let out = d.join("s");
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("Couzin"), "{}", stderr(&o));
+    assert!(!out.exists(), "work started despite a bad config");
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--real",
+        d.join("nope").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("does not exist"), "{}", stderr(&o));
+    std::fs::create_dir_all(d.join("real/Zone__Real")).unwrap();
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--real",
+        d.join("real").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("Follow"), "{}", stderr(&o));
+    assert!(!out.exists());
+    let o = fishprobe(&["run", "--preset", "huge", "--out", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("huge"), "{}", stderr(&o));
+}

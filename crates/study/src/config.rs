@@ -1,0 +1,274 @@
+//! What a study runs: the models, the presets' budgets, and a study file (TOML) that can add
+//! parameter variants of any model under new names.
+
+use fishprobe_models::ModelSpec;
+use serde::{Deserialize, Serialize};
+
+/// A candidate model under the name its policy and directories carry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NamedModel {
+    /// Directory-safe name ("Zone", "ZoneRadii").
+    pub name: String,
+    /// The model and its parameters (`{ model = "Zone", zone_convention = "radii" }`).
+    pub spec: ModelSpec,
+}
+
+/// The study's settings. Presets fill every field; a study file overrides any of them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StudyConfig {
+    /// Preset the budgets came from: smoke, quick or paper.
+    pub preset: String,
+    /// Master seed of the whole study.
+    pub seed: u64,
+    /// Candidate models (paper: Follow, Zone, Force, ConvNet).
+    pub models: Vec<NamedModel>,
+    /// PPO preset of the training runs (paper, quick, smoke).
+    pub ppo_preset: String,
+    /// Environment steps per training run (None: the PPO preset's).
+    pub train_steps: Option<u64>,
+    /// Training seeds per model beyond the first, for the stability analysis (paper: 5).
+    pub extra_seeds: usize,
+    /// Minutes per evaluation episode (paper: 15).
+    pub episode_minutes: f32,
+    /// Sim trials per policy on its own model for the sim-to-real comparison (paper: 18).
+    pub sim_trials: usize,
+    /// Episodes per sim-to-sim cell (paper: 50; the own-model cell holds max(this, sim_trials)).
+    pub cross_episodes: usize,
+    /// Approach-assay episodes per policy (paper: 10).
+    pub approach_episodes: usize,
+    /// Minutes per approach episode (choice: 2).
+    pub approach_minutes: f32,
+    /// Stability episodes per training seed (paper: 50).
+    pub stability_episodes: usize,
+    /// Virtual-lab trials per policy when there are no real trials (paper: 18 live trials).
+    pub virtual_trials: usize,
+    /// Minutes of control per virtual-lab trial (paper: 15).
+    pub virtual_minutes: f64,
+    /// Fewer resampling replicates in the analysis.
+    pub analysis_quick: bool,
+}
+
+fn paper_models() -> Vec<NamedModel> {
+    ["Follow", "Zone", "Force", "ConvNet"]
+        .into_iter()
+        .filter_map(|n| {
+            ModelSpec::by_name(n).ok().map(|spec| NamedModel {
+                name: n.to_string(),
+                spec,
+            })
+        })
+        .collect()
+}
+
+impl StudyConfig {
+    /// A preset: `paper` (the published protocol), `quick` (the README's default: a complete
+    /// study in minutes) or `smoke` (tiny, for tests).
+    pub fn preset(name: &str) -> Option<Self> {
+        let paper = Self {
+            preset: "paper".into(),
+            seed: 0,
+            models: paper_models(),
+            ppo_preset: "paper".into(),
+            train_steps: None,
+            extra_seeds: 5,
+            episode_minutes: 15.0,
+            sim_trials: 18,
+            cross_episodes: 50,
+            approach_episodes: 10,
+            approach_minutes: 2.0,
+            stability_episodes: 50,
+            virtual_trials: 18,
+            virtual_minutes: 15.0,
+            analysis_quick: false,
+        };
+        match name {
+            "paper" => Some(paper),
+            "quick" => Some(Self {
+                preset: "quick".into(),
+                ppo_preset: "quick".into(),
+                extra_seeds: 2,
+                cross_episodes: 18,
+                approach_episodes: 5,
+                stability_episodes: 10,
+                analysis_quick: true,
+                ..paper
+            }),
+            "smoke" => Some(Self {
+                preset: "smoke".into(),
+                ppo_preset: "smoke".into(),
+                train_steps: Some(4096),
+                extra_seeds: 1,
+                // Two minutes: the goals-per-minute trend needs more than one minute.
+                episode_minutes: 2.0,
+                sim_trials: 3,
+                cross_episodes: 3,
+                approach_episodes: 2,
+                approach_minutes: 1.0,
+                stability_episodes: 3,
+                virtual_trials: 3,
+                virtual_minutes: 2.0,
+                analysis_quick: true,
+                ..paper
+            }),
+            _ => None,
+        }
+    }
+
+    /// Checks the settings before any work starts.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.models.is_empty() {
+            return Err("no models".into());
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        for m in &self.models {
+            let ok = !m.name.is_empty()
+                && m.name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+                && !m.name.contains("__");
+            if !ok {
+                return Err(format!(
+                    "model name `{}`: use letters, digits, '-' and '_' (no \"__\"), it names directories",
+                    m.name
+                ));
+            }
+            if !seen.insert(m.name.clone()) {
+                return Err(format!("model name `{}` twice", m.name));
+            }
+            m.spec
+                .build()
+                .map_err(|e| format!("model `{}`: {e}", m.name))?;
+            if matches!(m.spec, ModelSpec::Stationary(_) | ModelSpec::Guppy(_)) {
+                return Err(format!(
+                    "model `{}`: {} is not a candidate model (it serves the approach assay or the virtual lab)",
+                    m.name,
+                    m.spec.name()
+                ));
+            }
+        }
+        if fishprobe_learn::PpoConfig::preset(&self.ppo_preset).is_none() {
+            return Err(format!(
+                "ppo_preset `{}`: use paper, quick or smoke",
+                self.ppo_preset
+            ));
+        }
+        for (f, v) in [
+            ("sim_trials", self.sim_trials),
+            ("cross_episodes", self.cross_episodes),
+            ("approach_episodes", self.approach_episodes),
+            ("stability_episodes", self.stability_episodes),
+            ("virtual_trials", self.virtual_trials),
+        ] {
+            if v == 0 {
+                return Err(format!("{f} must be at least 1"));
+            }
+        }
+        for (f, v) in [
+            ("episode_minutes", f64::from(self.episode_minutes)),
+            ("approach_minutes", f64::from(self.approach_minutes)),
+            ("virtual_minutes", self.virtual_minutes),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{f} must be greater than 0"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A study file: a preset plus overrides, and extra models.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StudyFile {
+    /// Preset to start from (default: the command line's).
+    pub preset: Option<String>,
+    /// Master seed.
+    pub seed: Option<u64>,
+    /// Replace the models (default: the paper's four).
+    pub models: Option<Vec<NamedModel>>,
+    /// Models added to the defaults (e.g. a "Zone-radii" variant).
+    #[serde(default)]
+    pub extra_models: Vec<NamedModel>,
+    /// Overrides of the budgets.
+    pub train_steps: Option<u64>,
+    /// See [`StudyConfig::extra_seeds`].
+    pub extra_seeds: Option<usize>,
+    /// See [`StudyConfig::episode_minutes`].
+    pub episode_minutes: Option<f32>,
+    /// See [`StudyConfig::sim_trials`].
+    pub sim_trials: Option<usize>,
+    /// See [`StudyConfig::cross_episodes`].
+    pub cross_episodes: Option<usize>,
+    /// See [`StudyConfig::virtual_trials`].
+    pub virtual_trials: Option<usize>,
+}
+
+impl StudyFile {
+    /// Applies the file on top of a preset.
+    pub fn apply(self, preset: &str) -> Result<StudyConfig, String> {
+        let name = self.preset.as_deref().unwrap_or(preset);
+        let mut c = StudyConfig::preset(name)
+            .ok_or_else(|| format!("unknown preset `{name}`: use smoke, quick or paper"))?;
+        if let Some(s) = self.seed {
+            c.seed = s;
+        }
+        if let Some(m) = self.models {
+            c.models = m;
+        }
+        c.models.extend(self.extra_models);
+        if self.train_steps.is_some() {
+            c.train_steps = self.train_steps;
+        }
+        if let Some(v) = self.extra_seeds {
+            c.extra_seeds = v;
+        }
+        if let Some(v) = self.episode_minutes {
+            c.episode_minutes = v;
+        }
+        if let Some(v) = self.sim_trials {
+            c.sim_trials = v;
+        }
+        if let Some(v) = self.cross_episodes {
+            c.cross_episodes = v;
+        }
+        if let Some(v) = self.virtual_trials {
+            c.virtual_trials = v;
+        }
+        Ok(c)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_a_study_file_adds_variants() {
+        for p in ["smoke", "quick", "paper"] {
+            StudyConfig::preset(p).unwrap().validate().unwrap();
+        }
+        let f: StudyFile = toml_like(
+            r#"{"preset": "smoke", "extra_models": [{"name": "Zone-radii", "spec": {"model": "Zone", "zone_convention": "radii"}}]}"#,
+        );
+        let c = f.apply("quick").unwrap();
+        assert_eq!(c.preset, "smoke");
+        assert_eq!(c.models.len(), 5);
+        c.validate().unwrap();
+        let bad: Result<StudyFile, _> = serde_json::from_str(
+            r#"{"extra_models": [{"name": "X", "spec": {"model": "Couzin"}}]}"#,
+        );
+        assert!(bad.is_err());
+        let mut c2 = c.clone();
+        c2.models.push(c.models[0].clone());
+        assert!(c2.validate().unwrap_err().contains("twice"));
+        c2.models.pop();
+        c2.models[0].name = "a__b".into();
+        assert!(c2.validate().is_err());
+    }
+
+    fn toml_like(json: &str) -> StudyFile {
+        serde_json::from_str(json).unwrap()
+    }
+}

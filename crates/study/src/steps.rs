@@ -1,0 +1,274 @@
+//! What each step does.
+
+use crate::pilot::PolicyPilot;
+use crate::{commit_dir, Step, StepKind, Study};
+use fishprobe_learn::{controller, Evaluation, PpoConfig, RunSpec, Trainer};
+use fishprobe_live::lab::{run_trial, LabConfig};
+use fishprobe_live::server::{serve, ServeOptions};
+use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_models::{GuppyParams, ModelSpec};
+use fishprobe_sim::{derive_seed, EnvConfig, StartPoses};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+fn log(study: &Study, s: &Step) -> impl FnMut(&str) {
+    let path = study.log_path(s);
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .ok();
+    move |line: &str| {
+        if let Some(f) = f.as_mut() {
+            let _ = writeln!(f, "{line}");
+        }
+    }
+}
+
+fn files_in(d: &Path) -> usize {
+    std::fs::read_dir(d)
+        .map(|r| {
+            r.filter_map(|e| e.ok())
+                .filter(|e| e.path().extension().is_some_and(|x| x == "hdf5"))
+                .count()
+        })
+        .unwrap_or(0)
+}
+
+/// Whether a step's output is there (a marker alone is not enough).
+pub(crate) fn output_valid(study: &Study, s: &Step) -> bool {
+    let out = study.output(&s.kind);
+    let c = &study.cfg;
+    match &s.kind {
+        StepKind::Train { .. } => out.join("policy.safetensors").is_file(),
+        StepKind::Eval { p, m } => files_in(&out) == study.eval_episodes(*p, *m),
+        StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
+        StepKind::Stability { .. } => files_in(&out) == c.stability_episodes,
+        StepKind::Reality { .. } => files_in(&out) > 0,
+        StepKind::Analyze => out.join("results.json").is_file(),
+        StepKind::Report => out.join("index.html").is_file(),
+    }
+}
+
+fn train_dir(study: &Study, m: usize, k: usize) -> PathBuf {
+    study.output(&StepKind::Train { m, k })
+}
+
+fn policy_of(study: &Study, m: usize, k: usize) -> Result<fishprobe_learn::Controller, String> {
+    let d = train_dir(study, m, k);
+    controller(&d.display().to_string(), false).map_err(|e| e.to_string())
+}
+
+fn tmp_of(out: &Path) -> PathBuf {
+    let mut s = out.as_os_str().to_owned();
+    s.push(".partial");
+    PathBuf::from(s)
+}
+
+fn fresh(dir: &Path) -> Result<(), String> {
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))
+}
+
+/// Runs one step.
+pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
+    let mut say = log(study, s);
+    say(&format!("step {} (inputs hash {:016x})", s.id, s.hash));
+    let c = &study.cfg;
+    let seed = |label: &str| derive_seed(c.seed, label, 0);
+    let out = study.output(&s.kind);
+    let r = match &s.kind {
+        StepKind::Train { m, k } => {
+            let mut ppo = PpoConfig::preset(&c.ppo_preset).ok_or("unknown PPO preset")?;
+            if let Some(n) = c.train_steps {
+                ppo.total_timesteps = n;
+            }
+            let spec = RunSpec {
+                ppo,
+                env: EnvConfig::default(),
+                model: c.models[*m].spec.clone(),
+                seed: derive_seed(c.seed, &format!("train/{}", c.models[*m].name), *k as u64),
+                preset: c.ppo_preset.clone(),
+                program_version: env!("CARGO_PKG_VERSION").into(),
+            };
+            // Resume a run of the same spec; a run of another spec is stale and starts over.
+            let same = std::fs::read_to_string(out.join("params.json"))
+                .ok()
+                .and_then(|t| serde_json::from_str::<RunSpec>(&t).ok())
+                .is_some_and(|old| {
+                    RunSpec {
+                        program_version: spec.program_version.clone(),
+                        ..old
+                    } == spec
+                });
+            let mut t = if same {
+                say("resuming from the last checkpoint");
+                Trainer::resume(&out).map_err(|e| e.to_string())?
+            } else {
+                if out.exists() {
+                    std::fs::remove_dir_all(&out).map_err(|e| e.to_string())?;
+                }
+                Trainer::create(&out, spec).map_err(|e| e.to_string())?
+            };
+            while !t.done() {
+                let i = t.iterate().map_err(|e| e.to_string())?;
+                say(&format!(
+                    "iteration {} steps {} return {:.3} goals/episode {:.3}",
+                    i.iteration, i.timesteps, i.episode_return_mean, i.goals_per_episode
+                ));
+            }
+            t.finish().map(|_| ()).map_err(|e| e.to_string())
+        }
+        StepKind::Eval { p, m } => {
+            let tmp = tmp_of(&out);
+            fresh(&tmp)?;
+            let e = Evaluation {
+                model: c.models[*m].spec.clone(),
+                env: EnvConfig::default(),
+                episodes: study.eval_episodes(*p, *m),
+                minutes: c.episode_minutes,
+                seed: seed(&format!("eval/{}/{}", c.models[*p].name, c.models[*m].name)),
+                start: None,
+                out: tmp.clone(),
+                prefix: "trial".into(),
+            };
+            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e).map_err(|e| e.to_string())?;
+            commit_dir(&tmp, &out)
+        }
+        StepKind::Approach { p } => {
+            // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
+            let tmp = tmp_of(&out);
+            fresh(&tmp)?;
+            let mut env = EnvConfig::default();
+            env.task.evaluation_goals = [[20.0, -20.0], [20.0, -20.0]];
+            let e = Evaluation {
+                model: ModelSpec::by_name("Stationary").map_err(|e| e.to_string())?,
+                env,
+                episodes: c.approach_episodes,
+                minutes: c.approach_minutes,
+                seed: seed(&format!("approach/{}", c.models[*p].name)),
+                start: Some(StartPoses {
+                    robot: [-45.0, -45.0, std::f32::consts::FRAC_PI_4],
+                    fish: vec![[-20.0, 20.0, 0.0]],
+                }),
+                out: tmp.clone(),
+                prefix: "approach".into(),
+            };
+            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e).map_err(|e| e.to_string())?;
+            commit_dir(&tmp, &out)
+        }
+        StepKind::Stability { m, k } => {
+            let tmp = tmp_of(&out);
+            fresh(&tmp)?;
+            let e = Evaluation {
+                model: c.models[*m].spec.clone(),
+                env: EnvConfig::default(),
+                episodes: c.stability_episodes,
+                minutes: c.episode_minutes,
+                seed: seed(&format!("stability/{}/{k}", c.models[*m].name)),
+                start: None,
+                out: tmp.clone(),
+                prefix: "episode".into(),
+            };
+            fishprobe_learn::evaluate(&policy_of(study, *m, *k)?, &e).map_err(|e| e.to_string())?;
+            commit_dir(&tmp, &out)
+        }
+        StepKind::Reality { p } => reality(study, *p, &out, &mut say),
+        StepKind::Analyze => {
+            let tmp = tmp_of(&out);
+            fresh(&tmp)?;
+            let cfg = if c.analysis_quick {
+                fishprobe_analysis::AnalysisConfig::quick()
+            } else {
+                fishprobe_analysis::AnalysisConfig::default()
+            };
+            let cfg = fishprobe_analysis::AnalysisConfig {
+                sim_trials: c.sim_trials,
+                ..cfg
+            };
+            let r = fishprobe_analysis::analyze_dir(&study.root, &cfg, c.seed)
+                .map_err(|e| e.to_string())?;
+            fishprobe_analysis::write_results(&tmp, &r).map_err(|e| e.to_string())?;
+            commit_dir(&tmp, &out)
+        }
+        StepKind::Report => {
+            let tmp = tmp_of(&out);
+            fresh(&tmp)?;
+            fishprobe_report::build_report(
+                &study.root,
+                Some(&tmp),
+                Some(&study.output(&StepKind::Analyze)),
+                &fishprobe_report::ReportConfig::default(),
+            )
+            .map_err(|e| e.to_string())?;
+            commit_dir(&tmp, &out)
+        }
+    };
+    say(match &r {
+        Ok(()) => "done".to_string(),
+        Err(e) => format!("failed: {e}"),
+    }
+    .as_str());
+    r
+}
+
+fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> Result<(), String> {
+    let c = &study.cfg;
+    let name = c.models[p].name.clone();
+    let tmp = tmp_of(out);
+    fresh(&tmp)?;
+    if let Some(real) = &study.real {
+        let src = real.join(format!("{name}__Real"));
+        let mut n = 0;
+        for e in std::fs::read_dir(&src).map_err(|e| format!("{}: {e}", src.display()))? {
+            let f = e.map_err(|e| e.to_string())?.path();
+            if f.extension().is_some_and(|x| x == "hdf5" || x == "h5") {
+                let to = tmp.join(f.file_name().unwrap_or_default());
+                std::fs::copy(&f, &to).map_err(|e| format!("copying {}: {e}", f.display()))?;
+                n += 1;
+            }
+        }
+        if n == 0 {
+            return Err(format!("no trial files in {}", src.display()));
+        }
+        say(&format!("{n} live trials copied from {}", src.display()));
+        return commit_dir(&tmp, out);
+    }
+    // The virtual lab against an in-process bridge on a loopback port.
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
+    let addr = listener.local_addr().map_err(|e| e.to_string())?;
+    let ctl = policy_of(study, p, 0)?;
+    let live = LiveConfig {
+        control_s: c.virtual_minutes * 60.0,
+        ..LiveConfig::default()
+    };
+    let opts = ServeOptions {
+        live,
+        task: EnvConfig::default().task,
+        out: tmp.clone(),
+        token: None,
+        max_trials: Some(c.virtual_trials),
+        fish_label: "virtual guppy".into(),
+    };
+    let pilot_name = name.clone();
+    let bridge = std::thread::spawn(move || {
+        let mut make =
+            || Ok(Box::new(PolicyPilot::new(ctl.clone(), pilot_name.clone())) as Box<dyn Pilot>);
+        serve(&listener, &opts, &mut make, |_| {})
+    });
+    for k in 0..c.virtual_trials {
+        let s = derive_seed(c.seed, &format!("virtual/{name}"), k as u64);
+        let t = run_trial(addr, &LabConfig::default(), &GuppyParams::default(), s)
+            .map_err(|e| e.to_string())?;
+        say(&format!("virtual trial {k}: {} goals", t.goals_reached));
+    }
+    bridge
+        .join()
+        .map_err(|_| "the bridge thread panicked".to_string())?
+        .map_err(|e| e.to_string())?;
+    let made = tmp.join(format!("{name}__VirtualLab"));
+    commit_dir(&made, out)?;
+    std::fs::remove_dir_all(&tmp).map_err(|e| e.to_string())
+}
