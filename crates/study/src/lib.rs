@@ -30,6 +30,7 @@
 
 pub mod config;
 pub mod pilot;
+pub mod slurm;
 mod steps;
 
 pub use config::{NamedModel, StudyConfig, StudyFile};
@@ -359,8 +360,9 @@ impl Study {
         })
     }
 
-    /// Runs every incomplete step, up to `jobs` at once, reporting progress to `on_event`.
-    pub fn run(&self, jobs: usize, on_event: &(dyn Fn(Event) + Sync)) -> Result<(), StudyError> {
+    /// Writes `study.json`, the log directory, and moves stale outputs aside: what every run
+    /// does before its first step.
+    pub fn prepare(&self) -> Result<Vec<Step>, StudyError> {
         let steps = self.plan();
         std::fs::create_dir_all(self.root.join("logs")).map_err(|e| StudyError::Io {
             path: self.root.join("logs"),
@@ -373,6 +375,38 @@ impl Study {
                 what: e.to_string(),
             })?;
         self.sweep_stale(&steps)?;
+        Ok(steps)
+    }
+
+    /// Runs the one step `id` (its dependencies must be complete): what a SLURM array task
+    /// does. A complete step is left alone.
+    pub fn run_one(&self, id: &str) -> Result<(), StudyError> {
+        let steps = self.plan();
+        let s = steps
+            .iter()
+            .find(|s| s.id == id)
+            .ok_or_else(|| StudyError::Input(format!("no step `{id}` in this study's plan")))?;
+        if self.is_complete(s) {
+            return Ok(());
+        }
+        if let Some(d) = s.deps.iter().find(|&&d| !self.is_complete(&steps[d])) {
+            return Err(StudyError::Input(format!(
+                "step `{id}` needs `{}`, which is not complete",
+                steps[*d].id
+            )));
+        }
+        let start = Instant::now();
+        steps::run_step(self, s).map_err(|what| StudyError::Step {
+            step: s.id.clone(),
+            what,
+            log: self.log_path(s),
+        })?;
+        self.mark(s, start.elapsed().as_secs_f64())
+    }
+
+    /// Runs every incomplete step, up to `jobs` at once, reporting progress to `on_event`.
+    pub fn run(&self, jobs: usize, on_event: &(dyn Fn(Event) + Sync)) -> Result<(), StudyError> {
+        let steps = self.prepare()?;
         let mut done: Vec<bool> = steps.iter().map(|s| self.is_complete(s)).collect();
         on_event(Event::Planned {
             total: steps.len(),

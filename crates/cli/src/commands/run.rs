@@ -27,9 +27,16 @@ pub struct RunArgs {
     /// Steps run at once (default: the number of cores).
     #[arg(long)]
     jobs: Option<usize>,
-    /// Where steps run. Only `local` exists so far.
+    /// Where steps run: `local`, or `slurm` (training and evaluation as SLURM job arrays with
+    /// dependencies; the study directory and the fishprobe binary must be visible to the nodes).
     #[arg(long, default_value = "local")]
     executor: String,
+    /// Extra sbatch arguments for `--executor slurm` (repeat: `--sbatch-arg=--partition=cpu`).
+    #[arg(long, allow_hyphen_values = true)]
+    sbatch_arg: Vec<String>,
+    /// Run only this step of the plan (what a SLURM array task runs).
+    #[arg(long, hide = true)]
+    step: Option<String>,
     /// Live trials: a directory of `<Policy>__Real/` trial directories (default: the virtual lab).
     #[arg(long)]
     real: Option<PathBuf>,
@@ -39,11 +46,8 @@ pub struct RunArgs {
 }
 
 pub fn run(a: RunArgs) -> Result<()> {
-    if a.executor != "local" {
-        bail!(
-            "--executor {}: only `local` is available in this version (SLURM is planned)",
-            a.executor
-        );
+    if a.executor != "local" && a.executor != "slurm" {
+        bail!("--executor {}: use local or slurm", a.executor);
     }
     let mut cfg: StudyConfig = match &a.config {
         Some(p) => {
@@ -63,6 +67,10 @@ pub fn run(a: RunArgs) -> Result<()> {
         cfg.seed = s;
     }
     let study = Study::new(a.out.clone(), cfg, a.real.clone())?;
+    if let Some(id) = &a.step {
+        study.run_one(id)?;
+        return emit(&format!("step {id} complete\n"));
+    }
     let jobs = a
         .jobs
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -98,7 +106,34 @@ pub fn run(a: RunArgs) -> Result<()> {
             eprintln!("[{:7.1} s] {line}", started.elapsed().as_secs_f64());
         }
     };
-    let result = study.run(jobs, &on_event);
+    let result = if a.executor == "slurm" {
+        let abs = |p: &PathBuf| {
+            p.canonicalize()
+                .unwrap_or_else(|_| p.clone())
+                .display()
+                .to_string()
+        };
+        let mut study_args = vec!["--preset".to_string(), a.preset.clone()];
+        if let Some(c) = &a.config {
+            study_args.extend(["--config".into(), abs(c)]);
+        }
+        if let Some(r) = &a.real {
+            study_args.extend(["--real".into(), abs(r)]);
+        }
+        if let Some(s) = a.seed {
+            study_args.extend(["--seed".into(), s.to_string()]);
+        }
+        let o = fishprobe_study::slurm::SlurmOptions {
+            fishprobe: std::env::current_exe().context("locating the fishprobe binary")?,
+            study_args,
+            sbatch_args: a.sbatch_arg.clone(),
+            poll_s: 2.0,
+            timeout_s: None,
+        };
+        study.run_slurm(&o, &on_event)
+    } else {
+        study.run(jobs, &on_event)
+    };
     bar.finish_and_clear();
     result.with_context(|| format!("running the study in {}", a.out.display()))?;
     let summary = std::fs::read_to_string(a.out.join("analysis/summary.md")).unwrap_or_default();
