@@ -5,6 +5,22 @@ use crate::config::AnalysisConfig;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
+/// Every file `write_results` can write, in the order a reader meets them.
+pub const OUTPUT_FILES: [&str; 12] = [
+    "results.json",
+    "summary.md",
+    "goals.csv",
+    "sim_to_real.csv",
+    "metric_gaps.csv",
+    "mean_ranks.csv",
+    "sim_to_sim.csv",
+    "kruskal.csv",
+    "temporal.csv",
+    "time_to_goal.csv",
+    "approach.csv",
+    "stability.csv",
+];
+
 /// Per-trial goals of one policy.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct GoalsPair {

@@ -325,23 +325,11 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
             TextStyle::new(13.0, Anchor::Middle).bold(),
         );
     }
-    // Colour bar.
-    let by = top + ch * policies.len() as f64 + 22.0;
-    for k in 0..100 {
-        let t = f64::from(k) / 99.0;
-        svg.rect(left + 2.0 * f64::from(k), by, 2.2, 10.0, &viridis(t), None);
-    }
-    svg.text(
-        left,
-        by + 24.0,
+    colour_bar(
+        &mut svg,
+        (left, top + ch * policies.len() as f64 + 22.0),
         "smallest gap",
-        TextStyle::new(10.0, Anchor::Start),
-    );
-    svg.text(
-        left + 200.0,
-        by + 24.0,
         "largest gap (within column)",
-        TextStyle::new(10.0, Anchor::Start),
     );
     Some(Figure {
         name: "gap_heatmap",
@@ -356,6 +344,22 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
             .into(),
         svg: svg.finish(),
     })
+}
+
+/// A 200 px viridis bar at `at` with labels under its two ends.
+fn colour_bar(svg: &mut Svg, at: (f64, f64), low: &str, high: &str) {
+    let (x, y) = at;
+    for k in 0..100 {
+        let t = f64::from(k) / 99.0;
+        svg.rect(x + 2.0 * f64::from(k), y, 2.2, 10.0, &viridis(t), None);
+    }
+    svg.text(x, y + 24.0, low, TextStyle::new(10.0, Anchor::Start));
+    svg.text(
+        x + 200.0,
+        y + 24.0,
+        high,
+        TextStyle::new(10.0, Anchor::Start),
+    );
 }
 
 /// Fig. 5: sim-to-sim matrix, training model × rollout model.
@@ -379,7 +383,7 @@ pub fn sim_to_sim(d: &StudyData) -> Option<Figure> {
             .map(move |c| d.num(&["sim_to_sim", p, c, "median"]))
     }));
     let (cw, ch, left, top) = (104.0, 54.0, 130.0, 60.0);
-    let w = left + cw * cols.len() as f64 + 150.0;
+    let w = (left + cw * cols.len() as f64 + 150.0).max(left + 500.0);
     let h = top + ch * rows.len() as f64 + 70.0;
     let mut svg = Svg::new(w, h);
     svg.text(
@@ -477,30 +481,14 @@ pub fn sim_to_sim(d: &StudyData) -> Option<Figure> {
         TextStyle::new(12.0, Anchor::Middle).rotated(-90.0),
     );
     let by = top + ch * rows.len() as f64 + 22.0;
-    for k in 0..100 {
-        svg.rect(
-            left + 2.0 * f64::from(k),
-            by,
-            2.2,
-            10.0,
-            &viridis(f64::from(k) / 99.0),
-            None,
-        );
-    }
-    svg.text(
-        left,
-        by + 24.0,
+    colour_bar(
+        &mut svg,
+        (left, by),
         &fmt(lo, 1),
-        TextStyle::new(10.0, Anchor::Start),
-    );
-    svg.text(
-        left + 200.0,
-        by + 24.0,
         &format!("{} (W, goals)", fmt(hi, 1)),
-        TextStyle::new(10.0, Anchor::End),
     );
     svg.rect(
-        left + 240.0,
+        left + 330.0,
         by - 2.0,
         26.0,
         14.0,
@@ -508,7 +496,7 @@ pub fn sim_to_sim(d: &StudyData) -> Option<Figure> {
         Some(("#D55E00", 3.0)),
     );
     svg.text(
-        left + 272.0,
+        left + 362.0,
         by + 9.0,
         "own model (diagonal)",
         TextStyle::new(10.0, Anchor::Start),

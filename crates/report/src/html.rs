@@ -597,20 +597,7 @@ impl Page<'_> {
         // Files.
         o.push_str("<h2 id=\"files\">Data files</h2><ul>\n");
         let mut any = false;
-        for name in [
-            "results.json",
-            "summary.md",
-            "goals.csv",
-            "sim_to_real.csv",
-            "metric_gaps.csv",
-            "mean_ranks.csv",
-            "sim_to_sim.csv",
-            "kruskal.csv",
-            "temporal.csv",
-            "time_to_goal.csv",
-            "approach.csv",
-            "stability.csv",
-        ] {
+        for name in fishprobe_analysis::results::OUTPUT_FILES {
             let p = d.analysis_dir.join(name);
             if p.is_file() {
                 any = true;
