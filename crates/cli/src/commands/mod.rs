@@ -32,6 +32,8 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// The whole study in one command: train, evaluate, reality arm, analyse, report (resumable).
+    Run(run::RunArgs),
     /// List the fish models with their parameters, units and defaults.
     Models(models::ModelsArgs),
     /// Measure how fast fishprobe runs on this machine.
@@ -54,8 +56,6 @@ enum Command {
     Analyze(analyze::AnalyzeArgs),
     /// Fit M_ConvNet to recordings of live guppy pairs (behavioural cloning).
     FitConvnet(fit_convnet::FitConvnetArgs),
-    /// The whole study in one command: train, evaluate, reality arm, analyse, report (resumable).
-    Run(run::RunArgs),
     /// Live trials: the bridge between a trained policy and the lab (`serve`), and a replay client.
     Live(live::LiveArgs),
     /// The virtual lab: tank, tracker, robot and a virtual guppy through the live bridge.

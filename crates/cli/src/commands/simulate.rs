@@ -14,7 +14,7 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Fish model (Follow, Zone, Force, Stationary); overrides the settings file's.
+    /// Fish model (Follow, Zone, Force, ConvNet, Stationary, Guppy); overrides the settings file's.
     #[arg(long)]
     model: Option<String>,
     /// Scripted robot: `still` (stands where it starts), `circle` (drives a 30 cm circle
