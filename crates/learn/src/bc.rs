@@ -512,3 +512,167 @@ mod tests {
         );
     }
 }
+
+/// What [`fit_convnet`] reports while it works.
+#[derive(Debug, Clone)]
+pub enum FitProgress<'a> {
+    /// The datasets are loaded.
+    Loaded {
+        /// Training examples.
+        train: &'a PairDataset,
+        /// Validation examples.
+        validation: &'a PairDataset,
+    },
+    /// Within an epoch of the network `label`: minibatch `done` of `total`.
+    Batch {
+        /// "ConvNet" or "no-neighbour baseline".
+        label: &'static str,
+        /// Minibatches done.
+        done: usize,
+        /// Minibatches per epoch.
+        total: usize,
+    },
+    /// An epoch of the network `label` ended.
+    Epoch {
+        /// See `Batch`.
+        label: &'static str,
+        /// Its log line.
+        log: EpochLog,
+    },
+}
+
+/// What [`fit_convnet`] produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitReport {
+    /// Validation NLL of the fitted network.
+    pub val_nll: f64,
+    /// Validation NLL of the training data's marginal histogram.
+    pub marginal_nll: f64,
+    /// Validation NLL of the network without neighbour channels, when fitted.
+    pub no_neighbour_nll: Option<f64>,
+    /// Epoch logs of the fitted network.
+    pub logs: Vec<EpochLog>,
+    /// Files skipped, with the reason.
+    pub skipped: Vec<(PathBuf, String)>,
+    /// The weights file.
+    pub weights: PathBuf,
+    /// The training log (CSV).
+    pub log_file: PathBuf,
+}
+
+/// Fits M_ConvNet on the pair files under `data`, stopping early on `validation`, and writes
+/// the weights (`out`), their sidecar (architecture, settings, data, NLLs, `command`) and the
+/// training log (`out` with extension `training.csv`). Training and validation files must not
+/// overlap. With `baselines`, also fits the same network without neighbour channels.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_convnet(
+    data: &[PathBuf],
+    validation: &[PathBuf],
+    out: &Path,
+    cfg: &CloneConfig,
+    seed: u64,
+    baselines: bool,
+    command: &str,
+    progress: &(dyn Fn(FitProgress<'_>) + Sync),
+) -> Result<FitReport, LearnError> {
+    cfg.validate()?;
+    let canon = |v: &[PathBuf]| -> Vec<PathBuf> {
+        v.iter()
+            .map(|p| p.canonicalize().unwrap_or_else(|_| p.clone()))
+            .collect()
+    };
+    let (ct, cv) = (canon(data), canon(validation));
+    let mix = |p: &Path| {
+        LearnError::Run(format!(
+            "{} is both training and validation data; they must not mix",
+            p.display()
+        ))
+    };
+    if let Some(p) = ct.iter().find(|p| cv.contains(p)) {
+        return Err(mix(p));
+    }
+    let arch = ConvNetArch::default();
+    let train = load_pairs(data, &arch, cfg)?;
+    let val = load_pairs(validation, &arch, cfg)?;
+    if let Some(f) = train.files.iter().find(|f| val.files.contains(f)) {
+        return Err(mix(f));
+    }
+    progress(FitProgress::Loaded {
+        train: &train,
+        validation: &val,
+    });
+    let run = |label: &'static str, net: &mut ConvNet, t: &PairDataset, v: &PairDataset| {
+        let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
+        let on_batch =
+            |done: usize, total: usize| progress(FitProgress::Batch { label, done, total });
+        fit(
+            net,
+            t,
+            v,
+            cfg,
+            &mut rng,
+            |log| progress(FitProgress::Epoch { label, log: *log }),
+            &on_batch,
+        )
+    };
+    let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
+    let mut net = ConvNet::new(arch.clone(), &mut init);
+    let logs = run("ConvNet", &mut net, &train, &val)?;
+    let val_nll = nll(&net, &val);
+    let marginal = marginal_nll(&train, &val, arch.cells());
+    let no_neighbour = if baselines {
+        let (mut tb, mut vb) = (train.clone(), val.clone());
+        blind(&mut tb.x, &arch);
+        blind(&mut vb.x, &arch);
+        let mut init = fishprobe_sim::stream(seed, "fit-convnet/init-no-neighbour", 0);
+        let mut net_b = ConvNet::new(arch.clone(), &mut init);
+        run("no-neighbour baseline", &mut net_b, &tb, &vb)?;
+        Some(nll(&net_b, &vb))
+    } else {
+        None
+    };
+    let names = |v: &[PathBuf]| -> Vec<String> {
+        v.iter()
+            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect()
+    };
+    let meta = serde_json::json!({
+        "arch": arch,
+        "clone_config": cfg,
+        "seed": seed,
+        "command": command,
+        "training_files": names(&train.files),
+        "validation_files": names(&val.files),
+        "training_examples": train.len(),
+        "validation_examples": val.len(),
+        "validation_nll": val_nll,
+        "baselines": {"marginal_histogram_nll": marginal, "no_neighbour_nll": no_neighbour},
+        "epochs": logs.len(),
+        "program_version": env!("CARGO_PKG_VERSION"),
+    });
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .map_err(|e| LearnError::Run(format!("creating {}: {e}", parent.display())))?;
+    }
+    fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
+    let log_file = out.with_extension("training.csv");
+    let mut csv = String::from("epoch,train_nll,val_nll,seconds\n");
+    for l in &logs {
+        csv += &format!(
+            "{},{},{},{:.1}\n",
+            l.epoch, l.train_nll, l.val_nll, l.seconds
+        );
+    }
+    fishprobe_io::write_atomically(&log_file, csv.as_bytes())?;
+    let mut skipped = train.skipped.clone();
+    skipped.extend(val.skipped.iter().cloned());
+    Ok(FitReport {
+        val_nll,
+        marginal_nll: marginal,
+        no_neighbour_nll: no_neighbour,
+        logs,
+        skipped,
+        weights: out.to_path_buf(),
+        log_file,
+    })
+}
