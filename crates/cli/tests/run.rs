@@ -140,3 +140,53 @@ fn bad_study_inputs_fail_before_any_work() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("huge"), "{}", stderr(&o));
 }
+
+#[test]
+fn convnet_can_be_refitted_for_the_study() {
+    let Some(data) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return;
+    };
+    let legacy = data.join("guppy-pairs/legacy");
+    let d = dir("run-convnet");
+    let pairs = d.join("pairs");
+    for (sub, n) in [("train", 2), ("validation", 1)] {
+        std::fs::create_dir_all(pairs.join(sub)).unwrap();
+        let mut files: Vec<_> = std::fs::read_dir(legacy.join(sub))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        files.sort();
+        for f in files.into_iter().take(n) {
+            std::fs::copy(&f, pairs.join(sub).join(f.file_name().unwrap())).unwrap();
+        }
+    }
+    let cfg = d.join("study.toml");
+    std::fs::write(&cfg, "preset = \"smoke\"\nmodels = [{ name = \"ConvNet\", spec = { model = \"ConvNet\" } }, { name = \"Follow\", spec = { model = \"Follow\" } }]\n").unwrap();
+    let out = d.join("study");
+    let o = fishprobe(&[
+        "run",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--convnet-data",
+        pairs.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("convnet/convnet.safetensors").is_file());
+    let params = std::fs::read_to_string(out.join("policies/ConvNet/params.json")).unwrap();
+    assert!(
+        params.contains("convnet/convnet.safetensors"),
+        "the policy did not train against the refitted fish"
+    );
+    let o = fishprobe(&[
+        "run",
+        "--convnet-data",
+        d.join("nope").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("train/"), "{}", stderr(&o));
+}

@@ -48,6 +48,9 @@ pub struct StudyConfig {
     pub virtual_minutes: f64,
     /// Fewer resampling replicates in the analysis.
     pub analysis_quick: bool,
+    /// Most epochs when M_ConvNet is refitted (`--convnet-data`; early stopping decides
+    /// before that).
+    pub convnet_max_epochs: usize,
 }
 
 fn paper_models() -> Vec<NamedModel> {
@@ -82,6 +85,7 @@ impl StudyConfig {
             virtual_trials: 18,
             virtual_minutes: 15.0,
             analysis_quick: false,
+            convnet_max_epochs: 30,
         };
         match name {
             "paper" => Some(paper),
@@ -110,6 +114,7 @@ impl StudyConfig {
                 virtual_trials: 3,
                 virtual_minutes: 2.0,
                 analysis_quick: true,
+                convnet_max_epochs: 1,
                 ..paper
             }),
             _ => None,

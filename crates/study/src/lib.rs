@@ -68,6 +68,8 @@ pub enum StudyError {
 /// One unit of work.
 #[derive(Debug, Clone, PartialEq)]
 pub enum StepKind {
+    /// M_ConvNet refitted on `--convnet-data`.
+    FitConvnet,
     /// Training run `k` (0: the policy; more: stability seeds) of model `m`.
     Train {
         /// Model index.
@@ -153,6 +155,8 @@ pub struct Study {
     pub cfg: StudyConfig,
     /// Live trials (`<Policy>__Real/` directories), if any.
     pub real: Option<PathBuf>,
+    /// Pair recordings (`train/` and `validation/`) to refit M_ConvNet on, if any.
+    pub convnet_data: Option<PathBuf>,
 }
 
 impl Study {
@@ -160,7 +164,37 @@ impl Study {
     /// real-trials directory (it exists, and holds `<Policy>__Real/` for exactly the study's
     /// policies).
     pub fn new(root: PathBuf, cfg: StudyConfig, real: Option<PathBuf>) -> Result<Self, StudyError> {
+        Self::with_convnet_data(root, cfg, real, None)
+    }
+
+    /// Like [`Study::new`], with M_ConvNet refitted on `convnet_data` (which must hold
+    /// `train/` and `validation/` pair recordings) instead of the shipped weights.
+    pub fn with_convnet_data(
+        root: PathBuf,
+        mut cfg: StudyConfig,
+        real: Option<PathBuf>,
+        convnet_data: Option<PathBuf>,
+    ) -> Result<Self, StudyError> {
         cfg.validate().map_err(StudyError::Input)?;
+        if let Some(d) = &convnet_data {
+            for sub in ["train", "validation"] {
+                if !d.join(sub).is_dir() {
+                    return Err(StudyError::Input(format!(
+                        "--convnet-data {}: needs {sub}/ with pair recordings",
+                        d.display()
+                    )));
+                }
+            }
+            // Every ConvNet model without weights of its own uses the refitted ones.
+            let weights = root.join("convnet/convnet.safetensors");
+            for m in &mut cfg.models {
+                if let fishprobe_models::ModelSpec::ConvNet(p) = &mut m.spec {
+                    if p.weights.is_empty() {
+                        p.weights = weights.display().to_string();
+                    }
+                }
+            }
+        }
         if let Some(r) = &real {
             if !r.is_dir() {
                 return Err(StudyError::Input(format!(
@@ -191,7 +225,12 @@ impl Study {
                 )));
             }
         }
-        Ok(Self { root, cfg, real })
+        Ok(Self {
+            root,
+            cfg,
+            real,
+            convnet_data,
+        })
     }
 
     fn name(&self, i: usize) -> &str {
@@ -202,6 +241,7 @@ impl Study {
     pub fn output(&self, kind: &StepKind) -> PathBuf {
         let r = &self.root;
         match kind {
+            StepKind::FitConvnet => r.join("convnet"),
             StepKind::Train { m, k: 0 } => r.join("policies").join(self.name(*m)),
             StepKind::Train { m, k } => r
                 .join("policies_stability")
@@ -235,6 +275,10 @@ impl Study {
         let c = &self.cfg;
         let model = |i: usize| serde_json::json!({"name": self.name(i), "spec": c.models[i].spec});
         match kind {
+            StepKind::FitConvnet => {
+                serde_json::json!({"fit_convnet": self.convnet_data, "seed": c.seed,
+                    "epochs": c.convnet_max_epochs})
+            }
             StepKind::Train { m, k } => {
                 serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
                 "ppo": c.ppo_preset, "steps": c.train_steps})
@@ -283,6 +327,7 @@ impl Study {
                 bytes.extend_from_slice(&steps[*d].hash.to_le_bytes());
             }
             let id = match &kind {
+                StepKind::FitConvnet => "fit-convnet".into(),
                 StepKind::Train { m, k } => format!("train-{}-{k}", self.name(*m)),
                 StepKind::Eval { p, m } => format!("eval-{}__{}", self.name(*p), self.name(*m)),
                 StepKind::Approach { p } => format!("approach-{}", self.name(*p)),
@@ -299,17 +344,30 @@ impl Study {
             });
             steps.len() - 1
         };
+        let fit = self
+            .convnet_data
+            .is_some()
+            .then(|| add(StepKind::FitConvnet, vec![], &mut steps));
+        // Steps that simulate a refitted ConvNet need its weights.
+        let needs_fit = |m: usize| -> Vec<usize> {
+            match (&self.cfg.models[m].spec, fit) {
+                (fishprobe_models::ModelSpec::ConvNet(_), Some(f)) => vec![f],
+                _ => vec![],
+            }
+        };
         let mut train = vec![vec![0usize; seeds]; n];
         for (m, row) in train.iter_mut().enumerate() {
             for (k, slot) in row.iter_mut().enumerate() {
-                *slot = add(StepKind::Train { m, k }, vec![], &mut steps);
+                *slot = add(StepKind::Train { m, k }, needs_fit(m), &mut steps);
             }
         }
         let mut for_analysis = Vec::new();
         for (p, row) in train.iter().enumerate() {
             let policy = row[0];
             for m in 0..n {
-                for_analysis.push(add(StepKind::Eval { p, m }, vec![policy], &mut steps));
+                let mut deps = vec![policy];
+                deps.extend(needs_fit(m));
+                for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps));
             }
             for_analysis.push(add(StepKind::Approach { p }, vec![policy], &mut steps));
             for_analysis.push(add(StepKind::Reality { p }, vec![policy], &mut steps));

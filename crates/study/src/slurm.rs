@@ -111,6 +111,10 @@ impl Study {
         on_event: &(dyn Fn(Event) + Sync),
     ) -> Result<(), StudyError> {
         let steps = self.prepare()?;
+        // Refitting M_ConvNet comes before any training: done here, on this machine.
+        if let Some(s) = steps.iter().find(|s| s.kind == StepKind::FitConvnet) {
+            self.run_one(&s.id)?;
+        }
         let todo = |pred: &dyn Fn(&Step) -> bool| -> Vec<String> {
             steps
                 .iter()

@@ -40,6 +40,7 @@ pub(crate) fn output_valid(study: &Study, s: &Step) -> bool {
     let out = study.output(&s.kind);
     let c = &study.cfg;
     match &s.kind {
+        StepKind::FitConvnet => out.join("convnet.safetensors").is_file(),
         StepKind::Train { .. } => out.join("policy.safetensors").is_file(),
         StepKind::Eval { p, m } => files_in(&out) == study.eval_episodes(*p, *m),
         StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
@@ -80,6 +81,36 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
     let seed = |label: &str| derive_seed(c.seed, label, 0);
     let out = study.output(&s.kind);
     let r = match &s.kind {
+        StepKind::FitConvnet => {
+            let data = study.convnet_data.as_ref().ok_or("no --convnet-data")?;
+            let tmp = tmp_of(&out);
+            fresh(&tmp)?;
+            let command = format!(
+                "fishprobe fit-convnet --data {} --validation {} --seed {}",
+                data.join("train").display(),
+                data.join("validation").display(),
+                c.seed
+            );
+            let r = fishprobe_learn::bc::fit_convnet(
+                &[data.join("train")],
+                &[data.join("validation")],
+                &tmp.join("convnet.safetensors"),
+                &fishprobe_learn::bc::CloneConfig {
+                    max_epochs: c.convnet_max_epochs,
+                    ..fishprobe_learn::bc::CloneConfig::default()
+                },
+                c.seed,
+                false,
+                &command,
+                &|_| {},
+            )
+            .map_err(|e| e.to_string())?;
+            say(&format!(
+                "refitted M_ConvNet: validation NLL {:.4} (marginal {:.4})",
+                r.val_nll, r.marginal_nll
+            ));
+            commit_dir(&tmp, &out)
+        }
         StepKind::Train { m, k } => {
             let mut ppo = PpoConfig::preset(&c.ppo_preset).ok_or("unknown PPO preset")?;
             if let Some(n) = c.train_steps {

@@ -43,6 +43,10 @@ pub struct RunArgs {
     /// Master seed (overrides the study file's).
     #[arg(long)]
     seed: Option<u64>,
+    /// Refit M_ConvNet on these pair recordings (`DIR/train/`, `DIR/validation/`) instead of
+    /// using the shipped weights.
+    #[arg(long)]
+    convnet_data: Option<PathBuf>,
 }
 
 pub fn run(a: RunArgs) -> Result<()> {
@@ -66,7 +70,8 @@ pub fn run(a: RunArgs) -> Result<()> {
     if let Some(s) = a.seed {
         cfg.seed = s;
     }
-    let study = Study::new(a.out.clone(), cfg, a.real.clone())?;
+    let study =
+        Study::with_convnet_data(a.out.clone(), cfg, a.real.clone(), a.convnet_data.clone())?;
     if let Some(id) = &a.step {
         study.run_one(id)?;
         return emit(&format!("step {id} complete\n"));
@@ -122,6 +127,9 @@ pub fn run(a: RunArgs) -> Result<()> {
         }
         if let Some(s) = a.seed {
             study_args.extend(["--seed".into(), s.to_string()]);
+        }
+        if let Some(d) = &a.convnet_data {
+            study_args.extend(["--convnet-data".into(), abs(d)]);
         }
         let o = fishprobe_study::slurm::SlurmOptions {
             fishprobe: std::env::current_exe().context("locating the fishprobe binary")?,
