@@ -358,17 +358,23 @@ impl Page<'_> {
                     ]
                 })
                 .collect();
+            let virtual_arm = d.arm.as_deref() == Some("VirtualLab");
+            let (mean_h, trials_h) = if virtual_arm {
+                ("virtual-lab mean", "trials sim / virtual")
+            } else {
+                ("real mean", "trials sim / real")
+            };
             table(
                 &mut o,
                 &[
                     "policy",
                     "sim mean",
-                    "real mean",
+                    mean_h,
                     "W",
                     "95 % CI",
                     "p (one-sided)",
                     "Cliff's δ",
-                    "trials sim / real",
+                    trials_h,
                 ],
                 &rows,
             );
