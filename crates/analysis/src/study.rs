@@ -11,6 +11,7 @@
 //! directories itself) is accepted too.
 
 use crate::error::AnalysisError;
+use fishprobe_io::trial_files;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -27,17 +28,6 @@ pub struct Study {
     pub approach: BTreeMap<String, Vec<PathBuf>>,
     /// Retraining stability: model → seed → files.
     pub stability: BTreeMap<String, BTreeMap<String, Vec<PathBuf>>>,
-}
-
-fn trial_files(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
-        .collect();
-    v.sort();
-    v
 }
 
 fn subdirs(dir: &Path) -> Vec<PathBuf> {

@@ -37,6 +37,19 @@ pub use trial::{
     heading_from_motion, Category, Entity, TaskRecord, TrialFile, TrialKind, TrialMeta,
 };
 
+/// The trial files (`.hdf5`, `.h5`) directly in `dir`, sorted by name; none when `dir` cannot
+/// be read.
+pub fn trial_files(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut v: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
+        .collect();
+    v.sort();
+    v
+}
+
 /// The shared real tracking data, for tests and examples: `$FISHPROBE_DATA` when set (whether
 /// or not it exists, so that a test finding it missing fails), else `../shared/data` beside
 /// the workspace when present, else `None`.

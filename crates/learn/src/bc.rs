@@ -116,14 +116,7 @@ pub fn list_files(dirs: &[PathBuf]) -> Vec<PathBuf> {
             out.push(d.clone());
             continue;
         }
-        let mut v: Vec<PathBuf> = std::fs::read_dir(d)
-            .into_iter()
-            .flatten()
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
-            .collect();
-        v.sort();
-        out.extend(v);
+        out.extend(fishprobe_io::trial_files(d));
     }
     out
 }

@@ -26,13 +26,7 @@ fn log(study: &Study, s: &Step) -> impl FnMut(&str) {
 }
 
 fn files_in(d: &Path) -> usize {
-    std::fs::read_dir(d)
-        .map(|r| {
-            r.filter_map(|e| e.ok())
-                .filter(|e| e.path().extension().is_some_and(|x| x == "hdf5"))
-                .count()
-        })
-        .unwrap_or(0)
+    fishprobe_io::trial_files(d).len()
 }
 
 /// Whether a step's output is there (a marker alone is not enough).
