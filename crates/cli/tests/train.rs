@@ -9,12 +9,16 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-/// progress.csv without the wall-time columns (time_s, steps_per_s).
+/// progress.csv without the wall-time columns (time_s, steps_per_s: the last two).
 fn progress_without_times(dir: &Path) -> Vec<String> {
     std::fs::read_to_string(dir.join("progress.csv"))
         .unwrap()
         .lines()
-        .map(|l| l.split(',').take(13).collect::<Vec<_>>().join(","))
+        .map(|l| {
+            let cols: Vec<_> = l.split(',').collect();
+            assert_eq!(cols.len(), 18, "progress.csv columns: {l}");
+            cols[..cols.len() - 2].join(",")
+        })
         .collect()
 }
 
@@ -329,4 +333,61 @@ fn unusable_policies_are_clear_errors() {
         "{}",
         stderr(&o)
     );
+}
+
+#[test]
+fn a_ppo_file_overrides_the_preset_field_by_field() {
+    let d = fresh_dir("ppo-file");
+    let good = d.join("ppo.toml");
+    std::fs::write(&good, "num_sgd_iter = 3\nlr = 0.001\n").unwrap();
+    let out = d.join("run");
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "Follow",
+        "--preset",
+        "smoke",
+        "--ppo",
+        good.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let params: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("params.json")).unwrap()).unwrap();
+    let ppo = &params["ppo"];
+    assert_eq!(ppo["num_sgd_iter"], 3);
+    assert!((ppo["lr"].as_f64().unwrap() - 0.001).abs() < 1e-9);
+    // The rest is the smoke preset's.
+    assert_eq!(ppo["train_batch_size"], 1024);
+    // The new diagnostics are logged.
+    let head = std::fs::read_to_string(out.join("progress.csv")).unwrap();
+    assert!(
+        head.starts_with("iteration,")
+            && head.contains(",clip_frac,action_clip_frac,vf_explained_var,")
+    );
+
+    for (text, needle) in [
+        ("num_sgd_iters = 3\n", "num_sgd_iters"),
+        ("num_sgd_iter = 0\n", "num_sgd_iter"),
+        ("lr = \"fast\"\n", "lr"),
+    ] {
+        let bad = d.join("bad.toml");
+        std::fs::write(&bad, text).unwrap();
+        let o = fishprobe(&[
+            "train",
+            "--model",
+            "Follow",
+            "--preset",
+            "smoke",
+            "--ppo",
+            bad.to_str().unwrap(),
+            "--out",
+            d.join("bad-run").to_str().unwrap(),
+        ]);
+        assert!(!o.status.success());
+        let e = stderr(&o);
+        assert!(e.contains("bad.toml") && e.contains(needle), "{e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
 }

@@ -207,10 +207,37 @@ pub struct UpdateStats {
     pub kl: f32,
     /// Mean policy entropy.
     pub entropy: f32,
+    /// Fraction of samples whose probability ratio left [1-ε, 1+ε] in the last epoch.
+    pub clip_frac: f32,
+    /// Fraction of the batch's sampled actions outside [-1, 1] (clipped to ±π in the tank).
+    pub action_clip_frac: f32,
+    /// Explained variance of the value targets by the value predictions made while sampling
+    /// (RLlib's `vf_explained_var`: 1 - Var(R - V) / Var(R), at least -1).
+    pub vf_explained_var: f32,
 }
 
-/// Sums of one minibatch's policy terms: (surrogate loss, KL, entropy).
-type PiSums = (f64, f64, f64);
+/// Sums of one minibatch's policy terms: (surrogate loss, KL, entropy, ratios outside the clip
+/// range).
+type PiSums = (f64, f64, f64, usize);
+
+/// RLlib's explained variance: max(-1, 1 - Var(y - pred) / Var(y)); 0 when y is constant.
+pub fn explained_variance(y: &[f32], pred: &[f32]) -> f32 {
+    let n = y.len().max(1) as f64;
+    let var = |it: &mut dyn Iterator<Item = f64>| {
+        let v: Vec<f64> = it.collect();
+        let m = v.iter().sum::<f64>() / n;
+        v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n
+    };
+    let var_y = var(&mut y.iter().map(|&v| f64::from(v)));
+    if var_y <= 0.0 {
+        return 0.0;
+    }
+    let var_d = var(&mut y
+        .iter()
+        .zip(pred)
+        .map(|(&a, &b)| f64::from(a) - f64::from(b)));
+    (1.0 - var_d / var_y).max(-1.0) as f32
+}
 
 /// `num_sgd_iter` epochs of minibatch updates over `roll`.
 #[allow(clippy::too_many_arguments)]
@@ -225,6 +252,9 @@ pub fn update(
     s: &mut Scratch,
 ) -> Result<UpdateStats, String> {
     let (n, d, m) = (roll.len(), roll.obs_dim, cfg.sgd_minibatch_size);
+    let vf_explained_var = explained_variance(&roll.returns, &roll.values);
+    let action_clip_frac =
+        roll.actions.iter().filter(|a| a.abs() > 1.0).count() as f32 / n.max(1) as f32;
     if cfg.standardize_advantages {
         let mean = roll.advantages.iter().map(|&a| f64::from(a)).sum::<f64>() / n as f64;
         let var = roll
@@ -246,7 +276,7 @@ pub fn update(
     s.dy_pi.resize(2 * m, 0.0);
     s.dy_vf.resize(m, 0.0);
     let (mut stats, mut batches) = (UpdateStats::default(), 0usize);
-    let (mut last_kl, mut last_batches) = (0.0f64, 0usize);
+    let (mut last_kl, mut last_batches, mut last_clipped) = (0.0f64, 0usize, 0usize);
     for epoch in 0..cfg.num_sgd_iter {
         // Shuffle (Fisher-Yates), then full minibatches; a remainder smaller than a minibatch
         // is dropped this epoch (it is shuffled into others).
@@ -279,7 +309,7 @@ pub fn update(
                 || policy_step(cfg, kl_coeff, roll_ref, chunk, obs, pi_part),
                 || value_step(cfg, roll_ref, chunk, obs, vf_part),
             );
-            let (surr, kl, ent) = pi_sums;
+            let (surr, kl, ent, clipped) = pi_sums;
             if !(surr.is_finite() && kl.is_finite() && vf_sum.is_finite()) {
                 return Err(format!(
                     "non-finite loss (surrogate {surr}, KL {kl}, value {vf_sum})"
@@ -292,6 +322,7 @@ pub fn update(
             if epoch + 1 == cfg.num_sgd_iter {
                 last_kl += kl / m as f64;
                 last_batches += 1;
+                last_clipped += clipped;
             }
         }
     }
@@ -300,6 +331,9 @@ pub fn update(
     stats.vf_loss /= b;
     stats.entropy /= b;
     stats.kl = (last_kl / last_batches.max(1) as f64) as f32;
+    stats.clip_frac = last_clipped as f32 / (last_batches * m).max(1) as f32;
+    stats.action_clip_frac = action_clip_frac;
+    stats.vf_explained_var = vf_explained_var;
     Ok(stats)
 }
 
@@ -325,13 +359,14 @@ fn policy_step(
     let inv_m = 1.0 / m as f32;
     let (lo, hi) = (1.0 - cfg.clip_param, 1.0 + cfg.clip_param);
     let out = net.forward(obs, m, ws);
-    let (mut surr_sum, mut kl_sum, mut ent_sum) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut surr_sum, mut kl_sum, mut ent_sum, mut clipped) = (0.0f64, 0.0f64, 0.0f64, 0usize);
     for (j, &k) in rows.iter().enumerate() {
         let (mean, log_std) = (out[2 * j], out[2 * j + 1]);
         let a = roll.actions[k];
         let adv = roll.advantages[k];
         let ratio = (gaussian_log_prob(a, mean, log_std) - roll.logp[k]).exp();
         let (s1, s2) = (ratio * adv, ratio.clamp(lo, hi) * adv);
+        clipped += usize::from(!(lo..=hi).contains(&ratio));
         surr_sum -= f64::from(s1.min(s2));
         let kl = gaussian_kl(roll.mean[k], roll.log_std[k], mean, log_std);
         kl_sum += f64::from(kl);
@@ -347,7 +382,7 @@ fn policy_step(
     grads.fill(0.0);
     net.backward(obs, m, &dy[..2 * m], ws, grads, None);
     adam.step(net.params_mut(), grads);
-    (surr_sum, kl_sum, ent_sum)
+    (surr_sum, kl_sum, ent_sum, clipped)
 }
 
 /// Value-network step on one minibatch; returns the sum of clamped squared errors.
@@ -387,5 +422,30 @@ pub fn adapt_kl(kl_coeff: f32, kl: f32, target: f32) -> f32 {
         kl_coeff * 0.5
     } else {
         kl_coeff
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn explained_variance_known_answers() {
+        let y = [1.0, 2.0, 3.0, 4.0];
+        // Var(y) = 1.25; residuals (0, 0, 0, -1) have variance 0.1875: 1 - 0.15.
+        assert!((explained_variance(&y, &[1.0, 2.0, 3.0, 5.0]) - 0.85).abs() < 1e-6);
+        assert_eq!(explained_variance(&y, &y), 1.0);
+        // A constant prediction explains nothing; a wild one is floored at -1 as in RLlib.
+        assert!(explained_variance(&y, &[7.0; 4]).abs() < 1e-6);
+        assert_eq!(explained_variance(&y, &[40.0, -40.0, 40.0, -40.0]), -1.0);
+        assert_eq!(explained_variance(&[2.0; 3], &[1.0, 2.0, 3.0]), 0.0);
+    }
+
+    #[test]
+    fn adaptive_kl_follows_rllib() {
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-6;
+        assert!(close(adapt_kl(0.2, 0.03, 0.01), 0.3));
+        assert!(close(adapt_kl(0.2, 0.004, 0.01), 0.1));
+        assert!(close(adapt_kl(0.2, 0.01, 0.01), 0.2));
     }
 }

@@ -64,18 +64,27 @@ pub struct IterationStats {
     pub kl_coeff: f32,
     /// Mean policy entropy.
     pub entropy: f32,
+    /// Fraction of probability ratios outside the clip range in the last epoch.
+    #[serde(default)]
+    pub clip_frac: f32,
+    /// Fraction of sampled (normalised) actions outside [-1, 1], i.e. turns clipped to ±π.
+    #[serde(default)]
+    pub action_clip_frac: f32,
+    /// Explained variance of the value targets by the sampled value predictions.
+    #[serde(default)]
+    pub vf_explained_var: f32,
     /// Wall time of the iteration (s).
     pub time_s: f64,
     /// Environment steps per second in this iteration.
     pub steps_per_s: f64,
 }
 
-const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,time_s,steps_per_s";
+const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,clip_frac,action_clip_frac,vf_explained_var,time_s,steps_per_s";
 
 impl IterationStats {
     fn csv_row(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.1}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.1}",
             self.iteration,
             self.timesteps,
             self.episodes_total,
@@ -89,6 +98,9 @@ impl IterationStats {
             self.kl,
             self.kl_coeff,
             self.entropy,
+            self.clip_frac,
+            self.action_clip_frac,
+            self.vf_explained_var,
             self.time_s,
             self.steps_per_s
         )
@@ -293,6 +305,9 @@ impl Trainer {
             kl: u.kl,
             kl_coeff: self.kl_coeff,
             entropy: u.entropy,
+            clip_frac: u.clip_frac,
+            action_clip_frac: u.action_clip_frac,
+            vf_explained_var: u.vf_explained_var,
             time_s,
             steps_per_s: self.roll.len() as f64 / time_s.max(1e-9),
         };

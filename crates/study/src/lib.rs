@@ -280,8 +280,13 @@ impl Study {
                     "epochs": c.convnet_max_epochs})
             }
             StepKind::Train { m, k } => {
-                serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
-                "ppo": c.ppo_preset, "steps": c.train_steps})
+                let mut v = serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
+                "ppo": c.ppo_preset, "steps": c.train_steps});
+                // Only when set, so that studies made before the field existed keep their hashes.
+                if let Some(e) = c.ppo_epochs {
+                    v["epochs"] = e.into();
+                }
+                v
             }
             StepKind::Eval { p, m } => {
                 serde_json::json!({"eval": [self.name(*p), model(*m)], "seed": c.seed,
@@ -646,6 +651,25 @@ mod tests {
         );
         assert!(changed.len() == 8 + 2, "{changed:?}");
         assert_eq!(fnv(b"fishprobe"), fnv(b"fishprobe"));
+    }
+
+    #[test]
+    fn ppo_epochs_changes_the_training_and_what_follows_but_old_markers_stay_valid() {
+        let cfg = StudyConfig::preset("paper").unwrap();
+        let plan = Study::new("/tmp/x".into(), cfg.clone(), None)
+            .unwrap()
+            .plan();
+        // The marker that fishprobe 0.1.0 wrote for this step before `ppo_epochs` existed:
+        // a study started then resumes without retraining.
+        let follow = plan.iter().find(|s| s.id == "train-Follow-0").unwrap();
+        assert_eq!(format!("{:016x}", follow.hash), "7b2a1ef96103b6b1");
+        let mut cfg2 = cfg;
+        cfg2.ppo_epochs = Some(10);
+        let plan2 = Study::new("/tmp/x".into(), cfg2, None).unwrap().plan();
+        for (a, b) in plan.iter().zip(&plan2) {
+            let downstream = !a.id.starts_with("fit-convnet");
+            assert_eq!(a.hash != b.hash, downstream, "{}", a.id);
+        }
     }
 
     #[test]

@@ -110,6 +110,9 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
             if let Some(n) = c.train_steps {
                 ppo.total_timesteps = n;
             }
+            if let Some(e) = c.ppo_epochs {
+                ppo.num_sgd_iter = e;
+            }
             let spec = RunSpec {
                 ppo,
                 env: EnvConfig::default(),

@@ -34,6 +34,10 @@ pub struct TrainArgs {
     /// Settings file for the environment and fish (see `fishprobe config show`).
     #[arg(long)]
     settings: Option<PathBuf>,
+    /// PPO settings (.json or .toml) overriding the preset's, field by field (names as in
+    /// params.json's `ppo`, e.g. `num_sgd_iter = 10`).
+    #[arg(long)]
+    ppo: Option<PathBuf>,
     /// Threads (default: all cores). Results do not depend on it.
     #[arg(long)]
     jobs: Option<usize>,
@@ -41,14 +45,17 @@ pub struct TrainArgs {
 
 pub fn run(a: TrainArgs) -> Result<()> {
     let mut trainer = if a.resume && a.out.join("params.json").exists() {
-        if a.model.is_some() || a.settings.is_some() || a.steps.is_some() {
-            eprintln!("note: --resume continues the run as params.json records it; --model, --settings and --steps are ignored");
+        if a.model.is_some() || a.settings.is_some() || a.steps.is_some() || a.ppo.is_some() {
+            eprintln!("note: --resume continues the run as params.json records it; --model, --settings, --steps and --ppo are ignored");
         }
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
         let Some(mut ppo) = PpoConfig::preset(&a.preset) else {
             bail!("unknown --preset `{}`: use paper, quick or smoke", a.preset);
         };
+        if let Some(p) = &a.ppo {
+            ppo = ppo_overrides(ppo, p)?;
+        }
         if let Some(s) = a.steps {
             ppo.total_timesteps = s;
         }
@@ -83,6 +90,44 @@ pub fn run(a: TrainArgs) -> Result<()> {
         trainer.iteration(),
         path.display()
     ))
+}
+
+/// `base` with the fields that the file at `path` sets replaced; unknown fields and values out
+/// of range are errors naming the file.
+pub fn ppo_overrides(base: PpoConfig, path: &std::path::Path) -> Result<PpoConfig> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read PPO settings file {}", path.display()))?;
+    let is_toml = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    let over: serde_json::Value = if is_toml {
+        toml::from_str(&text)
+            .with_context(|| format!("{} is not valid PPO settings TOML", path.display()))?
+    } else {
+        serde_json::from_str(&text)
+            .with_context(|| format!("{} is not valid PPO settings JSON", path.display()))?
+    };
+    let serde_json::Value::Object(over) = over else {
+        bail!("{}: PPO settings must be a table of fields", path.display());
+    };
+    let base = serde_json::to_value(&base)?;
+    let with = |fields: &mut dyn Iterator<Item = (&String, &serde_json::Value)>| {
+        let mut merged = base.clone();
+        if let serde_json::Value::Object(m) = &mut merged {
+            m.extend(fields.map(|(k, v)| (k.clone(), v.clone())));
+        }
+        serde_json::from_value::<PpoConfig>(merged)
+    };
+    // serde names unknown fields but not the field of a wrong value: try them one by one.
+    for (k, v) in &over {
+        with(&mut std::iter::once((k, v)))
+            .with_context(|| format!("in PPO settings file {}, field `{k}`", path.display()))?;
+    }
+    let ppo = with(&mut over.iter())
+        .with_context(|| format!("in PPO settings file {}", path.display()))?;
+    ppo.validate()
+        .with_context(|| format!("in PPO settings file {}", path.display()))?;
+    Ok(ppo)
 }
 
 fn train_loop(t: &mut Trainer) -> Result<()> {
