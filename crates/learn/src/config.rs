@@ -14,7 +14,11 @@ fishprobe_sim::documented_params! {
         pub train_batch_size: usize = 8192; "steps",
         /// SGD minibatch size (paper: 512).
         pub sgd_minibatch_size: usize = 512; "steps",
-        /// Passes over each batch (paper: 100).
+        /// Passes over each batch (paper: 100). In this simulator 100 epochs overfit the value
+        /// network to each batch (explained variance below 0 on the next one) and Zone and Force
+        /// policies do not learn; 10 epochs learn all three rule-based models (README, "Does it
+        /// learn?"). Kept at the published value; override with `train --ppo` or a study's
+        /// `ppo_epochs`.
         pub num_sgd_iter: usize = 100; "epochs",
         /// Adam learning rate (paper: 0.00026).
         pub lr: f32 = 0.000_26; "1",
