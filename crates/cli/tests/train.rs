@@ -16,7 +16,7 @@ fn progress_without_times(dir: &Path) -> Vec<String> {
         .lines()
         .map(|l| {
             let cols: Vec<_> = l.split(',').collect();
-            assert_eq!(cols.len(), 18, "progress.csv columns: {l}");
+            assert_eq!(cols.len(), 19, "progress.csv columns: {l}");
             cols[..cols.len() - 2].join(",")
         })
         .collect()
@@ -363,7 +363,7 @@ fn a_ppo_file_overrides_the_preset_field_by_field() {
     assert_eq!(ppo["train_batch_size"], 1024);
     // The diagnostics are logged.
     let head = std::fs::read_to_string(out.join("progress.csv")).unwrap();
-    assert!(head.contains(",clip_frac,action_clip_frac,vf_explained_var,"));
+    assert!(head.contains(",clip_frac,action_clip_frac,vf_explained_var,vf_explained_var_fit,"));
 
     for (text, needle) in [
         ("num_sgd_iters = 3\n", "num_sgd_iters"),

@@ -214,6 +214,10 @@ pub struct UpdateStats {
     /// Explained variance of the value targets by the value predictions made while sampling
     /// (RLlib's `vf_explained_var`: 1 - Var(R - V) / Var(R), at least -1).
     pub vf_explained_var: f32,
+    /// The same on the batch it was trained on, during the last epoch: 1 - mean (V - R)² /
+    /// Var(R), at least -1. Far above `vf_explained_var` (of the next batch), the value
+    /// network fits each batch more closely than it generalises.
+    pub vf_explained_var_fit: f32,
 }
 
 /// Sums of one minibatch's policy terms: (surrogate loss, KL, entropy, ratios outside the clip
@@ -222,21 +226,30 @@ type PiSums = (f64, f64, f64, usize);
 
 /// RLlib's explained variance: max(-1, 1 - Var(y - pred) / Var(y)); 0 when y is constant.
 pub fn explained_variance(y: &[f32], pred: &[f32]) -> f32 {
-    let n = y.len().max(1) as f64;
-    let var = |it: &mut dyn Iterator<Item = f64>| {
-        let v: Vec<f64> = it.collect();
-        let m = v.iter().sum::<f64>() / n;
-        v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n
-    };
-    let var_y = var(&mut y.iter().map(|&v| f64::from(v)));
+    let var_y = variance(y);
     if var_y <= 0.0 {
         return 0.0;
     }
-    let var_d = var(&mut y
+    let n = y.len().max(1) as f64;
+    let diff = |(&a, &b): (&f32, &f32)| f64::from(a) - f64::from(b);
+    let mean_d = y.iter().zip(pred).map(diff).sum::<f64>() / n;
+    let var_d = y
         .iter()
         .zip(pred)
-        .map(|(&a, &b)| f64::from(a) - f64::from(b)));
+        .map(|p| (diff(p) - mean_d).powi(2))
+        .sum::<f64>()
+        / n;
     (1.0 - var_d / var_y).max(-1.0) as f32
+}
+
+/// Population variance (divisor n), in f64.
+fn variance(y: &[f32]) -> f64 {
+    let n = y.len().max(1) as f64;
+    let mean = y.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+    y.iter()
+        .map(|&v| (f64::from(v) - mean).powi(2))
+        .sum::<f64>()
+        / n
 }
 
 /// `num_sgd_iter` epochs of minibatch updates over `roll`.
@@ -277,6 +290,7 @@ pub fn update(
     s.dy_vf.resize(m, 0.0);
     let (mut stats, mut batches) = (UpdateStats::default(), 0usize);
     let (mut last_kl, mut last_batches, mut last_clipped) = (0.0f64, 0usize, 0usize);
+    let mut last_sq_err = 0.0f64;
     for epoch in 0..cfg.num_sgd_iter {
         // Shuffle (Fisher-Yates), then full minibatches; a remainder smaller than a minibatch
         // is dropped this epoch (it is shuffled into others).
@@ -305,7 +319,7 @@ pub fn update(
             );
             let obs = &s.mb_obs;
             let roll_ref = &*roll;
-            let (pi_sums, vf_sum) = rayon::join(
+            let (pi_sums, (vf_sum, vf_sq_err)) = rayon::join(
                 || policy_step(cfg, kl_coeff, roll_ref, chunk, obs, pi_part),
                 || value_step(cfg, roll_ref, chunk, obs, vf_part),
             );
@@ -323,6 +337,7 @@ pub fn update(
                 last_kl += kl / m as f64;
                 last_batches += 1;
                 last_clipped += clipped;
+                last_sq_err += vf_sq_err;
             }
         }
     }
@@ -334,6 +349,12 @@ pub fn update(
     stats.clip_frac = last_clipped as f32 / (last_batches * m).max(1) as f32;
     stats.action_clip_frac = action_clip_frac;
     stats.vf_explained_var = vf_explained_var;
+    let ret_var = variance(&roll.returns);
+    stats.vf_explained_var_fit = if ret_var > 0.0 {
+        (1.0 - last_sq_err / (last_batches * m).max(1) as f64 / ret_var).max(-1.0) as f32
+    } else {
+        0.0
+    };
     Ok(stats)
 }
 
@@ -385,22 +406,24 @@ fn policy_step(
     (surr_sum, kl_sum, ent_sum, clipped)
 }
 
-/// Value-network step on one minibatch; returns the sum of clamped squared errors.
+/// Value-network step on one minibatch; returns the sums of the clamped (loss) and of the
+/// plain squared errors.
 fn value_step(
     cfg: &PpoConfig,
     roll: &Rollout,
     rows: &[usize],
     obs: &[f32],
     part: NetPart<'_>,
-) -> f64 {
+) -> (f64, f64) {
     let (net, adam, ws, grads, dy) = part;
     let m = rows.len();
     let out = net.forward(obs, m, ws);
-    let mut sum = 0.0f64;
+    let (mut sum, mut sum_sq) = (0.0f64, 0.0f64);
     for (j, &k) in rows.iter().enumerate() {
         let err = out[j] - roll.returns[k];
         let sq = err * err;
         sum += f64::from(sq.min(cfg.vf_clip_param));
+        sum_sq += f64::from(sq);
         // The clamp is flat above vf_clip_param: no gradient there.
         dy[j] = if sq < cfg.vf_clip_param {
             2.0 * err * cfg.vf_loss_coeff / m as f32
@@ -411,7 +434,7 @@ fn value_step(
     grads.fill(0.0);
     net.backward(obs, m, &dy[..m], ws, grads, None);
     adam.step(net.params_mut(), grads);
-    sum * f64::from(cfg.vf_loss_coeff)
+    (sum * f64::from(cfg.vf_loss_coeff), sum_sq)
 }
 
 /// RLlib's adaptive KL coefficient.

@@ -73,18 +73,21 @@ pub struct IterationStats {
     /// Explained variance of the value targets by the sampled value predictions.
     #[serde(default)]
     pub vf_explained_var: f32,
+    /// The same on the training batch during the last epoch (in-sample fit).
+    #[serde(default)]
+    pub vf_explained_var_fit: f32,
     /// Wall time of the iteration (s).
     pub time_s: f64,
     /// Environment steps per second in this iteration.
     pub steps_per_s: f64,
 }
 
-const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,clip_frac,action_clip_frac,vf_explained_var,time_s,steps_per_s";
+const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,clip_frac,action_clip_frac,vf_explained_var,vf_explained_var_fit,time_s,steps_per_s";
 
 impl IterationStats {
     fn csv_row(&self) -> String {
         format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.1}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.1}",
             self.iteration,
             self.timesteps,
             self.episodes_total,
@@ -101,6 +104,7 @@ impl IterationStats {
             self.clip_frac,
             self.action_clip_frac,
             self.vf_explained_var,
+            self.vf_explained_var_fit,
             self.time_s,
             self.steps_per_s
         )
@@ -308,6 +312,7 @@ impl Trainer {
             clip_frac: u.clip_frac,
             action_clip_frac: u.action_clip_frac,
             vf_explained_var: u.vf_explained_var,
+            vf_explained_var_fit: u.vf_explained_var_fit,
             time_s,
             steps_per_s: self.roll.len() as f64 / time_s.max(1e-9),
         };
