@@ -369,6 +369,7 @@ fn a_ppo_file_overrides_the_preset_field_by_field() {
         ("num_sgd_iters = 3\n", "num_sgd_iters"),
         ("num_sgd_iter = 0\n", "num_sgd_iter"),
         ("lr = \"fast\"\n", "lr"),
+        ("lr = nan\n", "`lr`: not a finite number"),
     ] {
         let (o, _) = train(text, "bad-run");
         assert!(!o.status.success());

@@ -120,6 +120,13 @@ pub fn ppo_overrides(base: PpoConfig, path: &std::path::Path) -> Result<PpoConfi
     };
     // serde names unknown fields but not the field of a wrong value: try them one by one.
     for (k, v) in &over {
+        // TOML's nan and inf arrive here as null (JSON has no such numbers).
+        if v.is_null() {
+            bail!(
+                "in PPO settings file {}, field `{k}`: not a finite number",
+                path.display()
+            );
+        }
         with(&mut std::iter::once((k, v)))
             .with_context(|| format!("in PPO settings file {}, field `{k}`", path.display()))?;
     }
