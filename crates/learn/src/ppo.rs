@@ -226,7 +226,7 @@ type PiSums = (f64, f64, f64, usize);
 
 /// RLlib's explained variance: max(-1, 1 - Var(y - pred) / Var(y)); 0 when y is constant.
 pub fn explained_variance(y: &[f32], pred: &[f32]) -> f32 {
-    let var_y = variance(y);
+    let (_, var_y) = mean_var(y);
     if var_y <= 0.0 {
         return 0.0;
     }
@@ -242,14 +242,16 @@ pub fn explained_variance(y: &[f32], pred: &[f32]) -> f32 {
     (1.0 - var_d / var_y).max(-1.0) as f32
 }
 
-/// Population variance (divisor n), in f64.
-fn variance(y: &[f32]) -> f64 {
+/// Mean and population variance (divisor n), in f64.
+fn mean_var(y: &[f32]) -> (f64, f64) {
     let n = y.len().max(1) as f64;
     let mean = y.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
-    y.iter()
+    let var = y
+        .iter()
         .map(|&v| (f64::from(v) - mean).powi(2))
         .sum::<f64>()
-        / n
+        / n;
+    (mean, var)
 }
 
 /// `num_sgd_iter` epochs of minibatch updates over `roll`.
@@ -269,13 +271,7 @@ pub fn update(
     let action_clip_frac =
         roll.actions.iter().filter(|a| a.abs() > 1.0).count() as f32 / n.max(1) as f32;
     if cfg.standardize_advantages {
-        let mean = roll.advantages.iter().map(|&a| f64::from(a)).sum::<f64>() / n as f64;
-        let var = roll
-            .advantages
-            .iter()
-            .map(|&a| (f64::from(a) - mean).powi(2))
-            .sum::<f64>()
-            / n as f64;
+        let (mean, var) = mean_var(&roll.advantages);
         let sd = var.sqrt().max(1e-8);
         roll.advantages
             .iter_mut()
@@ -349,7 +345,7 @@ pub fn update(
     stats.clip_frac = last_clipped as f32 / (last_batches * m).max(1) as f32;
     stats.action_clip_frac = action_clip_frac;
     stats.vf_explained_var = vf_explained_var;
-    let ret_var = variance(&roll.returns);
+    let (_, ret_var) = mean_var(&roll.returns);
     stats.vf_explained_var_fit = if ret_var > 0.0 {
         (1.0 - last_sq_err / (last_batches * m).max(1) as f64 / ret_var).max(-1.0) as f32
     } else {
