@@ -38,6 +38,16 @@ impl Activation {
         }
     }
 
+    /// Adds `bias` to each row of `v` (rows as long as `bias`) and applies the activation, in
+    /// one pass.
+    #[inline]
+    pub fn apply_with_bias(self, v: &mut [f32], bias: &[f32]) {
+        for row in v.chunks_exact_mut(bias.len()) {
+            row.iter_mut().zip(bias).for_each(|(x, b)| *x += b);
+            self.apply(row);
+        }
+    }
+
     /// Multiplies `delta` by the derivative, given the activation's outputs `y`.
     #[inline]
     pub fn backprop(self, y: &[f32], delta: &mut [f32]) {

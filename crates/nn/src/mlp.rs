@@ -37,6 +37,43 @@ pub struct MlpWorkspace {
     outs: Vec<Vec<f32>>,
     /// Backpropagated deltas, one buffer per layer.
     deltas: Vec<Vec<f32>>,
+    /// A narrow output layer's W transposed (out x in), then its weight gradient (out x in).
+    narrow: Vec<f32>,
+}
+
+/// Output layers at most this wide skip `sgemm`: its 16 x 16 register tile would compute 8 to
+/// 16 times the useful work for the policy's 2 and the value's 1 outputs, and it packs the whole
+/// 512 x 256 input for it. Plain loops over a transposed W do these layers in one pass each
+/// (about 3 % of a PPO minibatch step; `fishprobe bench train`).
+const NARROW_OUT: usize = 4;
+
+/// Σ a·b with eight partial sums (so it vectorises), added in a fixed order.
+#[inline]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| x * y)
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for l in 0..8 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    let [a0, a1, a2, a3, a4, a5, a6, a7] = acc;
+    ((a0 + a4) + (a1 + a5)) + ((a2 + a6) + (a3 + a7)) + tail
+}
+
+/// `wt` (out x in) = `w` (in x out) transposed.
+fn transpose_into(w: &[f32], inp: usize, out: usize, wt: &mut [f32]) {
+    for (k, row) in w.chunks_exact(out).enumerate().take(inp) {
+        for (o, v) in row.iter().enumerate() {
+            wt[o * inp + k] = *v;
+        }
+    }
 }
 
 impl Mlp {
@@ -148,20 +185,34 @@ impl Mlp {
                 &before[l - 1][..batch * inp]
             };
             let y = &mut after[0][..batch * out];
-            for row in y.chunks_exact_mut(out) {
-                row.copy_from_slice(b);
+            if l + 1 == layers && out <= NARROW_OUT {
+                ws.narrow.resize(2 * inp * out, 0.0);
+                let wt = &mut ws.narrow[..inp * out];
+                transpose_into(w, inp, out, wt);
+                for (x, yr) in input.chunks_exact(inp).zip(y.chunks_exact_mut(out)) {
+                    for (o, v) in yr.iter_mut().enumerate() {
+                        *v = b[o] + dot(x, &wt[o * inp..(o + 1) * inp]);
+                    }
+                }
+                break;
             }
             gemm(
                 1.0,
                 Mat::new(input, batch, inp),
                 Mat::new(w, inp, out),
-                1.0,
+                0.0,
                 y,
                 batch,
                 out,
             );
+            // x·W + b rounds as sgemm's `beta = 1` epilogue did with b preloaded (one
+            // rounding of the product's f32 sum plus b), in one pass with the activation.
             if l + 1 < layers {
-                self.spec.hidden.apply(y);
+                self.spec.hidden.apply_with_bias(y, b);
+            } else {
+                for row in y.chunks_exact_mut(out) {
+                    row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
+                }
             }
         }
         &ws.outs[layers - 1][..batch * sizes[layers]]
@@ -196,42 +247,71 @@ impl Mlp {
                 &ws.outs[l - 1][..batch * inp]
             };
             let (gw, gb) = grads[o..o + inp * out + out].split_at_mut(inp * out);
-            gemm(
-                1.0,
-                Mat::new(input, batch, inp).t(),
-                Mat::new(delta, batch, out),
-                1.0,
-                gw,
-                inp,
-                out,
-            );
+            let narrow = l + 1 == layers && out <= NARROW_OUT;
+            if narrow {
+                ws.narrow.resize(2 * inp * out, 0.0);
+                let (wt, gwt) = ws.narrow.split_at_mut(inp * out);
+                transpose_into(w, inp, out, wt);
+                gwt.fill(0.0);
+                for (xr, dr) in input.chunks_exact(inp).zip(delta.chunks_exact(out)) {
+                    for (o, d) in dr.iter().enumerate() {
+                        let g = &mut gwt[o * inp..(o + 1) * inp];
+                        g.iter_mut().zip(xr).for_each(|(g, x)| *g += d * x);
+                    }
+                }
+                for (k, row) in gw.chunks_exact_mut(out).enumerate() {
+                    for (o, g) in row.iter_mut().enumerate() {
+                        *g += gwt[o * inp + k];
+                    }
+                }
+            } else {
+                gemm(
+                    1.0,
+                    Mat::new(input, batch, inp).t(),
+                    Mat::new(delta, batch, out),
+                    1.0,
+                    gw,
+                    inp,
+                    out,
+                );
+            }
             for row in delta.chunks_exact(out) {
                 gb.iter_mut().zip(row).for_each(|(g, d)| *g += d);
             }
-            if l > 0 {
-                let prev = &mut d_before[l - 1][..batch * inp];
+            // The gradient with respect to this layer's input: the previous layer's delta, or
+            // `dx` at the first layer when asked for.
+            let target: Option<&mut [f32]> = if l > 0 {
+                Some(&mut d_before[l - 1][..batch * inp])
+            } else {
+                dx.as_deref_mut().map(|d| &mut d[..batch * inp])
+            };
+            let Some(target) = target else { continue };
+            if narrow {
+                let wt = &ws.narrow[..inp * out];
+                for (tr, dr) in target.chunks_exact_mut(inp).zip(delta.chunks_exact(out)) {
+                    tr.iter_mut()
+                        .zip(&wt[..inp])
+                        .for_each(|(v, w)| *v = dr[0] * w);
+                    for (o, d) in dr.iter().enumerate().skip(1) {
+                        let wo = &wt[o * inp..(o + 1) * inp];
+                        tr.iter_mut().zip(wo).for_each(|(v, w)| *v += d * w);
+                    }
+                }
+            } else {
                 gemm(
                     1.0,
                     Mat::new(delta, batch, out),
                     Mat::new(w, inp, out).t(),
                     0.0,
-                    prev,
+                    target,
                     batch,
                     inp,
                 );
+            }
+            if l > 0 {
                 self.spec
                     .hidden
-                    .backprop(&ws.outs[l - 1][..batch * inp], prev);
-            } else if let Some(dx) = dx.as_deref_mut() {
-                gemm(
-                    1.0,
-                    Mat::new(delta, batch, out),
-                    Mat::new(w, inp, out).t(),
-                    0.0,
-                    &mut dx[..batch * inp],
-                    batch,
-                    inp,
-                );
+                    .backprop(&ws.outs[l - 1][..batch * inp], target);
             }
         }
     }

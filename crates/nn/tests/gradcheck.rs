@@ -16,18 +16,21 @@ fn close(a: f32, n: f32) -> bool {
     (a - n).abs() <= 2e-3 + 2e-2 * n.abs()
 }
 
-fn check_mlp(hidden: Activation) {
+/// Checks every parameter and input gradient of an MLP with these layer sizes, for `batch`
+/// rows (up to 4 rows take the few-rows product, more take `sgemm`; outputs up to 4 wide take
+/// the narrow output layer, wider ones `sgemm`).
+fn check_mlp(hidden: Activation, sizes: &[usize], batch: usize) {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(1);
+    let (n_in, n_out) = (sizes[0], sizes[sizes.len() - 1]);
     let spec = MlpSpec {
-        sizes: vec![5, 7, 6, 3],
+        sizes: sizes.to_vec(),
         hidden,
     };
     let mut net = Mlp::new(spec, 1.0, &mut rng);
-    let batch = 4;
-    let x: Vec<f32> = (0..batch * 5)
+    let x: Vec<f32> = (0..batch * n_in)
         .map(|_| rng.random_range(-1.0..1.0))
         .collect();
-    let c: Vec<f32> = (0..batch * 3)
+    let c: Vec<f32> = (0..batch * n_out)
         .map(|_| rng.random_range(-1.0..1.0))
         .collect();
     let mut ws = MlpWorkspace::default();
@@ -83,12 +86,21 @@ fn check_mlp(hidden: Activation) {
 
 #[test]
 fn dense_layers_with_tanh() {
-    check_mlp(Activation::Tanh);
+    check_mlp(Activation::Tanh, &[5, 7, 11, 3], 4);
+    check_mlp(Activation::Tanh, &[5, 7, 11, 3], 9);
+    check_mlp(Activation::Tanh, &[5, 7, 11, 9], 9);
 }
 
 #[test]
 fn dense_layers_with_leaky_relu() {
-    check_mlp(Activation::LeakyRelu(0.01));
+    check_mlp(Activation::LeakyRelu(0.01), &[5, 7, 6, 3], 4);
+    check_mlp(Activation::LeakyRelu(0.01), &[5, 7, 11, 2], 9);
+}
+
+#[test]
+fn a_single_narrow_layer_passes_the_input_gradient() {
+    check_mlp(Activation::Tanh, &[13, 2], 6);
+    check_mlp(Activation::Tanh, &[13, 6], 6);
 }
 
 #[test]
