@@ -98,8 +98,12 @@ pub struct Scratch {
     ws_vf: MlpWorkspace,
     env_actions: Vec<f32>,
     final_rows: Vec<f32>,
+    truncated: Vec<usize>,
     idx: Vec<usize>,
-    mb_obs: Vec<f32>,
+    /// The minibatch's observations, one copy per network: each thread gathers its own, so
+    /// the gather runs in parallel instead of before the two threads start.
+    mb_obs_pi: Vec<f32>,
+    mb_obs_vf: Vec<f32>,
     grads_pi: Vec<f32>,
     grads_vf: Vec<f32>,
     dy_pi: Vec<f32>,
@@ -122,7 +126,10 @@ pub fn collect(
         let base = t * n;
         roll.obs[base * d..(base + n) * d].copy_from_slice(venv.observations());
         let obs = &roll.obs[base * d..(base + n) * d];
-        let out = policy.pi.forward(obs, n, &mut s.ws_pi);
+        let (pi, vf) = (&policy.pi, &policy.vf);
+        let (ws_pi, ws_vf) = (&mut s.ws_pi, &mut s.ws_vf);
+        let (out, v) = rayon::join(|| pi.forward(obs, n, ws_pi), || vf.forward(obs, n, ws_vf));
+        roll.values[base..base + n].copy_from_slice(v);
         for i in 0..n {
             let (mean, log_std) = (out[2 * i], out[2 * i + 1]);
             let z: f32 = StandardNormal.sample(rng);
@@ -133,8 +140,6 @@ pub fn collect(
             roll.logp[base + i] = gaussian_log_prob(a, mean, log_std);
             s.env_actions[i] = to_env_action(a);
         }
-        let v = policy.vf.forward(obs, n, &mut s.ws_vf);
-        roll.values[base..base + n].copy_from_slice(v);
         venv.step(&s.env_actions)?;
         for (i, tr) in venv.transitions().iter().enumerate() {
             roll.rewards[base + i] = tr.reward;
@@ -173,25 +178,26 @@ fn bootstrap_truncations(
     s: &mut Scratch,
 ) {
     let d = roll.obs_dim;
-    let truncated: Vec<usize> = venv
-        .transitions()
-        .iter()
-        .enumerate()
-        .filter(|(_, t)| t.truncated && !t.terminated)
-        .map(|(i, _)| i)
-        .collect();
-    if truncated.is_empty() {
+    s.truncated.clear();
+    s.truncated.extend(
+        venv.transitions()
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| t.truncated && !t.terminated)
+            .map(|(i, _)| i),
+    );
+    if s.truncated.is_empty() {
         return;
     }
     s.final_rows.clear();
-    for &i in &truncated {
+    for &i in &s.truncated {
         s.final_rows
             .extend_from_slice(&venv.final_observations()[i * d..(i + 1) * d]);
     }
     let v = policy
         .vf
-        .forward(&s.final_rows, truncated.len(), &mut s.ws_vf);
-    for (k, &i) in truncated.iter().enumerate() {
+        .forward(&s.final_rows, s.truncated.len(), &mut s.ws_vf);
+    for (k, &i) in s.truncated.iter().enumerate() {
         roll.rewards[base + i] += cfg.gamma * v[k];
     }
 }
@@ -279,7 +285,8 @@ pub fn update(
     }
     s.idx.clear();
     s.idx.extend(0..n);
-    s.mb_obs.resize(m * d, 0.0);
+    s.mb_obs_pi.resize(m * d, 0.0);
+    s.mb_obs_vf.resize(m * d, 0.0);
     s.grads_pi.resize(policy.pi.num_params(), 0.0);
     s.grads_vf.resize(policy.vf.num_params(), 0.0);
     s.dy_pi.resize(2 * m, 0.0);
@@ -294,14 +301,12 @@ pub fn update(
             s.idx.swap(i, rng.random_range(0..=i));
         }
         for chunk in s.idx.chunks_exact(m) {
-            for (row, &k) in s.mb_obs.chunks_exact_mut(d).zip(chunk) {
-                row.copy_from_slice(&roll.obs[k * d..(k + 1) * d]);
-            }
             let (pi_part, vf_part) = (
                 (
                     &mut policy.pi,
                     &mut *adam_pi,
                     &mut s.ws_pi,
+                    &mut s.mb_obs_pi,
                     &mut s.grads_pi,
                     &mut s.dy_pi,
                 ),
@@ -309,15 +314,15 @@ pub fn update(
                     &mut policy.vf,
                     &mut *adam_vf,
                     &mut s.ws_vf,
+                    &mut s.mb_obs_vf,
                     &mut s.grads_vf,
                     &mut s.dy_vf,
                 ),
             );
-            let obs = &s.mb_obs;
             let roll_ref = &*roll;
             let (pi_sums, (vf_sum, vf_sq_err)) = rayon::join(
-                || policy_step(cfg, kl_coeff, roll_ref, chunk, obs, pi_part),
-                || value_step(cfg, roll_ref, chunk, obs, vf_part),
+                || policy_step(cfg, kl_coeff, roll_ref, chunk, pi_part),
+                || value_step(cfg, roll_ref, chunk, vf_part),
             );
             let (surr, kl, ent, clipped) = pi_sums;
             if !(surr.is_finite() && kl.is_finite() && vf_sum.is_finite()) {
@@ -360,7 +365,16 @@ type NetPart<'a> = (
     &'a mut MlpWorkspace,
     &'a mut Vec<f32>,
     &'a mut Vec<f32>,
+    &'a mut Vec<f32>,
 );
+
+/// Copies the rows' observations into `obs` (the minibatch, in row order).
+fn gather(roll: &Rollout, rows: &[usize], obs: &mut [f32]) {
+    let d = roll.obs_dim;
+    for (row, &k) in obs.chunks_exact_mut(d).zip(rows) {
+        row.copy_from_slice(&roll.obs[k * d..(k + 1) * d]);
+    }
+}
 
 /// Policy-network step on one minibatch; returns the sums of its terms.
 fn policy_step(
@@ -368,11 +382,11 @@ fn policy_step(
     kl_coeff: f32,
     roll: &Rollout,
     rows: &[usize],
-    obs: &[f32],
     part: NetPart<'_>,
 ) -> PiSums {
-    let (net, adam, ws, grads, dy) = part;
+    let (net, adam, ws, obs, grads, dy) = part;
     let m = rows.len();
+    gather(roll, rows, obs);
     let inv_m = 1.0 / m as f32;
     let (lo, hi) = (1.0 - cfg.clip_param, 1.0 + cfg.clip_param);
     let out = net.forward(obs, m, ws);
@@ -404,15 +418,10 @@ fn policy_step(
 
 /// Value-network step on one minibatch; returns the sums of the clamped (loss) and of the
 /// plain squared errors.
-fn value_step(
-    cfg: &PpoConfig,
-    roll: &Rollout,
-    rows: &[usize],
-    obs: &[f32],
-    part: NetPart<'_>,
-) -> (f64, f64) {
-    let (net, adam, ws, grads, dy) = part;
+fn value_step(cfg: &PpoConfig, roll: &Rollout, rows: &[usize], part: NetPart<'_>) -> (f64, f64) {
+    let (net, adam, ws, obs, grads, dy) = part;
     let m = rows.len();
+    gather(roll, rows, obs);
     let out = net.forward(obs, m, ws);
     let (mut sum, mut sum_sq) = (0.0f64, 0.0f64);
     for (j, &k) in rows.iter().enumerate() {
