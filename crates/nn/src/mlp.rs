@@ -5,7 +5,7 @@
 //! All parameters live in one flat vector, so an optimiser sees a single slice.
 
 use crate::act::Activation;
-use crate::gemm::{gemm, Mat};
+use crate::gemm::{gemm, Mat, SparseRows};
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
@@ -39,6 +39,10 @@ pub struct MlpWorkspace {
     deltas: Vec<Vec<f32>>,
     /// A narrow output layer's W transposed (out x in), then its weight gradient (out x in).
     narrow: Vec<f32>,
+    /// The first layer's input nonzeros, when it is sparse (the policy's observations), and
+    /// whether the last forward pass used them.
+    sparse: SparseRows,
+    sparse_used: bool,
 }
 
 /// Output layers at most this wide skip `sgemm`: its 16 x 16 register tile would compute 8 to
@@ -175,6 +179,7 @@ impl Mlp {
             ws.deltas = sizes[1..].iter().map(|&s| vec![0.0; s * batch]).collect();
             ws.batch = batch;
         }
+        ws.sparse_used = false;
         for l in 0..layers {
             let (inp, out) = (sizes[l], sizes[l + 1]);
             let (w, b) = self.layer(l);
@@ -196,15 +201,23 @@ impl Mlp {
                 }
                 break;
             }
-            gemm(
-                1.0,
-                Mat::new(input, batch, inp),
-                Mat::new(w, inp, out),
-                0.0,
-                y,
-                batch,
-                out,
-            );
+            // A sparse input (the observations' mostly empty bins) skips its zeros.
+            if l == 0 {
+                ws.sparse_used = ws.sparse.build(input, batch, inp);
+            }
+            if l == 0 && ws.sparse_used {
+                ws.sparse.mul(w, out, y);
+            } else {
+                gemm(
+                    1.0,
+                    Mat::new(input, batch, inp),
+                    Mat::new(w, inp, out),
+                    0.0,
+                    y,
+                    batch,
+                    out,
+                );
+            }
             // x·W + b rounds as sgemm's `beta = 1` epilogue did with b preloaded (one
             // rounding of the product's f32 sum plus b), in one pass with the activation.
             if l + 1 < layers {
@@ -264,6 +277,8 @@ impl Mlp {
                         *g += gwt[o * inp + k];
                     }
                 }
+            } else if l == 0 && ws.sparse_used {
+                ws.sparse.t_mul_acc(delta, out, gw);
             } else {
                 gemm(
                     1.0,

@@ -19,7 +19,7 @@ fn close(a: f32, n: f32) -> bool {
 /// Checks every parameter and input gradient of an MLP with these layer sizes, for `batch`
 /// rows (up to 4 rows take the few-rows product, more take `sgemm`; outputs up to 4 wide take
 /// the narrow output layer, wider ones `sgemm`).
-fn check_mlp(hidden: Activation, sizes: &[usize], batch: usize) {
+fn check_mlp(hidden: Activation, sizes: &[usize], batch: usize, sparse_input: bool) {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(1);
     let (n_in, n_out) = (sizes[0], sizes[sizes.len() - 1]);
     let spec = MlpSpec {
@@ -28,7 +28,15 @@ fn check_mlp(hidden: Activation, sizes: &[usize], batch: usize) {
     };
     let mut net = Mlp::new(spec, 1.0, &mut rng);
     let x: Vec<f32> = (0..batch * n_in)
-        .map(|_| rng.random_range(-1.0..1.0))
+        .map(|i| {
+            let v = rng.random_range(-1.0..1.0);
+            // A sparse input (two entries in three zero) takes the first layer's sparse path.
+            if sparse_input && i % 3 != 0 {
+                0.0
+            } else {
+                v
+            }
+        })
         .collect();
     let c: Vec<f32> = (0..batch * n_out)
         .map(|_| rng.random_range(-1.0..1.0))
@@ -86,21 +94,27 @@ fn check_mlp(hidden: Activation, sizes: &[usize], batch: usize) {
 
 #[test]
 fn dense_layers_with_tanh() {
-    check_mlp(Activation::Tanh, &[5, 7, 11, 3], 4);
-    check_mlp(Activation::Tanh, &[5, 7, 11, 3], 9);
-    check_mlp(Activation::Tanh, &[5, 7, 11, 9], 9);
+    check_mlp(Activation::Tanh, &[5, 7, 11, 3], 4, false);
+    check_mlp(Activation::Tanh, &[5, 7, 11, 3], 9, false);
+    check_mlp(Activation::Tanh, &[5, 7, 11, 9], 9, false);
 }
 
 #[test]
 fn dense_layers_with_leaky_relu() {
-    check_mlp(Activation::LeakyRelu(0.01), &[5, 7, 6, 3], 4);
-    check_mlp(Activation::LeakyRelu(0.01), &[5, 7, 11, 2], 9);
+    check_mlp(Activation::LeakyRelu(0.01), &[5, 7, 6, 3], 4, false);
+    check_mlp(Activation::LeakyRelu(0.01), &[5, 7, 11, 2], 9, false);
+}
+
+#[test]
+fn a_sparse_input_takes_the_sparse_first_layer() {
+    check_mlp(Activation::Tanh, &[13, 40, 11, 3], 9, true);
+    check_mlp(Activation::Tanh, &[13, 2], 9, true);
 }
 
 #[test]
 fn a_single_narrow_layer_passes_the_input_gradient() {
-    check_mlp(Activation::Tanh, &[13, 2], 6);
-    check_mlp(Activation::Tanh, &[13, 6], 6);
+    check_mlp(Activation::Tanh, &[13, 2], 6, false);
+    check_mlp(Activation::Tanh, &[13, 6], 6, false);
 }
 
 #[test]
