@@ -154,6 +154,7 @@ const SPARSE_MAX_DENSITY: f32 = 0.5;
 
 /// Output columns the sparse kernels keep in registers at a time: eight AVX vectors, so eight
 /// independent FMA chains hide the FMA latency.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 const CHUNK: usize = 64;
 
 /// The nonzero entries of a row-major matrix A (m x k), listed by row, and the scratch of the
@@ -319,6 +320,7 @@ mod fma {
 }
 
 /// A full chunk of a row as an array reference.
+#[cfg(target_arch = "x86_64")]
 #[inline]
 fn chunk_at(v: &[f32], at: usize) -> &[f32; CHUNK] {
     v[at..at + CHUNK].try_into().expect("CHUNK floats")

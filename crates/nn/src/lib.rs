@@ -7,7 +7,10 @@
 //! Why hand-written: for 2 x 256 MLPs with minibatches of 512, a framework's per-op overhead
 //! dominates; a GEMM crate plus hand-written backward passes keeps the work in the matrix
 //! kernels (the project measured about 4x over candle or burn at these sizes). `fishprobe bench
-//! train` reports GFLOP/s next to the machine's single-core GEMM rate.
+//! train` reports GFLOP/s next to the machine's single-core GEMM rate. Narrow output layers (at
+//! most 4 units) use plain loops, and a first layer with a mostly-zero input (the policy's
+//! observations) visits only the nonzeros, bit-identical to the dense product
+//! ([`gemm::SparseRows`]).
 //!
 //! ```
 //! use fishprobe_nn::{Activation, Adam, Mlp, MlpSpec, MlpWorkspace};
