@@ -338,11 +338,6 @@ fn rows_fma(s: &SparseRows, b: &[f32], n: usize, c: &mut [f32]) {
             let entries = s.start[i]..s.start[i + 1];
             let (idx, val) = (&s.idx[entries.clone()], &s.val[entries]);
             let out = &mut crow[j0..j0 + w];
-            if s.k <= SGEMM_KC {
-                // One block (the policy's 180 inputs): no block boundaries to find.
-                out.copy_from_slice(&block_sum(idx, val, b, n, j0, w)[..w]);
-                continue;
-            }
             let mut t = 0;
             for k0 in (0..s.k).step_by(SGEMM_KC) {
                 let t0 = t;

@@ -262,9 +262,8 @@ impl Mlp {
             let (gw, gb) = grads[o..o + inp * out + out].split_at_mut(inp * out);
             let narrow = l + 1 == layers && out <= NARROW_OUT;
             if narrow {
-                ws.narrow.resize(2 * inp * out, 0.0);
-                let (wt, gwt) = ws.narrow.split_at_mut(inp * out);
-                transpose_into(w, inp, out, wt);
+                // The forward pass left W transposed in the first half of `narrow`.
+                let gwt = &mut ws.narrow[inp * out..2 * inp * out];
                 gwt.fill(0.0);
                 for (xr, dr) in input.chunks_exact(inp).zip(delta.chunks_exact(out)) {
                     for (o, d) in dr.iter().enumerate() {
