@@ -18,18 +18,18 @@ pub struct NamedModel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StudyConfig {
-    /// Preset the budgets came from: smoke, quick or paper.
+    /// Preset the budgets came from: smoke, quick, paper or published.
     pub preset: String,
     /// Master seed of the whole study.
     pub seed: u64,
     /// Candidate models (paper: Follow, Zone, Force, ConvNet).
     pub models: Vec<NamedModel>,
-    /// PPO preset of the training runs (paper, quick, smoke).
+    /// PPO preset of the training runs (paper, published, quick, smoke).
     pub ppo_preset: String,
     /// Environment steps per training run (None: the PPO preset's).
     pub train_steps: Option<u64>,
-    /// PPO epochs per batch (None: the PPO preset's; the paper's 100 fails to learn Zone and
-    /// Force in this simulator where 10 succeeds, see the README's "Does it learn?").
+    /// PPO epochs per batch (None: the PPO preset's: 10 for `paper`, the published 100 for
+    /// `published`; see `fishprobe_learn::PpoConfig::num_sgd_iter` for why they differ).
     #[serde(default)]
     pub ppo_epochs: Option<usize>,
     /// Training seeds per model beyond the first, for the stability analysis (paper: 5).
@@ -70,8 +70,10 @@ fn paper_models() -> Vec<NamedModel> {
 }
 
 impl StudyConfig {
-    /// A preset: `paper` (the published protocol), `quick` (the README's default: a complete
-    /// study in minutes) or `smoke` (tiny, for tests).
+    /// A preset: `paper` (the published protocol, with PPO's `paper` preset: 10 epochs per
+    /// batch), `published` (the same with the published 100 epochs, whose π_Zone and π_Force
+    /// do not learn in this simulator), `quick` (the README's default: a complete study in
+    /// minutes) or `smoke` (tiny, for tests).
     pub fn preset(name: &str) -> Option<Self> {
         let paper = Self {
             preset: "paper".into(),
@@ -93,6 +95,11 @@ impl StudyConfig {
             convnet_max_epochs: 30,
         };
         match name {
+            "published" => Some(Self {
+                preset: "published".into(),
+                ppo_preset: "published".into(),
+                ..paper
+            }),
             "paper" => Some(paper),
             "quick" => Some(Self {
                 preset: "quick".into(),
@@ -124,6 +131,19 @@ impl StudyConfig {
             }),
             _ => None,
         }
+    }
+
+    /// The PPO settings of every training run: the PPO preset with the study's overrides of
+    /// steps and epochs (None: an unknown PPO preset).
+    pub fn ppo(&self) -> Option<fishprobe_learn::PpoConfig> {
+        let mut ppo = fishprobe_learn::PpoConfig::preset(&self.ppo_preset)?;
+        if let Some(n) = self.train_steps {
+            ppo.total_timesteps = n;
+        }
+        if let Some(e) = self.ppo_epochs {
+            ppo.num_sgd_iter = e;
+        }
+        Some(ppo)
     }
 
     /// Checks the settings before any work starts.
@@ -160,7 +180,7 @@ impl StudyConfig {
         }
         if fishprobe_learn::PpoConfig::preset(&self.ppo_preset).is_none() {
             return Err(format!(
-                "ppo_preset `{}`: use paper, quick or smoke",
+                "ppo_preset `{}`: use paper, published, quick or smoke",
                 self.ppo_preset
             ));
         }
@@ -222,8 +242,9 @@ impl StudyFile {
     /// Applies the file on top of a preset.
     pub fn apply(self, preset: &str) -> Result<StudyConfig, String> {
         let name = self.preset.as_deref().unwrap_or(preset);
-        let mut c = StudyConfig::preset(name)
-            .ok_or_else(|| format!("unknown preset `{name}`: use smoke, quick or paper"))?;
+        let mut c = StudyConfig::preset(name).ok_or_else(|| {
+            format!("unknown preset `{name}`: use smoke, quick, paper or published")
+        })?;
         if let Some(s) = self.seed {
             c.seed = s;
         }
@@ -262,7 +283,7 @@ mod tests {
 
     #[test]
     fn presets_are_valid_and_a_study_file_adds_variants() {
-        for p in ["smoke", "quick", "paper"] {
+        for p in ["smoke", "quick", "paper", "published"] {
             StudyConfig::preset(p).unwrap().validate().unwrap();
         }
         let f: StudyFile = toml_like(

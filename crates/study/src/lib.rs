@@ -279,14 +279,10 @@ impl Study {
                 serde_json::json!({"fit_convnet": self.convnet_data, "seed": c.seed,
                     "epochs": c.convnet_max_epochs})
             }
+            // The resolved PPO settings, not the preset's name: a preset whose values change
+            // (the `paper` preset's epochs went from 100 to 10) must not pass for the old one.
             StepKind::Train { m, k } => {
-                let mut v = serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
-                "ppo": c.ppo_preset, "steps": c.train_steps});
-                // Only when set, so that studies made before the field existed keep their hashes.
-                if let Some(e) = c.ppo_epochs {
-                    v["epochs"] = e.into();
-                }
-                v
+                serde_json::json!({"train": model(*m), "k": k, "seed": c.seed, "ppo": c.ppo()})
             }
             StepKind::Eval { p, m } => {
                 serde_json::json!({"eval": [self.name(*p), model(*m)], "seed": c.seed,
@@ -654,22 +650,32 @@ mod tests {
     }
 
     #[test]
-    fn ppo_epochs_changes_the_training_and_what_follows_but_old_markers_stay_valid() {
-        let cfg = StudyConfig::preset("paper").unwrap();
-        let plan = Study::new("/tmp/x".into(), cfg.clone(), None)
-            .unwrap()
-            .plan();
-        // The marker that fishprobe 0.1.0 wrote for this step before `ppo_epochs` existed:
-        // a study started then resumes without retraining.
-        let follow = plan.iter().find(|s| s.id == "train-Follow-0").unwrap();
-        assert_eq!(format!("{:016x}", follow.hash), "7b2a1ef96103b6b1");
-        let mut cfg2 = cfg;
-        cfg2.ppo_epochs = Some(10);
-        let plan2 = Study::new("/tmp/x".into(), cfg2, None).unwrap().plan();
-        for (a, b) in plan.iter().zip(&plan2) {
+    fn training_hashes_follow_the_resolved_ppo_settings_not_the_preset_name() {
+        let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
+        let paper = StudyConfig::preset("paper").unwrap();
+        let base = plan(paper.clone());
+        // Setting the epochs the preset already has changes nothing.
+        let mut same = paper.clone();
+        same.ppo_epochs = Some(10);
+        for (a, b) in base.iter().zip(&plan(same)) {
+            assert_eq!(a.hash, b.hash, "{}", a.id);
+        }
+        // The published epochs, by override or by preset, change the training and all that
+        // follows it, and nothing else; both ways give the same training.
+        let mut hundred = paper.clone();
+        hundred.ppo_epochs = Some(100);
+        let published = StudyConfig::preset("published").unwrap();
+        for (a, (b, c)) in base.iter().zip(plan(hundred).iter().zip(&plan(published))) {
             let downstream = !a.id.starts_with("fit-convnet");
             assert_eq!(a.hash != b.hash, downstream, "{}", a.id);
+            if a.id.starts_with("train-") {
+                assert_eq!(b.hash, c.hash, "{}", a.id);
+            }
         }
+        // A marker written by fishprobe 0.1.0, when the `paper` preset meant 100 epochs and the
+        // hash held only the preset's name, no longer passes for a `paper` training.
+        let follow = base.iter().find(|s| s.id == "train-Follow-0").unwrap();
+        assert_ne!(format!("{:016x}", follow.hash), "7b2a1ef96103b6b1");
     }
 
     #[test]

@@ -2,7 +2,7 @@
 
 use crate::pilot::PolicyPilot;
 use crate::{commit_dir, Step, StepKind, Study};
-use fishprobe_learn::{controller, Evaluation, PpoConfig, RunSpec, Trainer};
+use fishprobe_learn::{controller, Evaluation, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, ServeOptions};
 use fishprobe_live::session::{LiveConfig, Pilot};
@@ -106,13 +106,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
             commit_dir(&tmp, &out)
         }
         StepKind::Train { m, k } => {
-            let mut ppo = PpoConfig::preset(&c.ppo_preset).ok_or("unknown PPO preset")?;
-            if let Some(n) = c.train_steps {
-                ppo.total_timesteps = n;
-            }
-            if let Some(e) = c.ppo_epochs {
-                ppo.num_sgd_iter = e;
-            }
+            let ppo = c.ppo().ok_or("unknown PPO preset")?;
             let spec = RunSpec {
                 ppo,
                 env: EnvConfig::default(),

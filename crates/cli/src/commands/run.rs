@@ -13,8 +13,9 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Budget: `quick` (a complete study in minutes), `paper` (the published protocol, hours)
-    /// or `smoke` (tiny, for tests).
+    /// Budget: `quick` (a complete study in minutes), `paper` (the published protocol with 10
+    /// PPO epochs per batch, about an hour), `published` (the same with the published 100
+    /// epochs, hours) or `smoke` (tiny, for tests).
     #[arg(long, default_value = "quick")]
     preset: String,
     /// Study file (TOML): overrides of the preset and extra models, e.g.
@@ -64,7 +65,10 @@ pub fn run(a: RunArgs) -> Result<()> {
                 .with_context(|| format!("study file {}", p.display()))?
         }
         None => StudyConfig::preset(&a.preset).with_context(|| {
-            format!("unknown --preset `{}`: use smoke, quick or paper", a.preset)
+            format!(
+                "unknown --preset `{}`: use smoke, quick, paper or published",
+                a.preset
+            )
         })?,
     };
     if let Some(s) = a.seed {

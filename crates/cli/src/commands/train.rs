@@ -21,8 +21,9 @@ pub struct TrainArgs {
     /// Run directory (params.json, progress.csv, result.json, checkpoints/, policy.safetensors).
     #[arg(long)]
     out: PathBuf,
-    /// `paper` (832,300 steps, 100 epochs per batch), `quick` (200,000 steps, 10 epochs) or
-    /// `smoke` (a few thousand steps of a small network).
+    /// `paper` (the published settings with 10 epochs per batch instead of 100: see the
+    /// README's "Does it learn?"), `published` (exactly the published settings, 100 epochs),
+    /// `quick` (200,000 steps) or `smoke` (a few thousand steps of a small network).
     #[arg(long, default_value = "paper")]
     preset: String,
     /// Override the number of environment steps.
@@ -51,7 +52,10 @@ pub fn run(a: TrainArgs) -> Result<()> {
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
         let Some(mut ppo) = PpoConfig::preset(&a.preset) else {
-            bail!("unknown --preset `{}`: use paper, quick or smoke", a.preset);
+            bail!(
+                "unknown --preset `{}`: use paper, published, quick or smoke",
+                a.preset
+            );
         };
         if let Some(p) = &a.ppo {
             ppo = ppo_overrides(ppo, p)?;
