@@ -7,6 +7,12 @@
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+/// Kernel tap j of a kernel centred on `half` reads the input `shift_of(j, half, len)`
+/// positions ahead, wrapped: (j - half) mod len.
+fn shift_of(j: usize, half: usize, len: usize) -> usize {
+    (j + len - half % len) % len
+}
+
 /// A circular 1-D convolution's parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Conv1d {
@@ -58,10 +64,16 @@ impl Conv1d {
                     let xi = &xin[i * len..(i + 1) * len];
                     for j in 0..self.k {
                         let wv = w[(o * self.c_in + i) * self.k + j];
-                        // Source index t + j - half, wrapped.
-                        let shift = (j + len - half % len) % len;
-                        for (t, yt) in yo.iter_mut().enumerate() {
-                            *yt += wv * xi[(t + shift) % len];
+                        // Source index t + j - half, wrapped: the output's first len - shift
+                        // positions read xi[shift..], the rest xi[..shift] (no division per
+                        // element, so the loops vectorise; same operations in the same order).
+                        let (head, tail) = yo.split_at_mut(len - shift_of(j, half, len));
+                        let (x_tail, x_head) = xi.split_at(len - head.len());
+                        for (yt, xv) in head.iter_mut().zip(x_head) {
+                            *yt += wv * xv;
+                        }
+                        for (yt, xv) in tail.iter_mut().zip(x_tail) {
+                            *yt += wv * xv;
                         }
                     }
                 }
@@ -95,18 +107,27 @@ impl Conv1d {
                 for i in 0..self.c_in {
                     let xi = &xin[i * len..(i + 1) * len];
                     for j in 0..self.k {
-                        let shift = (j + len - half % len) % len;
+                        let shift = shift_of(j, half, len);
                         let idx = (o * self.c_in + i) * self.k + j;
-                        grads[idx] += d
+                        // As in `forward`: position t reads (t + shift) mod len.
+                        let (d_head, d_tail) = d.split_at(len - shift);
+                        let (x_tail, x_head) = xi.split_at(shift);
+                        grads[idx] += d_head
                             .iter()
-                            .enumerate()
-                            .map(|(t, dv)| dv * xi[(t + shift) % len])
+                            .zip(x_head)
+                            .chain(d_tail.iter().zip(x_tail))
+                            .map(|(dv, xv)| dv * xv)
                             .sum::<f32>();
                         if let Some(dxv) = dx.as_deref_mut() {
                             let dxi =
                                 &mut dxv[(n * self.c_in + i) * len..(n * self.c_in + i + 1) * len];
-                            for (t, dv) in d.iter().enumerate() {
-                                dxi[(t + shift) % len] += w[idx] * dv;
+                            let (dx_tail, dx_head) = dxi.split_at_mut(shift);
+                            for (dxt, dv) in dx_head
+                                .iter_mut()
+                                .zip(d_head)
+                                .chain(dx_tail.iter_mut().zip(d_tail))
+                            {
+                                *dxt += w[idx] * dv;
                             }
                         }
                     }
