@@ -369,7 +369,9 @@ fishprobe_sim::documented_params! {
 #[derive(Debug)]
 pub struct ConvNetFish {
     net: ConvNet,
-    scratch: Mutex<(Vec<f32>, ConvNetWorkspace)>,
+    /// Input and workspace buffers, one set per concurrent `infer_batch` call (the vector
+    /// environment calls it from every core at once); a call takes the first free set.
+    scratch: Vec<Mutex<(Vec<f32>, ConvNetWorkspace)>>,
 }
 
 impl ConvNetFish {
@@ -387,7 +389,9 @@ impl ConvNetFish {
     pub fn from_net(net: ConvNet) -> Self {
         Self {
             net,
-            scratch: Mutex::new((Vec::new(), ConvNetWorkspace::default())),
+            scratch: (0..std::thread::available_parallelism().map_or(1, |n| n.get()))
+                .map(|_| Mutex::new((Vec::new(), ConvNetWorkspace::default())))
+                .collect(),
         }
     }
 
@@ -410,8 +414,17 @@ impl FishModel for ConvNetFish {
         let arch = &self.net.arch;
         let len = arch.view_len();
         // A poisoned lock only means another thread panicked mid-inference; the buffers are
-        // overwritten below, so they are still usable.
-        let mut guard = self.scratch.lock().unwrap_or_else(|p| p.into_inner());
+        // overwritten below, so they are still usable. When every set is busy (more callers
+        // than cores), wait for the first.
+        let mut guard = self
+            .scratch
+            .iter()
+            .find_map(|m| match m.try_lock() {
+                Ok(g) => Some(g),
+                Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
+                Err(std::sync::TryLockError::WouldBlock) => None,
+            })
+            .unwrap_or_else(|| self.scratch[0].lock().unwrap_or_else(|p| p.into_inner()));
         let (x, ws) = &mut *guard;
         x.resize(views.len() * len, 0.0);
         for (v, row) in views.iter().zip(x.chunks_exact_mut(len)) {
@@ -467,6 +480,34 @@ mod tests {
         assert!(v0 <= 5.5 && 5.5 < v0 + dv && w0 <= 0.3 && 0.3 < w0 + dw);
         assert_eq!(a.cell_of(-3.0, -50.0), 0);
         assert_eq!(a.cell_of(99.0, 50.0), a.cells() - 1);
+    }
+
+    #[test]
+    fn a_fish_inference_does_not_depend_on_its_batch_beyond_four_fish() {
+        // The vector environment splits a frame's batch across cores in parts of at least 16.
+        let fish = ConvNetFish::from_net(ConvNet::shipped().unwrap());
+        let tank = Tank::new(&fishprobe_sim::TankParams::default());
+        let views: Vec<FishView> = (0..40)
+            .map(|i| {
+                let f = i as f32;
+                let me = AgentState::at(-40.0 + 2.0 * f, 30.0 - 1.5 * f, 0.3 * f - 3.0);
+                let robot = AgentState::at(10.0 - f, 5.0 + 0.5 * f, 1.0);
+                FishView::build(0, &[me], &[robot], tank, 0.04, f)
+            })
+            .collect();
+        let w = fish.inference_width();
+        let mut whole = vec![0.0; views.len() * w];
+        fish.infer_batch(&views, &mut whole);
+        for cut in [5, 16, 20, 33] {
+            let mut parts = vec![0.0; views.len() * w];
+            let (a, b) = parts.split_at_mut(cut * w);
+            fish.infer_batch(&views[..cut], a);
+            fish.infer_batch(&views[cut..], b);
+            assert!(
+                whole.iter().zip(&parts).all(|(x, y)| x.to_bits() == y.to_bits()),
+                "split at {cut}"
+            );
+        }
     }
 
     #[test]

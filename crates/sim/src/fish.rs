@@ -122,7 +122,9 @@ pub trait FishModel: Send + Sync + std::fmt::Debug {
     }
 
     /// Batched inference for `views.len()` fish into `out` (`inference_width` floats each).
-    /// Must be a pure function of the views.
+    /// Must be a pure function of each fish's own view: a fish's output may not depend on the
+    /// other fish in the batch, because the vector environment splits the batch across cores
+    /// (calling this concurrently from several threads).
     fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
         let _ = (views, out);
     }
