@@ -504,7 +504,10 @@ mod tests {
             fish.infer_batch(&views[..cut], a);
             fish.infer_batch(&views[cut..], b);
             assert!(
-                whole.iter().zip(&parts).all(|(x, y)| x.to_bits() == y.to_bits()),
+                whole
+                    .iter()
+                    .zip(&parts)
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
                 "split at {cut}"
             );
         }

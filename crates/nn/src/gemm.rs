@@ -157,6 +157,14 @@ const SPARSE_MAX_DENSITY: f32 = 0.5;
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 const CHUNK: usize = 64;
 
+/// Rows (or, for Aᵀ·D, columns of A) per register block and output columns per panel of the
+/// dense-prefix kernels: 4 x 16 floats are eight AVX accumulators, and each loaded vector of
+/// the other operand serves four of them.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+const RB: usize = 4;
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+const PW: usize = 16;
+
 /// The nonzero entries of a row-major matrix A (m x k), listed by row, and the scratch of the
 /// by-column lists [`SparseRows::t_mul_acc`] makes from them; reused across calls.
 #[derive(Debug, Clone, Default)]
@@ -168,6 +176,10 @@ pub struct SparseRows {
     val: Vec<f32>,
     /// Where each row's entries start (m + 1 values).
     start: Vec<usize>,
+    /// How many leading columns are nonzero in every row (the observation's 36 wall rays):
+    /// there A is dense, and the products share each load of the other operand between four
+    /// rows or columns of A.
+    dense: usize,
     /// The entries of one block of rows by column: row index, value, column starts.
     col_idx: Vec<u32>,
     col_val: Vec<f32>,
@@ -220,6 +232,16 @@ impl SparseRows {
             }
         }
         self.start[m] = len;
+        self.dense = (0..m)
+            .map(|i| {
+                let row = &self.idx[self.start[i]..self.start[i + 1]];
+                row.iter()
+                    .enumerate()
+                    .take_while(|(t, j)| **j as usize == *t)
+                    .count()
+            })
+            .min()
+            .unwrap_or(0);
         true
     }
 
@@ -243,14 +265,28 @@ impl SparseRows {
     pub fn t_mul_acc(&mut self, d: &[f32], n: usize, c: &mut [f32]) {
         let (m, k) = (self.m, self.k);
         assert!(d.len() >= m * n && c.len() >= k * n);
+        // Leading dense columns of A, in whole blocks of RB, go through the dense-prefix kernel;
+        // the rest through by-column lists of their nonzeros.
+        let handled = if n.is_multiple_of(PW) {
+            self.dense / RB * RB
+        } else {
+            0
+        };
         // sgemm's inner dimension is m here: one pass per block of SGEMM_KC rows of A.
         for r0 in (0..m).step_by(SGEMM_KC) {
             let r1 = (r0 + SGEMM_KC).min(m);
+            if handled > 0 {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `build` succeeded, so the CPU has AVX2 and FMA.
+                unsafe {
+                    cols_dense_prefix(self, d, n, &mut c[..k * n], r0..r1, handled);
+                }
+            }
             let entries = self.start[r0]..self.start[r1];
             self.col_start.clear();
             self.col_start.resize(k + 1, 0);
             for &j in &self.idx[entries.clone()] {
-                self.col_start[j as usize + 1] += 1;
+                self.col_start[j as usize + 1] += usize::from(j as usize >= handled);
             }
             for j in 0..k {
                 self.col_start[j + 1] += self.col_start[j];
@@ -260,7 +296,7 @@ impl SparseRows {
             self.fill.clear();
             self.fill.extend_from_slice(&self.col_start[..k]);
             for i in r0..r1 {
-                for e in self.start[i]..self.start[i + 1] {
+                for e in self.start[i] + handled..self.start[i + 1] {
                     let j = self.idx[e] as usize;
                     self.col_idx[self.fill[j]] = i as u32;
                     self.col_val[self.fill[j]] = self.val[e];
@@ -270,7 +306,7 @@ impl SparseRows {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `build` succeeded, so the CPU has AVX2 and FMA.
             unsafe {
-                cols_fma(self, d, n, &mut c[..k * n]);
+                cols_fma(self, d, n, &mut c[..k * n], handled);
             }
         }
     }
@@ -278,8 +314,9 @@ impl SparseRows {
 
 #[cfg(target_arch = "x86_64")]
 mod fma {
-    //! The sparse kernels' vector arithmetic: CHUNK / 8 AVX vectors of accumulators.
-    use super::CHUNK;
+    //! The sparse kernels' vector arithmetic: CHUNK / 8 AVX vectors of accumulators, or PW / 8
+    //! for the dense-prefix kernels.
+    use super::{CHUNK, PW};
     use std::arch::x86_64::{
         __m256, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_set1_ps, _mm256_setzero_ps,
         _mm256_storeu_ps,
@@ -304,6 +341,48 @@ mod fma {
             let xv = unsafe { _mm256_loadu_ps(x[8 * q..].as_ptr()) };
             *a = _mm256_fmadd_ps(vv, xv, *a);
         }
+    }
+
+    /// PW accumulators, or PW floats of the other operand, in registers.
+    pub type Pair = [__m256; PW / 8];
+
+    #[target_feature(enable = "avx2,fma")]
+    #[inline]
+    pub fn zero_pair() -> Pair {
+        [_mm256_setzero_ps(); PW / 8]
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    #[inline]
+    pub fn load_pair(x: &[f32; PW]) -> Pair {
+        // SAFETY: x holds PW = 16 floats; these read 8 from 0 and 8 from 8.
+        unsafe {
+            [
+                _mm256_loadu_ps(x.as_ptr()),
+                _mm256_loadu_ps(x[8..].as_ptr()),
+            ]
+        }
+    }
+
+    /// acc = v · x + acc, elementwise with FMA.
+    #[target_feature(enable = "avx2,fma")]
+    #[inline]
+    pub fn fma_pair(acc: &mut Pair, v: f32, x: &Pair) {
+        let vv = _mm256_set1_ps(v);
+        acc[0] = _mm256_fmadd_ps(vv, x[0], acc[0]);
+        acc[1] = _mm256_fmadd_ps(vv, x[1], acc[1]);
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    #[inline]
+    pub fn store_pair(acc: &Pair) -> [f32; PW] {
+        let mut out = [0.0f32; PW];
+        // SAFETY: out holds PW = 16 floats; these write 8 from 0 and 8 from 8.
+        unsafe {
+            _mm256_storeu_ps(out.as_mut_ptr(), acc[0]);
+            _mm256_storeu_ps(out[8..].as_mut_ptr(), acc[1]);
+        }
+        out
     }
 
     /// The accumulators as floats.
@@ -332,9 +411,17 @@ fn chunk_at(v: &[f32], at: usize) -> &[f32; CHUNK] {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn rows_fma(s: &SparseRows, b: &[f32], n: usize, c: &mut [f32]) {
+    // Whole blocks of RB rows whose dense prefix can share loads of B, when the inner dimension
+    // is one sgemm block; the other rows one at a time.
+    let blocked = if s.dense > 0 && s.k <= SGEMM_KC && n.is_multiple_of(PW) {
+        s.m / RB * RB
+    } else {
+        0
+    };
+    rows_dense_prefix(s, b, n, &mut c[..blocked * n]);
     for j0 in (0..n).step_by(CHUNK) {
         let w = CHUNK.min(n - j0);
-        for (i, crow) in c.chunks_exact_mut(n).enumerate() {
+        for (i, crow) in c.chunks_exact_mut(n).enumerate().skip(blocked) {
             let entries = s.start[i]..s.start[i + 1];
             let (idx, val) = (&s.idx[entries.clone()], &s.val[entries]);
             let out = &mut crow[j0..j0 + w];
@@ -355,14 +442,85 @@ fn rows_fma(s: &SparseRows, b: &[f32], n: usize, c: &mut [f32]) {
     }
 }
 
-/// Row j of C += Σ over column j's entries (row order) of value · row `idx` of D,
-/// FMA-accumulated, then added; column panels outer.
+/// PW floats of a row as an array reference.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn panel_at(v: &[f32], at: usize) -> &[f32; PW] {
+    v[at..at + PW].try_into().expect("PW floats")
+}
+
+/// `rows_fma` for the rows of `c` (a multiple of RB; the inner dimension one sgemm block, n a
+/// multiple of PW): RB rows at a time, their dense prefixes sharing each load of B, then each
+/// row's remaining entries. Every element is still one FMA chain from zero over its row's
+/// entries in index order, as in `block_sum`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn cols_fma(s: &SparseRows, d: &[f32], n: usize, c: &mut [f32]) {
+fn rows_dense_prefix(s: &SparseRows, b: &[f32], n: usize, c: &mut [f32]) {
+    let p = s.dense;
+    for j0 in (0..n).step_by(PW) {
+        for (g, cblock) in c.chunks_exact_mut(RB * n).enumerate() {
+            let first = &s.start[g * RB..g * RB + RB + 1];
+            let mut acc = [fma::zero_pair(); RB];
+            for kk in 0..p {
+                let x = fma::load_pair(panel_at(b, kk * n + j0));
+                for (a, &st) in acc.iter_mut().zip(first) {
+                    fma::fma_pair(a, s.val[st + kk], &x);
+                }
+            }
+            for (r, a) in acc.iter_mut().enumerate() {
+                let tail = first[r] + p..first[r + 1];
+                for (&j, &v) in s.idx[tail.clone()].iter().zip(&s.val[tail]) {
+                    fma::fma_pair(a, v, &fma::load_pair(panel_at(b, j as usize * n + j0)));
+                }
+                cblock[r * n + j0..r * n + j0 + PW].copy_from_slice(&fma::store_pair(a));
+            }
+        }
+    }
+}
+
+/// Rows 0..handled of C (A's dense leading columns, a multiple of RB) += Σ over the rows of
+/// the block (in order) of A's value · that row of D, RB columns of A at a time sharing each
+/// load of D; each element's block sum is one FMA chain from zero, then added, as in
+/// `cols_fma`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn cols_dense_prefix(
+    s: &SparseRows,
+    d: &[f32],
+    n: usize,
+    c: &mut [f32],
+    rows: std::ops::Range<usize>,
+    handled: usize,
+) {
+    for j0 in (0..n).step_by(PW) {
+        for f0 in (0..handled).step_by(RB) {
+            let mut acc = [fma::zero_pair(); RB];
+            for i in rows.clone() {
+                let x = fma::load_pair(panel_at(d, i * n + j0));
+                let v = &s.val[s.start[i] + f0..s.start[i] + f0 + RB];
+                for (a, &v) in acc.iter_mut().zip(v) {
+                    fma::fma_pair(a, v, &x);
+                }
+            }
+            for (f, a) in acc.iter().enumerate() {
+                let sum = fma::store_pair(a);
+                c[(f0 + f) * n + j0..(f0 + f) * n + j0 + PW]
+                    .iter_mut()
+                    .zip(&sum)
+                    .for_each(|(o, x)| *o += x);
+            }
+        }
+    }
+}
+
+/// Row j of C += Σ over column j's entries (row order) of value · row `idx` of D,
+/// FMA-accumulated, then added, for the columns j from `handled` on; column panels outer.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn cols_fma(s: &SparseRows, d: &[f32], n: usize, c: &mut [f32], handled: usize) {
     for j0 in (0..n).step_by(CHUNK) {
         let w = CHUNK.min(n - j0);
-        for (j, crow) in c.chunks_exact_mut(n).enumerate().take(s.k) {
+        for (j, crow) in c.chunks_exact_mut(n).enumerate().take(s.k).skip(handled) {
             let entries = s.col_start[j]..s.col_start[j + 1];
             let sum = block_sum(
                 &s.col_idx[entries.clone()],
@@ -430,8 +588,22 @@ mod tests {
     fn sparse_products_give_sgemm_bit_for_bit() {
         // Shapes: the policy's first layer, an inner dimension past sgemm's 256-block, and
         // output widths that are not a multiple of the register chunk.
-        for (m, k, n) in [(512, 180, 256), (37, 300, 45), (600, 13, 70)] {
-            let a = sparse_matrix(m, k, 1);
+        // With `dense` leading columns nonzero in every row (an observation's wall rays), the
+        // dense-prefix kernels run where the shapes allow.
+        for (m, k, n, dense) in [
+            (512, 180, 256, 0),
+            (512, 180, 256, 36),
+            (37, 300, 45, 0),
+            (37, 300, 48, 10),
+            (600, 13, 70, 3),
+            (9, 50, 32, 7),
+        ] {
+            let mut a = sparse_matrix(m, k, 1);
+            for (i, row) in a.chunks_exact_mut(k).enumerate() {
+                for (j, v) in row[..dense].iter_mut().enumerate() {
+                    *v = 0.25 + ((i * 7 + j * 3) % 11) as f32 / 13.0;
+                }
+            }
             let b: Vec<f32> = (0..k * n)
                 .map(|i| ((i * 31 % 97) as f32 - 48.0) / 17.0)
                 .collect();
@@ -444,6 +616,11 @@ mod tests {
             if !ran {
                 continue;
             }
+            assert!(
+                s.dense >= dense,
+                "{} dense columns found of {dense}",
+                s.dense
+            );
             let mut dense = vec![0.0f32; m * n];
             let (am, bm) = (Mat::new(&a, m, k), Mat::new(&b, k, n));
             gemm(1.0, am, bm, 0.0, &mut dense, m, n);
@@ -451,7 +628,8 @@ mod tests {
             s.mul(&b, n, &mut sparse);
             assert!(
                 same_bits(&dense, &sparse),
-                "A·B ({m}x{k}x{n}) differs from sgemm"
+                "A·B ({m}x{k}x{n}, {} dense columns) differs from sgemm",
+                s.dense
             );
 
             let start: Vec<f32> = (0..k * n).map(|i| (i % 7) as f32 * 0.1).collect();
@@ -461,7 +639,8 @@ mod tests {
             s.t_mul_acc(&d, n, &mut sparse);
             assert!(
                 same_bits(&dense, &sparse),
-                "C + Aᵀ·D ({m}x{k}x{n}) differs from sgemm"
+                "C + Aᵀ·D ({m}x{k}x{n}, {} dense columns) differs from sgemm",
+                s.dense
             );
         }
         // Too dense, or too few rows: declined.
