@@ -1,7 +1,8 @@
 //! Matrix multiply through `matrixmultiply::sgemm`, behind a safe, checked interface, and the
 //! two products of a network's first layer with a sparse input ([`SparseRows`]).
 //!
-//! This is the only `unsafe` code in fishprobe's libraries: `sgemm` takes raw pointers and
+//! This is nearly all the `unsafe` code in fishprobe's libraries (the rest: `Mlp::forward` and
+//! `Mlp::backward` calling their AVX2-compiled copies after the same CPU check): `sgemm` takes raw pointers and
 //! strides. Every call goes through [`gemm`], which checks that each operand's slice covers
 //! every element its dimensions and strides address before handing the pointers over. The
 //! sparse products use AVX2/FMA intrinsics: they run only after a run-time check that the CPU
@@ -189,6 +190,12 @@ pub struct SparseRows {
 
 /// Whether the sparse products run on this CPU (x86-64 with AVX2 and FMA).
 pub fn sparse_supported() -> bool {
+    avx2_fma_supported()
+}
+
+/// Whether this CPU is x86-64 with AVX2 and FMA (checked once, then cached by the standard
+/// library).
+pub fn avx2_fma_supported() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")

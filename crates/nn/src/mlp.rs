@@ -171,7 +171,28 @@ impl Mlp {
     }
 
     /// Forward pass for `batch` rows of `x`; returns the output (`batch x out`), kept in `ws`.
+    #[allow(unsafe_code)]
     pub fn forward<'w>(&self, x: &[f32], batch: usize, ws: &'w mut MlpWorkspace) -> &'w [f32] {
+        #[cfg(target_arch = "x86_64")]
+        if crate::gemm::avx2_fma_supported() {
+            // SAFETY: the CPU has AVX2 and FMA, checked just above.
+            return unsafe { self.forward_avx2(x, batch, ws) };
+        }
+        self.forward_any(x, batch, ws)
+    }
+
+    /// [`Mlp::forward`] compiled for AVX2 and FMA, so that its bias, activation and
+    /// narrow-layer loops run 8 floats wide instead of the default target's 4. The code is
+    /// the same and Rust never fuses a multiply and an add by itself, so the results are the
+    /// same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn forward_avx2<'w>(&self, x: &[f32], batch: usize, ws: &'w mut MlpWorkspace) -> &'w [f32] {
+        self.forward_any(x, batch, ws)
+    }
+
+    #[inline(always)]
+    fn forward_any<'w>(&self, x: &[f32], batch: usize, ws: &'w mut MlpWorkspace) -> &'w [f32] {
         let sizes = &self.spec.sizes;
         let layers = sizes.len() - 1;
         if ws.outs.len() != layers || ws.batch < batch {
@@ -234,7 +255,41 @@ impl Mlp {
     /// Backward pass after `forward` on the same `x`: adds the parameter gradients of
     /// `sum(dy · output)` into `grads` (length `num_params`). With `dx`, also writes the
     /// gradient with respect to the input.
+    #[allow(unsafe_code)]
     pub fn backward(
+        &self,
+        x: &[f32],
+        batch: usize,
+        dy: &[f32],
+        ws: &mut MlpWorkspace,
+        grads: &mut [f32],
+        dx: Option<&mut [f32]>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::gemm::avx2_fma_supported() {
+            // SAFETY: the CPU has AVX2 and FMA, checked just above.
+            return unsafe { self.backward_avx2(x, batch, dy, ws, grads, dx) };
+        }
+        self.backward_any(x, batch, dy, ws, grads, dx)
+    }
+
+    /// [`Mlp::backward`] compiled for AVX2 and FMA (see [`Mlp::forward`]'s counterpart).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn backward_avx2(
+        &self,
+        x: &[f32],
+        batch: usize,
+        dy: &[f32],
+        ws: &mut MlpWorkspace,
+        grads: &mut [f32],
+        dx: Option<&mut [f32]>,
+    ) {
+        self.backward_any(x, batch, dy, ws, grads, dx)
+    }
+
+    #[inline(always)]
+    fn backward_any(
         &self,
         x: &[f32],
         batch: usize,
