@@ -215,7 +215,13 @@ impl VecEnv {
                     v.copy_from_slice(env.views());
                 });
             // Split across cores; see `infer_split`.
-            infer_split(&*model, &self.views, &mut self.inferred, width);
+            infer_split(
+                &*model,
+                &self.views,
+                &mut self.inferred,
+                width,
+                rayon::current_num_threads(),
+            );
             self.envs
                 .par_iter_mut()
                 .zip(self.inferred.par_chunks(fish * width))
@@ -252,22 +258,28 @@ impl VecEnv {
 }
 
 /// Fewest fish per inference call when the vector environment splits a frame's batch across
-/// cores. The split halves the batch while both halves keep at least this many, so it depends
-/// only on the batch size, never on the number of threads; and a batched GEMM gives each row
-/// the same bits in any batch of more than 4 rows (`fishprobe_nn::gemm`), so with halves this
-/// large the split does not change results either.
+/// cores. A batched GEMM gives each row the same bits in any batch of more than 4 rows
+/// (`fishprobe_nn::gemm`), so with parts this large the split, which follows the number of
+/// threads, never changes results.
 const MIN_FISH_PER_INFERENCE: usize = 16;
 
-/// `model.infer_batch` over `views`, split in halves run in parallel (see
-/// [`MIN_FISH_PER_INFERENCE`]).
-fn infer_split(model: &dyn FishModel, views: &[FishView], out: &mut [f32], width: usize) {
-    if views.len() >= 2 * MIN_FISH_PER_INFERENCE {
+/// `model.infer_batch` over `views`, halved recursively into at most `parts` parts (one per
+/// core: each call packs the network's weights, so more parts than cores only cost) that run
+/// in parallel, each of at least [`MIN_FISH_PER_INFERENCE`] fish.
+fn infer_split(
+    model: &dyn FishModel,
+    views: &[FishView],
+    out: &mut [f32],
+    width: usize,
+    parts: usize,
+) {
+    if parts >= 2 && views.len() >= 2 * MIN_FISH_PER_INFERENCE {
         let mid = views.len() / 2;
         let (va, vb) = views.split_at(mid);
         let (oa, ob) = out.split_at_mut(mid * width);
         rayon::join(
-            || infer_split(model, va, oa, width),
-            || infer_split(model, vb, ob, width),
+            || infer_split(model, va, oa, width, parts / 2),
+            || infer_split(model, vb, ob, width, parts - parts / 2),
         );
     } else {
         model.infer_batch(views, out);
