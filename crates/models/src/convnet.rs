@@ -13,7 +13,7 @@
 //! were trained by `fishprobe fit-convnet` on the shared pair recordings; the command, the data
 //! split and the validation loss are in the sidecar and in the README.
 
-use fishprobe_nn::{Activation, Conv1d, Mlp, MlpSpec, MlpWorkspace};
+use fishprobe_nn::{Activation, Conv1d, Mlp, MlpSpec, MlpWorkspace, PackedMlp};
 use fishprobe_sim::params::ConfigError;
 use fishprobe_sim::{AgentState, FishMind, FishModel, FishMotion, FishView, SimRng, Tank};
 use rand::{Rng, RngExt};
@@ -226,12 +226,17 @@ impl ConvNet {
 
     /// Logits (`batch x cells`) of `batch` views.
     pub fn forward<'w>(&self, x: &[f32], batch: usize, ws: &'w mut ConvNetWorkspace) -> &'w [f32] {
+        self.features(x, batch, ws);
+        self.mlp.forward(&ws.conv_out, batch, &mut ws.mlp)
+    }
+
+    /// The convolution's activated output, the dense layers' input, into `ws.conv_out`.
+    fn features(&self, x: &[f32], batch: usize, ws: &mut ConvNetWorkspace) {
         let len = self.arch.bins;
         ws.conv_out
             .resize(batch * self.arch.conv_channels * len, 0.0);
         self.conv.forward(x, batch, len, &mut ws.conv_out);
         Activation::LeakyRelu(self.arch.leaky_slope).apply(&mut ws.conv_out);
-        self.mlp.forward(&ws.conv_out, batch, &mut ws.mlp)
     }
 
     /// After [`ConvNet::forward`] on the same `x`: adds the gradients of `sum(dlogits ·
@@ -369,6 +374,10 @@ fishprobe_sim::documented_params! {
 #[derive(Debug)]
 pub struct ConvNetFish {
     net: ConvNet,
+    /// The dense layers packed for inference on one frame's fish: no repacking per frame, and
+    /// a fish's logits do not depend on the batch it is stepped in (alone in evaluation and
+    /// the virtual lab, 64 at a time in training).
+    dense: PackedMlp,
     /// Input and workspace buffers, one set per concurrent `infer_batch` call (the vector
     /// environment calls it from every core at once); a call takes the first free set.
     scratch: Vec<Mutex<(Vec<f32>, ConvNetWorkspace)>>,
@@ -388,6 +397,7 @@ impl ConvNetFish {
     /// The fish with a given network.
     pub fn from_net(net: ConvNet) -> Self {
         Self {
+            dense: PackedMlp::new(&net.mlp),
             net,
             scratch: (0..std::thread::available_parallelism().map_or(1, |n| n.get()))
                 .map(|_| Mutex::new((Vec::new(), ConvNetWorkspace::default())))
@@ -431,11 +441,10 @@ impl FishModel for ConvNetFish {
             let other = v.closest_other().map(|(o, _)| o);
             encode_view(arch, &v.tank, &v.me, other, row);
         }
-        let logits = self.net.forward(x, views.len(), ws);
+        self.net.features(x, views.len(), ws);
+        let logits = self.dense.forward(&ws.conv_out, views.len(), &mut ws.mlp);
         out[..logits.len()].copy_from_slice(logits);
-        for row in out.chunks_exact_mut(arch.cells()) {
-            fishprobe_nn::dist::softmax_in_place(row);
-        }
+        fishprobe_nn::dist::softmax_rows_in_place(&mut out[..logits.len()], arch.cells());
     }
 
     fn decide(
@@ -483,8 +492,9 @@ mod tests {
     }
 
     #[test]
-    fn a_fish_inference_does_not_depend_on_its_batch_beyond_four_fish() {
-        // The vector environment splits a frame's batch across cores in parts of at least 16.
+    fn a_fish_inference_does_not_depend_on_its_batch() {
+        // The vector environment splits a frame's batch across cores; evaluation and the
+        // virtual lab step one fish at a time. All must give the same bits.
         let fish = ConvNetFish::from_net(ConvNet::shipped().unwrap());
         let tank = Tank::new(&fishprobe_sim::TankParams::default());
         let views: Vec<FishView> = (0..40)
@@ -498,7 +508,7 @@ mod tests {
         let w = fish.inference_width();
         let mut whole = vec![0.0; views.len() * w];
         fish.infer_batch(&views, &mut whole);
-        for cut in [5, 16, 20, 33] {
+        for cut in [1, 2, 5, 16, 20, 33, 39] {
             let mut parts = vec![0.0; views.len() * w];
             let (a, b) = parts.split_at_mut(cut * w);
             fish.infer_batch(&views[..cut], a);
@@ -509,6 +519,16 @@ mod tests {
                     .zip(&parts)
                     .all(|(x, y)| x.to_bits() == y.to_bits()),
                 "split at {cut}"
+            );
+        }
+        for (k, v) in views.iter().enumerate() {
+            let mut one = vec![0.0; w];
+            fish.infer_batch(std::slice::from_ref(v), &mut one);
+            assert!(
+                one.iter()
+                    .zip(&whole[k * w..(k + 1) * w])
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
+                "fish {k} alone"
             );
         }
     }

@@ -166,6 +166,11 @@ const RB: usize = 4;
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 const PW: usize = 16;
 
+/// Inner-dimension block of [`fma_chain_gemm`]: a 16-column panel of B this deep is 8 KB, so
+/// it stays in the L1 cache while every row block of A passes over it.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+const CHAIN_KC: usize = 128;
+
 /// The nonzero entries of a row-major matrix A (m x k), listed by row, and the scratch of the
 /// by-column lists [`SparseRows::t_mul_acc`] makes from them; reused across calls.
 #[derive(Debug, Clone, Default)]
@@ -569,6 +574,148 @@ fn block_sum(idx: &[u32], val: &[f32], x: &[f32], n: usize, j0: usize, w: usize)
     }
 }
 
+/// A weight matrix B (k x n, row-major) laid out once for [`fma_chain_gemm`]: panels of 16
+/// columns, each k x 16 contiguous, the last panel padded with zero columns. Products with
+/// few rows (the ConvNet fish's layers for one frame's fish) read it in order, where sgemm
+/// would repack B at every call and B's own rows (1,025 floats for the ConvNet's output
+/// layer, about 4 KB apart) fall into the same cache sets.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PackedMatrix {
+    k: usize,
+    n: usize,
+    panels: Vec<f32>,
+}
+
+impl PackedMatrix {
+    /// Packs B (k x n, row-major).
+    ///
+    /// # Panics
+    /// When `b` is shorter than k x n (a programming error).
+    pub fn new(b: &[f32], k: usize, n: usize) -> Self {
+        assert!(b.len() >= k * n, "matrix too short");
+        let count = n.div_ceil(PW);
+        let mut panels = vec![0.0; count * k * PW];
+        for (p, panel) in panels.chunks_exact_mut(k * PW).enumerate() {
+            let (j0, w) = (p * PW, PW.min(n - p * PW));
+            for (t, row) in panel.chunks_exact_mut(PW).enumerate() {
+                row[..w].copy_from_slice(&b[t * n + j0..t * n + j0 + w]);
+            }
+        }
+        Self { k, n, panels }
+    }
+
+    /// (rows, columns) of B.
+    pub fn shape(&self) -> (usize, usize) {
+        (self.k, self.n)
+    }
+}
+
+/// C (m x n) = A (m x k, row-major) · B, where every element of C is one FMA chain over the
+/// inner dimension from zero, in index order. So a row's result does not depend on how many
+/// rows come with it or where it sits (sgemm's does: it adds in blocks of 256 and takes plain
+/// loops for at most four rows). Register blocks of 4 rows x 16 columns; the last rows (m not
+/// a multiple of 4) take the same chains one row at a time. Returns `false`, computing
+/// nothing, on CPUs without AVX2 and FMA.
+///
+/// # Panics
+/// When a slice is shorter than its matrix (a programming error).
+#[allow(unsafe_code)]
+pub fn fma_chain_gemm(a: &[f32], b: &PackedMatrix, c: &mut [f32], m: usize) -> bool {
+    let (k, n) = b.shape();
+    assert!(a.len() >= m * k && c.len() >= m * n);
+    #[cfg(target_arch = "x86_64")]
+    if avx2_fma_supported() {
+        // SAFETY: the CPU has AVX2 and FMA, checked just above.
+        unsafe { fma_chain_gemm_avx2(&a[..m * k], b, &mut c[..m * n]) };
+        return true;
+    }
+    false
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fma_chain_gemm_avx2(a: &[f32], b: &PackedMatrix, c: &mut [f32]) {
+    let (k, n) = b.shape();
+    let m = c.len() / n.max(1);
+    for (p, panel) in b.panels.chunks_exact(k * PW).enumerate() {
+        let cols = p * PW..(p * PW + PW).min(n);
+        // The inner dimension in blocks, so that the part of the panel they read (CHAIN_KC x
+        // 16 floats) stays in the L1 cache across all the rows; the accumulators go through C
+        // between blocks, which continues each FMA chain unchanged.
+        for k0 in (0..k).step_by(CHAIN_KC) {
+            let inner = k0..(k0 + CHAIN_KC).min(k);
+            let part = &panel[inner.start * PW..inner.end * PW];
+            // Four rows per register block (eight accumulators: six rows measured slower),
+            // then what is left.
+            let mut i = 0;
+            while i < m {
+                let left = m - i;
+                let rows = if left >= 4 {
+                    chain_block::<4>(a, part, c, i, k, n, &inner, &cols)
+                } else if left >= 2 {
+                    chain_block::<2>(a, part, c, i, k, n, &inner, &cols)
+                } else {
+                    chain_block::<1>(a, part, c, i, k, n, &inner, &cols)
+                };
+                i += rows;
+            }
+        }
+    }
+}
+
+/// Rows i..i+R of C, columns `cols` (one panel), continue their FMA chains over the inner
+/// indices `inner` (`part`: those rows of the panel); returns R.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn chain_block<const R: usize>(
+    a: &[f32],
+    part: &[f32],
+    c: &mut [f32],
+    i: usize,
+    k: usize,
+    n: usize,
+    inner: &std::ops::Range<usize>,
+    cols: &std::ops::Range<usize>,
+) -> usize {
+    let (j0, w) = (cols.start, cols.len());
+    let mut rows: [&[f32]; R] = [&[]; R];
+    for (r, row) in rows.iter_mut().enumerate() {
+        *row = &a[(i + r) * k + inner.start..(i + r) * k + inner.end];
+    }
+    let mut acc = [fma::zero_pair(); R];
+    let mut out = [0.0f32; PW];
+    if inner.start > 0 {
+        for (r, acc) in acc.iter_mut().enumerate() {
+            let at = (i + r) * n + j0;
+            *acc = if w == PW {
+                fma::load_pair(panel_at(c, at))
+            } else {
+                out[..w].copy_from_slice(&c[at..at + w]);
+                fma::load_pair(&out)
+            };
+        }
+    }
+    for (t, x) in part.chunks_exact(PW).enumerate() {
+        let x = fma::load_pair(panel_at(x, 0));
+        for (acc, row) in acc.iter_mut().zip(&rows) {
+            fma::fma_pair(acc, row[t], &x);
+        }
+    }
+    for (r, acc) in acc.iter().enumerate() {
+        let at = (i + r) * n + j0;
+        out = fma::store_pair(acc);
+        if w == PW {
+            let full: &mut [f32; PW] = (&mut c[at..at + PW]).try_into().expect("PW floats");
+            *full = out;
+        } else {
+            c[at..at + w].copy_from_slice(&out[..w]);
+        }
+    }
+    R
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -589,6 +736,53 @@ mod tests {
 
     fn same_bits(x: &[f32], y: &[f32]) -> bool {
         x.len() == y.len() && x.iter().zip(y).all(|(a, b)| a.to_bits() == b.to_bits())
+    }
+
+    #[test]
+    fn fma_chain_gemm_is_the_product_and_independent_of_the_batch() {
+        if !avx2_fma_supported() {
+            return;
+        }
+        // The ConvNet fish's layer shapes, and rows and columns off the register block.
+        for (m, k, n) in [
+            (32, 576, 128),
+            (13, 128, 1025),
+            (5, 3, 17),
+            (1, 40, 16),
+            (6, 300, 9),
+        ] {
+            let a: Vec<f32> = (0..m * k)
+                .map(|i| ((i * 37) % 101) as f32 / 50.0 - 1.0)
+                .collect();
+            let b: Vec<f32> = (0..k * n)
+                .map(|i| ((i * 53) % 97) as f32 / 48.0 - 1.0)
+                .collect();
+            let mut c = vec![f32::NAN; m * n];
+            let packed = PackedMatrix::new(&b, k, n);
+            assert!(fma_chain_gemm(&a, &packed, &mut c, m));
+            for i in 0..m {
+                for j in 0..n {
+                    let exact: f64 = (0..k)
+                        .map(|t| f64::from(a[i * k + t]) * f64::from(b[t * n + j]))
+                        .sum();
+                    // one FMA chain, element by element
+                    let chain = (0..k).fold(0.0f32, |s, t| a[i * k + t].mul_add(b[t * n + j], s));
+                    assert_eq!(
+                        c[i * n + j].to_bits(),
+                        chain.to_bits(),
+                        "({m},{k},{n}) [{i},{j}]"
+                    );
+                    assert!((f64::from(c[i * n + j]) - exact).abs() < 1e-4 * (1.0 + exact.abs()));
+                }
+                // each row alone gives the same bits as in the batch
+                let mut row = vec![0.0; n];
+                fma_chain_gemm(&a[i * k..(i + 1) * k], &packed, &mut row, 1);
+                assert!(
+                    same_bits(&row, &c[i * n..(i + 1) * n]),
+                    "({m},{k},{n}) row {i}"
+                );
+            }
+        }
     }
 
     #[test]

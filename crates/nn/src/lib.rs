@@ -44,4 +44,4 @@ pub use act::{tanh_fast, Activation};
 pub use adam::Adam;
 pub use conv1d::Conv1d;
 pub use error::NnError;
-pub use mlp::{Mlp, MlpSpec, MlpWorkspace};
+pub use mlp::{Mlp, MlpSpec, MlpWorkspace, PackedMlp};
