@@ -51,7 +51,26 @@ impl Conv1d {
     }
 
     /// Forward pass into `out` (`batch x c_out x len`).
+    #[allow(unsafe_code)]
     pub fn forward(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
+        #[cfg(target_arch = "x86_64")]
+        if crate::gemm::avx2_fma_supported() {
+            // SAFETY: the CPU has AVX2 and FMA, checked just above.
+            return unsafe { self.forward_avx2(x, batch, len, out) };
+        }
+        self.forward_any(x, batch, len, out)
+    }
+
+    /// [`Conv1d::forward`] compiled for AVX2: its loops run 8 floats wide instead of 4. Rust
+    /// never fuses a multiply and an add by itself, so the results are the same bits.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn forward_avx2(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
+        self.forward_any(x, batch, len, out)
+    }
+
+    #[inline(always)]
+    fn forward_any(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
         let (w, b) = self.split();
         let half = self.k / 2;
         for n in 0..batch {
@@ -134,5 +153,29 @@ impl Conv1d {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn the_avx2_copy_gives_the_same_bits() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let conv = Conv1d::new(3, 8, 5, &mut rng);
+        let (batch, len) = (3, 72);
+        let x: Vec<f32> = (0..batch * 3 * len)
+            .map(|i| ((i * 31) % 89) as f32 / 44.0 - 1.0)
+            .collect();
+        let mut fast = vec![0.0; batch * 8 * len];
+        let mut plain = fast.clone();
+        conv.forward(&x, batch, len, &mut fast);
+        conv.forward_any(&x, batch, len, &mut plain);
+        assert!(fast
+            .iter()
+            .zip(&plain)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 }
