@@ -1,0 +1,130 @@
+//! How close does a trained policy come to scripted controllers on the task it was trained on
+//! (random goals, 41-second episodes; SPEC §4)? The README's "Does it learn?" cites this for
+//! π_Follow. Every controller meets the same episodes: start poses, goal sequence and fish noise
+//! come from seeds derived from master seed 0 (label "training-task"), one per episode.
+//!
+//! ```sh
+//! cargo run --release -p fishprobe-learn --example training_task -- MODEL EPISODES [POLICY_DIR...]
+//! ```
+//!
+//! Prints, per controller, goals per episode (mean ± standard error), the mean return (goals
+//! minus the wall penalties) and the robot's wall-contact frames per episode. The scripted
+//! controllers, each turning every second toward a target point:
+//! - `goal-seeker`: the goal's centre (the baseline of `fishprobe evaluate`);
+//! - `goal-seeker, 10° sectors`: the centre of the goal's observation sector, i.e. only what
+//!   the policy sees of the goal's direction;
+//! - `near edge`: 2 cm inside the goal's edge on the fish's side, so the fish stops there
+//!   instead of following the robot through the goal;
+//! - `lead L cm`: L cm ahead of the fish on its line to the goal (never past the near edge),
+//!   so that a fish that swims at the robot swims straight to the goal.
+
+use fishprobe_learn::{to_env_action, GaussianPolicy};
+use fishprobe_models::ModelSpec;
+use fishprobe_nn::MlpWorkspace;
+use fishprobe_sim::{derive_seed, stream, wrap_angle, Env, EnvConfig, TankEnv};
+use rand_distr::{Distribution, StandardNormal};
+use std::path::Path;
+
+/// What turns the robot.
+enum Pilot {
+    Seek,
+    SeekSectors(usize),
+    NearEdge(f32),
+    Lead(f32),
+    Policy(Box<GaussianPolicy>, bool),
+}
+
+fn unit(v: [f32; 2]) -> [f32; 2] {
+    let n = v[0].hypot(v[1]).max(1e-6);
+    [v[0] / n, v[1] / n]
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let usage = "usage: training_task MODEL EPISODES [POLICY_DIR...]";
+    let model = ModelSpec::by_name(args.first().ok_or(usage)?)?;
+    let episodes: u64 = args.get(1).ok_or(usage)?.parse()?;
+    let mut pilots: Vec<(String, Pilot)> = vec![
+        ("goal-seeker".into(), Pilot::Seek),
+        ("goal-seeker, 10° sectors".into(), Pilot::SeekSectors(36)),
+        ("near edge".into(), Pilot::NearEdge(2.0)),
+    ];
+    for l in [10.0, 20.0, 30.0] {
+        pilots.push((format!("lead {l} cm"), Pilot::Lead(l)));
+    }
+    for dir in &args[2..] {
+        let (p, _) = GaussianPolicy::load(Path::new(dir))?;
+        pilots.push((
+            format!("{dir}, mean action"),
+            Pilot::Policy(Box::new(p.clone()), false),
+        ));
+        pilots.push((format!("{dir}, sampled"), Pilot::Policy(Box::new(p), true)));
+    }
+    let cfg = EnvConfig::default();
+    let radius = cfg.task.goal_radius_cm;
+    println!(
+        "{model_name}, {episodes} training episodes",
+        model_name = model.name()
+    );
+    for (name, pilot) in &pilots {
+        let (mut goals, mut goals2, mut ret, mut walls) = (0.0f64, 0.0f64, 0.0f64, 0u64);
+        let mut ws = MlpWorkspace::default();
+        for ep in 0..episodes {
+            let mut env = TankEnv::new(cfg.clone(), model.build()?)?;
+            let mut obs = vec![0.0; env.observation_space().dim()];
+            env.reset(Some(derive_seed(0, "training-task", ep)), &mut obs)?;
+            let mut rng = stream(0, "training-task-actions", ep);
+            loop {
+                let r = env.robot().state;
+                let f = env.fish()[0];
+                let g = env.active_goal();
+                let toward = |t: [f32; 2]| wrap_angle((t[1] - r.y).atan2(t[0] - r.x) - r.heading);
+                let to_goal = unit([g[0] - f.x, g[1] - f.y]);
+                let fish_goal = (g[0] - f.x).hypot(g[1] - f.y);
+                let action = match pilot {
+                    Pilot::Seek => toward(g),
+                    Pilot::SeekSectors(n) => {
+                        let w = std::f32::consts::TAU / *n as f32;
+                        let i = ((toward(g) + std::f32::consts::PI) / w).floor();
+                        -std::f32::consts::PI + (i + 0.5) * w
+                    }
+                    Pilot::NearEdge(d) => {
+                        let at = radius - d;
+                        toward([g[0] - at * to_goal[0], g[1] - at * to_goal[1]])
+                    }
+                    Pilot::Lead(l) => {
+                        let ahead = l.min((fish_goal - radius + 2.0).max(0.0));
+                        toward([f.x + ahead * to_goal[0], f.y + ahead * to_goal[1]])
+                    }
+                    Pilot::Policy(p, sampled) => {
+                        let y = p.pi.forward(&obs, 1, &mut ws);
+                        let z: f32 = if *sampled {
+                            StandardNormal.sample(&mut rng)
+                        } else {
+                            0.0
+                        };
+                        to_env_action(y[0] + y[1].exp() * z)
+                    }
+                };
+                if env.step(&[action], &mut obs)?.truncated {
+                    break;
+                }
+            }
+            let s = env.summary();
+            let n = s.goal_events.len() as f64;
+            goals += n;
+            goals2 += n * n;
+            ret += f64::from(s.episode_return);
+            walls += u64::from(s.robot_wall_contacts);
+        }
+        let n = episodes as f64;
+        let mean = goals / n;
+        let se = ((goals2 - n * mean * mean) / (n - 1.0)).max(0.0).sqrt() / n.sqrt();
+        println!(
+            "{name:>40}: {mean:.2} ± {se:.2} goals per episode, return {:.2}, wall-contact frames {:.1}",
+            ret / n,
+            walls as f64 / n
+        );
+    }
+    Ok(())
+}
