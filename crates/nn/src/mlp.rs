@@ -211,13 +211,7 @@ impl Mlp {
         for l in 0..layers {
             let (inp, out) = (sizes[l], sizes[l + 1]);
             let (w, b) = self.layer(l);
-            let (before, after) = ws.outs.split_at_mut(l);
-            let input: &[f32] = if l == 0 {
-                &x[..batch * inp]
-            } else {
-                &before[l - 1][..batch * inp]
-            };
-            let y = &mut after[0][..batch * out];
+            let (input, y) = layer_io(&mut ws.outs, x, l, batch, (inp, out));
             if l + 1 == layers && out <= NARROW_OUT {
                 ws.narrow.resize(2 * inp * out, 0.0);
                 let wt = &mut ws.narrow[..inp * out];
@@ -248,13 +242,7 @@ impl Mlp {
             }
             // x·W + b rounds as sgemm's `beta = 1` epilogue did with b preloaded (one
             // rounding of the product's f32 sum plus b), in one pass with the activation.
-            if l + 1 < layers {
-                self.spec.hidden.apply_with_bias(y, b);
-            } else {
-                for row in y.chunks_exact_mut(out) {
-                    row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
-                }
-            }
+            finish_layer(self.spec.hidden, y, b, l + 1 == layers);
         }
         &ws.outs[layers - 1][..batch * sizes[layers]]
     }
@@ -393,6 +381,38 @@ impl Mlp {
     }
 }
 
+/// Layer `l`'s input (`x` for the first layer, else the previous layer's output) and output
+/// buffer, `batch` rows each of `inp` and `out` floats.
+#[inline(always)]
+fn layer_io<'a>(
+    outs: &'a mut [Vec<f32>],
+    x: &'a [f32],
+    l: usize,
+    batch: usize,
+    (inp, out): (usize, usize),
+) -> (&'a [f32], &'a mut [f32]) {
+    let (before, after) = outs.split_at_mut(l);
+    let input = if l == 0 {
+        &x[..batch * inp]
+    } else {
+        &before[l - 1][..batch * inp]
+    };
+    (input, &mut after[0][..batch * out])
+}
+
+/// Adds the bias `b` to each row of a layer's product `y`, and applies the hidden activation
+/// unless it is the last (linear) layer.
+#[inline(always)]
+fn finish_layer(hidden: Activation, y: &mut [f32], b: &[f32], last: bool) {
+    if last {
+        for row in y.chunks_exact_mut(b.len()) {
+            row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
+        }
+    } else {
+        hidden.apply_with_bias(y, b);
+    }
+}
+
 /// An [`Mlp`] laid out for inference on a few rows at a time (the ConvNet fish: one frame's
 /// fish per call): each layer's weights packed once ([`PackedMatrix`]) and multiplied by
 /// [`fma_chain_gemm`], so that no weight is repacked per call and a row's output is the same
@@ -440,21 +460,9 @@ impl PackedMlp {
         for (l, w) in self.weights.iter().enumerate() {
             let (inp, out) = (sizes[l], sizes[l + 1]);
             let b = self.mlp.layer(l).1;
-            let (before, after) = ws.outs.split_at_mut(l);
-            let input: &[f32] = if l == 0 {
-                &x[..batch * inp]
-            } else {
-                &before[l - 1][..batch * inp]
-            };
-            let y = &mut after[0][..batch * out];
+            let (input, y) = layer_io(&mut ws.outs, x, l, batch, (inp, out));
             fma_chain_gemm(input, w, y, batch);
-            if l + 1 < layers {
-                spec.hidden.apply_with_bias(y, b);
-            } else {
-                for row in y.chunks_exact_mut(out) {
-                    row.iter_mut().zip(b).for_each(|(v, b)| *v += b);
-                }
-            }
+            finish_layer(spec.hidden, y, b, l + 1 == layers);
         }
         &ws.outs[layers - 1][..batch * sizes[layers]]
     }
