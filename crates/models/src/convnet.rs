@@ -235,8 +235,9 @@ impl ConvNet {
         let len = self.arch.bins;
         ws.conv_out
             .resize(batch * self.arch.conv_channels * len, 0.0);
-        self.conv.forward(x, batch, len, &mut ws.conv_out);
-        Activation::LeakyRelu(self.arch.leaky_slope).apply(&mut ws.conv_out);
+        let act = Activation::LeakyRelu(self.arch.leaky_slope);
+        self.conv
+            .forward_activated(x, batch, len, &mut ws.conv_out, Some(act));
     }
 
     /// After [`ConvNet::forward`] on the same `x`: adds the gradients of `sum(dlogits ·

@@ -4,6 +4,7 @@
 //! Shapes: input `batch x c_in x len`, kernel `c_out x c_in x k` (k odd), bias `c_out`,
 //! output `batch x c_out x len`; `out[o][t] = b[o] + Σ_i Σ_j w[o][i][j] · in[i][(t + j - k/2) mod len]`.
 
+use crate::act::Activation;
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
@@ -51,26 +52,52 @@ impl Conv1d {
     }
 
     /// Forward pass into `out` (`batch x c_out x len`).
-    #[allow(unsafe_code)]
     pub fn forward(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
+        self.forward_activated(x, batch, len, out, None);
+    }
+
+    /// Forward pass into `out`, then `activation` applied to it, in one AVX2-compiled pass
+    /// where the CPU has AVX2 (the loops run 8 floats wide instead of 4; Rust never fuses a
+    /// multiply and an add by itself, so the results are the same bits as the portable code's).
+    #[allow(unsafe_code)]
+    pub fn forward_activated(
+        &self,
+        x: &[f32],
+        batch: usize,
+        len: usize,
+        out: &mut [f32],
+        activation: Option<Activation>,
+    ) {
         #[cfg(target_arch = "x86_64")]
         if crate::gemm::avx2_fma_supported() {
             // SAFETY: the CPU has AVX2 and FMA, checked just above.
-            return unsafe { self.forward_avx2(x, batch, len, out) };
+            return unsafe { self.forward_avx2(x, batch, len, out, activation) };
         }
-        self.forward_any(x, batch, len, out)
+        self.forward_any(x, batch, len, out, activation)
     }
 
-    /// [`Conv1d::forward`] compiled for AVX2: its loops run 8 floats wide instead of 4. Rust
-    /// never fuses a multiply and an add by itself, so the results are the same bits.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    fn forward_avx2(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
-        self.forward_any(x, batch, len, out)
+    fn forward_avx2(
+        &self,
+        x: &[f32],
+        batch: usize,
+        len: usize,
+        out: &mut [f32],
+        activation: Option<Activation>,
+    ) {
+        self.forward_any(x, batch, len, out, activation)
     }
 
     #[inline(always)]
-    fn forward_any(&self, x: &[f32], batch: usize, len: usize, out: &mut [f32]) {
+    fn forward_any(
+        &self,
+        x: &[f32],
+        batch: usize,
+        len: usize,
+        out: &mut [f32],
+        activation: Option<Activation>,
+    ) {
         let (w, b) = self.split();
         let half = self.k / 2;
         for n in 0..batch {
@@ -97,6 +124,9 @@ impl Conv1d {
                     }
                 }
             }
+        }
+        if let Some(a) = activation {
+            a.apply(&mut out[..batch * self.c_out * len]);
         }
     }
 
@@ -171,8 +201,10 @@ mod tests {
             .collect();
         let mut fast = vec![0.0; batch * 8 * len];
         let mut plain = fast.clone();
-        conv.forward(&x, batch, len, &mut fast);
-        conv.forward_any(&x, batch, len, &mut plain);
+        let act = Some(Activation::LeakyRelu(0.01));
+        conv.forward_activated(&x, batch, len, &mut fast, act);
+        conv.forward_any(&x, batch, len, &mut plain, None);
+        Activation::LeakyRelu(0.01).apply(&mut plain);
         assert!(fast
             .iter()
             .zip(&plain)
