@@ -194,39 +194,29 @@ impl VecEnv {
             });
     }
 
-    /// Batched models: all environments advance frame by frame together, and the model's
-    /// inference runs once per frame over every fish of every environment.
+    /// Batched models: the environments are split into one part per core (each of at least
+    /// [`MIN_FISH_PER_INFERENCE`] fish), and each part advances its environments frame by
+    /// frame together, the model's inference running once per frame over the part's fish. The
+    /// parts meet only at the end of the action, not at every frame.
     fn step_lockstep(&mut self, actions: &[f32]) -> Result<(), SimError> {
         let d = self.obs_dim;
         self.envs
             .par_iter_mut()
             .zip(actions.par_chunks(1))
             .try_for_each(|(env, a)| env.begin_action(a))?;
-        let frames = self.envs[0].config().frames_per_action;
         let model = self.envs[0].model().clone();
-        let fish = self.envs[0].fish().len();
-        let width = model.inference_width();
-        for _ in 0..frames {
-            self.envs
-                .par_iter_mut()
-                .zip(self.views.par_chunks_mut(fish))
-                .for_each(|(env, v)| {
-                    env.prepare_views();
-                    v.copy_from_slice(env.views());
-                });
-            // Split across cores; see `infer_split`.
-            infer_split(
-                &*model,
-                &self.views,
-                &mut self.inferred,
-                width,
-                rayon::current_num_threads(),
-            );
-            self.envs
-                .par_iter_mut()
-                .zip(self.inferred.par_chunks(fish * width))
-                .try_for_each(|(env, inf)| env.advance_frame(Some(inf)))?;
-        }
+        let lockstep = Lockstep {
+            frames: self.envs[0].config().frames_per_action,
+            fish: self.envs[0].fish().len(),
+            width: model.inference_width(),
+            model: &*model,
+        };
+        lockstep.run(
+            &mut self.envs,
+            &mut self.views,
+            &mut self.inferred,
+            rayon::current_num_threads(),
+        )?;
         self.envs
             .par_iter_mut()
             .zip(self.obs.par_chunks_mut(d))
@@ -257,31 +247,53 @@ impl VecEnv {
     }
 }
 
-/// Fewest fish per inference call when the vector environment splits a frame's batch across
-/// cores. A batched GEMM gives each row the same bits in any batch of more than 4 rows
-/// (`fishprobe_nn::gemm`), so with parts this large the split, which follows the number of
-/// threads, never changes results.
+/// Fewest fish per inference call when the vector environment splits its environments across
+/// cores. A fish's inference gives the same bits in any batch where the CPU has AVX2 and FMA
+/// (`fishprobe_nn::gemm::fma_chain_gemm`), and elsewhere in any batch of more than 4 fish
+/// (sgemm), so with parts this large the split, which follows the number of threads, never
+/// changes results.
 const MIN_FISH_PER_INFERENCE: usize = 16;
 
-/// `model.infer_batch` over `views`, halved recursively into at most `parts` parts (one per
-/// core: each call packs the network's weights, so more parts than cores only cost) that run
-/// in parallel, each of at least [`MIN_FISH_PER_INFERENCE`] fish.
-fn infer_split(
-    model: &dyn FishModel,
-    views: &[FishView],
-    out: &mut [f32],
+/// One action of a batched model's environments, frame by frame.
+struct Lockstep<'m> {
+    frames: u32,
+    fish: usize,
     width: usize,
-    parts: usize,
-) {
-    if parts >= 2 && views.len() >= 2 * MIN_FISH_PER_INFERENCE {
-        let mid = views.len() / 2;
-        let (va, vb) = views.split_at(mid);
-        let (oa, ob) = out.split_at_mut(mid * width);
-        rayon::join(
-            || infer_split(model, va, oa, width, parts / 2),
-            || infer_split(model, vb, ob, width, parts - parts / 2),
-        );
-    } else {
-        model.infer_batch(views, out);
+    model: &'m dyn FishModel,
+}
+
+impl Lockstep<'_> {
+    /// Runs `envs` (with their views and inference buffers) through the action's frames,
+    /// halved recursively into at most `parts` parts (one per core) that run in parallel, each
+    /// of at least [`MIN_FISH_PER_INFERENCE`] fish.
+    fn run(
+        &self,
+        envs: &mut [TankEnv],
+        views: &mut [FishView],
+        inferred: &mut [f32],
+        parts: usize,
+    ) -> Result<(), SimError> {
+        if parts >= 2 && envs.len() >= 2 && views.len() >= 2 * MIN_FISH_PER_INFERENCE {
+            let mid = envs.len() / 2;
+            let (ea, eb) = envs.split_at_mut(mid);
+            let (va, vb) = views.split_at_mut(mid * self.fish);
+            let (ia, ib) = inferred.split_at_mut(mid * self.fish * self.width);
+            let (a, b) = rayon::join(
+                || self.run(ea, va, ia, parts / 2),
+                || self.run(eb, vb, ib, parts - parts / 2),
+            );
+            return a.and(b);
+        }
+        for _ in 0..self.frames {
+            for (env, v) in envs.iter_mut().zip(views.chunks_mut(self.fish)) {
+                env.prepare_views();
+                v.copy_from_slice(env.views());
+            }
+            self.model.infer_batch(views, inferred);
+            for (env, inf) in envs.iter_mut().zip(inferred.chunks(self.fish * self.width)) {
+                env.advance_frame(Some(inf))?;
+            }
+        }
+        Ok(())
     }
 }
