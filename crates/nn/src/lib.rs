@@ -10,7 +10,10 @@
 //! train` reports GFLOP/s next to the machine's single-core GEMM rate. Narrow output layers (at
 //! most 4 units) use plain loops, and a first layer with a mostly-zero input (the policy's
 //! observations) visits only the nonzeros, bit-identical to the dense product
-//! ([`gemm::SparseRows`]).
+//! ([`gemm::SparseRows`]). For inference on a few rows at a time (the ConvNet fish, at every
+//! frame) [`PackedMlp`] packs the weights once and computes every output as one FMA chain, so
+//! a row's result does not depend on its batch; the fish's softmax uses a vectorised exp
+//! ([`dist::softmax_rows_in_place`]).
 //!
 //! ```
 //! use fishprobe_nn::{Activation, Adam, Mlp, MlpSpec, MlpWorkspace};
