@@ -16,7 +16,10 @@
 //! - `near edge`: 2 cm inside the goal's edge on the fish's side, so the fish stops there
 //!   instead of following the robot through the goal;
 //! - `lead L cm`: L cm ahead of the fish on its line to the goal (never past the near edge),
-//!   so that a fish that swims at the robot swims straight to the goal.
+//!   so that a fish that swims at the robot swims straight to the goal;
+//! - `fetch D cm`: the fish while it is farther than D cm from the robot, else the lead point
+//!   10 cm ahead of it: fetch the fish, then lead it (for fish that perceive the robot only
+//!   nearby, like M_Zone's 18 cm and M_Force's 15 cm).
 
 use fishprobe_learn::{to_env_action, GaussianPolicy};
 use fishprobe_models::ModelSpec;
@@ -31,6 +34,7 @@ enum Pilot {
     SeekSectors(usize),
     NearEdge(f32),
     Lead(f32),
+    Fetch(f32),
     Policy(Box<GaussianPolicy>, bool),
 }
 
@@ -51,6 +55,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     ];
     for l in [10.0, 20.0, 30.0] {
         pilots.push((format!("lead {l} cm"), Pilot::Lead(l)));
+    }
+    for d in [8.0, 12.0, 16.0] {
+        pilots.push((format!("fetch {d} cm"), Pilot::Fetch(d)));
     }
     for dir in &args[2..] {
         let (p, _) = GaussianPolicy::load(Path::new(dir))?;
@@ -95,6 +102,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     Pilot::Lead(l) => {
                         let ahead = l.min((fish_goal - radius + 2.0).max(0.0));
                         toward([f.x + ahead * to_goal[0], f.y + ahead * to_goal[1]])
+                    }
+                    Pilot::Fetch(d) => {
+                        if (f.x - r.x).hypot(f.y - r.y) > *d {
+                            toward([f.x, f.y])
+                        } else {
+                            let ahead = 10f32.min((fish_goal - radius + 2.0).max(0.0));
+                            toward([f.x + ahead * to_goal[0], f.y + ahead * to_goal[1]])
+                        }
                     }
                     Pilot::Policy(p, sampled) => {
                         let y = p.pi.forward(&obs, 1, &mut ws);
