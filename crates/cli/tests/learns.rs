@@ -2,7 +2,7 @@
 //! is evaluated on its own model against the scripted goal-seeker (18 episodes of 15 minutes,
 //! evaluation seed 0), as in the README's "Does it learn?".
 //!
-//! Opt-in, about 10 minutes on 2 cores in a release build:
+//! Opt-in, about 3 minutes on 2 cores in a release build (longer while other work shares them):
 //! `cargo test --release -p fishprobe --test learns -- --ignored --nocapture`.
 //!
 //! π_Zone and π_Force must beat the goal-seeker. π_Follow must reach at least 90 % of it: against
