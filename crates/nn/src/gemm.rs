@@ -595,7 +595,8 @@ impl PackedMatrix {
         assert!(b.len() >= k * n, "matrix too short");
         let count = n.div_ceil(PW);
         let mut panels = vec![0.0; count * k * PW];
-        for (p, panel) in panels.chunks_exact_mut(k * PW).enumerate() {
+        // `max(1)`: with k = 0 there are no panel rows to fill (and chunks may not be empty).
+        for (p, panel) in panels.chunks_exact_mut((k * PW).max(1)).enumerate() {
             let (j0, w) = (p * PW, PW.min(n - p * PW));
             for (t, row) in panel.chunks_exact_mut(PW).enumerate() {
                 row[..w].copy_from_slice(&b[t * n + j0..t * n + j0 + w]);
@@ -625,8 +626,13 @@ pub fn fma_chain_gemm(a: &[f32], b: &PackedMatrix, c: &mut [f32], m: usize) -> b
     assert!(a.len() >= m * k && c.len() >= m * n);
     #[cfg(target_arch = "x86_64")]
     if avx2_fma_supported() {
-        // SAFETY: the CPU has AVX2 and FMA, checked just above.
-        unsafe { fma_chain_gemm_avx2(&a[..m * k], b, &mut c[..m * n]) };
+        if k == 0 {
+            // An empty sum.
+            c[..m * n].fill(0.0);
+        } else {
+            // SAFETY: the CPU has AVX2 and FMA, checked just above.
+            unsafe { fma_chain_gemm_avx2(&a[..m * k], b, &mut c[..m * n]) };
+        }
         return true;
     }
     false
