@@ -26,6 +26,7 @@ use fishprobe_models::ModelSpec;
 use fishprobe_nn::MlpWorkspace;
 use fishprobe_sim::{derive_seed, stream, wrap_angle, Env, EnvConfig, TankEnv};
 use rand_distr::{Distribution, StandardNormal};
+use std::io::Write;
 use std::path::Path;
 
 /// What turns the robot.
@@ -43,11 +44,30 @@ fn unit(v: [f32; 2]) -> [f32; 2] {
     [v[0] / n, v[1] / n]
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+fn main() {
+    if let Err(e) = run() {
+        // A closed pipe (`| head`) is the reader's choice, not an error.
+        let closed = e
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe);
+        if !closed {
+            eprintln!("training_task: {e}");
+            std::process::exit(2);
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let usage = "usage: training_task MODEL EPISODES [POLICY_DIR...]";
     let model = ModelSpec::by_name(args.first().ok_or(usage)?)?;
-    let episodes: u64 = args.get(1).ok_or(usage)?.parse()?;
+    let episodes: u64 = args
+        .get(1)
+        .ok_or(usage)?
+        .parse()
+        .ok()
+        .filter(|&n| n > 0)
+        .ok_or("EPISODES must be a whole number of at least 1")?;
     let mut pilots: Vec<(String, Pilot)> = vec![
         ("goal-seeker".into(), Pilot::Seek),
         ("goal-seeker, 10° sectors".into(), Pilot::SeekSectors(36)),
@@ -69,10 +89,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let cfg = EnvConfig::default();
     let radius = cfg.task.goal_radius_cm;
-    println!(
-        "{model_name}, {episodes} training episodes",
-        model_name = model.name()
-    );
+    let mut stdout = std::io::stdout().lock();
+    writeln!(stdout, "{}, {episodes} training episodes", model.name())?;
     for (name, pilot) in &pilots {
         let (mut goals, mut goals2, mut ret, mut walls) = (0.0f64, 0.0f64, 0.0f64, 0u64);
         let mut ws = MlpWorkspace::default();
@@ -135,11 +153,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let n = episodes as f64;
         let mean = goals / n;
         let se = ((goals2 - n * mean * mean) / (n - 1.0)).max(0.0).sqrt() / n.sqrt();
-        println!(
+        writeln!(
+            stdout,
             "{name:>40}: {mean:.2} ± {se:.2} goals per episode, return {:.2}, wall-contact frames {:.1}",
             ret / n,
             walls as f64 / n
-        );
+        )?;
     }
     Ok(())
 }
