@@ -444,8 +444,7 @@ impl FishModel for ConvNetFish {
         }
         self.net.features(x, views.len(), ws);
         let logits = self.dense.forward(&ws.conv_out, views.len(), &mut ws.mlp);
-        out[..logits.len()].copy_from_slice(logits);
-        fishprobe_nn::dist::softmax_rows_in_place(&mut out[..logits.len()], arch.cells());
+        fishprobe_nn::dist::softmax_rows(logits, out, arch.cells());
     }
 
     fn decide(

@@ -104,32 +104,36 @@ pub fn exp_fast(x: f32) -> f32 {
     e * f32::from_bits(k.wrapping_add(127) << 23)
 }
 
-/// Softmax of each `cells`-long row of `rows`, in place (the ConvNet fish's distribution over
-/// its (v, ω) grid, at every frame for every fish: the hot loop of training against M_ConvNet).
-/// Uses [`exp_fast`] and eight partial sums and maxima, so that it runs 8 floats wide (AVX2
-/// where the CPU has it); the probabilities agree with an exact softmax to a few units in the
-/// last place.
+/// Softmax of each `cells`-long row of `logits`, written to the same row of `out` (the
+/// ConvNet fish's distribution over its (v, ω) grid, at every frame for every fish: the hot
+/// loop of training against M_ConvNet). Uses [`exp_fast`] and eight partial sums and maxima,
+/// so that it runs 8 floats wide (AVX2 where the CPU has it); the probabilities agree with an
+/// exact softmax to a few units in the last place.
+///
+/// # Panics
+/// When `out` is shorter than `logits` (a programming error).
 #[allow(unsafe_code)]
-pub fn softmax_rows_in_place(rows: &mut [f32], cells: usize) {
+pub fn softmax_rows(logits: &[f32], out: &mut [f32], cells: usize) {
+    assert!(out.len() >= logits.len(), "softmax output too short");
     #[cfg(target_arch = "x86_64")]
     if crate::gemm::avx2_fma_supported() {
         // SAFETY: the CPU has AVX2 and FMA, checked just above.
-        return unsafe { softmax_rows_avx2(rows, cells) };
+        return unsafe { softmax_rows_avx2(logits, out, cells) };
     }
-    softmax_rows_any(rows, cells)
+    softmax_rows_any(logits, out, cells)
 }
 
-/// [`softmax_rows_in_place`] compiled for AVX2 and FMA.
+/// [`softmax_rows`] compiled for AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn softmax_rows_avx2(rows: &mut [f32], cells: usize) {
-    softmax_rows_any(rows, cells)
+fn softmax_rows_avx2(logits: &[f32], out: &mut [f32], cells: usize) {
+    softmax_rows_any(logits, out, cells)
 }
 
 #[inline(always)]
-fn softmax_rows_any(rows: &mut [f32], cells: usize) {
+fn softmax_rows_any(logits: &[f32], out: &mut [f32], cells: usize) {
     const LANES: usize = 8;
-    for row in rows.chunks_exact_mut(cells) {
+    for (row, p) in logits.chunks_exact(cells).zip(out.chunks_exact_mut(cells)) {
         let mut top = [f32::NEG_INFINITY; LANES];
         let mut chunks = row.chunks_exact(LANES);
         for c in &mut chunks {
@@ -144,20 +148,21 @@ fn softmax_rows_any(rows: &mut [f32], cells: usize) {
             .copied()
             .fold(f32::NEG_INFINITY, f32::max);
         let mut sums = [0.0f32; LANES];
-        let mut chunks = row.chunks_exact_mut(LANES);
-        for c in &mut chunks {
-            for (s, z) in sums.iter_mut().zip(c) {
-                *z = exp_fast(*z - max);
-                *s += *z;
+        let mut zs = row.chunks_exact(LANES);
+        let mut ps = p.chunks_exact_mut(LANES);
+        for (c, q) in (&mut zs).zip(&mut ps) {
+            for ((s, y), &z) in sums.iter_mut().zip(q).zip(c) {
+                *y = exp_fast(z - max);
+                *s += *y;
             }
         }
         let mut sum: f32 = sums.iter().sum();
-        for z in chunks.into_remainder() {
-            *z = exp_fast(*z - max);
-            sum += *z;
+        for (y, &z) in ps.into_remainder().iter_mut().zip(zs.remainder()) {
+            *y = exp_fast(z - max);
+            sum += *y;
         }
         let inv = 1.0 / sum;
-        row.iter_mut().for_each(|z| *z *= inv);
+        p.iter_mut().for_each(|y| *y *= inv);
     }
 }
 
@@ -192,8 +197,8 @@ mod tests {
         let rows: Vec<f32> = (0..3 * cells)
             .map(|i| ((i * 7919) % 1000) as f32 * 0.03 - 20.0)
             .collect();
-        let mut fast = rows.clone();
-        softmax_rows_in_place(&mut fast, cells);
+        let mut fast = vec![f32::NAN; rows.len()];
+        softmax_rows(&rows, &mut fast, cells);
         for (row, p) in rows.chunks_exact(cells).zip(fast.chunks_exact(cells)) {
             let max = row.iter().copied().fold(f32::NEG_INFINITY, f32::max);
             let sum: f64 = row.iter().map(|&z| f64::from(z - max).exp()).sum();
@@ -208,8 +213,8 @@ mod tests {
             assert!((total - 1.0).abs() < 1e-5);
         }
         // the portable and the AVX2 copy compute the same bits
-        let mut any = rows.clone();
-        softmax_rows_any(&mut any, cells);
+        let mut any = vec![f32::NAN; rows.len()];
+        softmax_rows_any(&rows, &mut any, cells);
         assert_eq!(any, fast);
     }
 

@@ -13,7 +13,7 @@
 //! ([`gemm::SparseRows`]). For inference on a few rows at a time (the ConvNet fish, at every
 //! frame) [`PackedMlp`] packs the weights once and computes every output as one FMA chain, so
 //! a row's result does not depend on its batch; the fish's softmax uses a vectorised exp
-//! ([`dist::softmax_rows_in_place`]).
+//! ([`dist::softmax_rows`]).
 //!
 //! ```
 //! use fishprobe_nn::{Activation, Adam, Mlp, MlpSpec, MlpWorkspace};
