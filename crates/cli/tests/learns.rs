@@ -5,11 +5,10 @@
 //! Opt-in, about 3 minutes on 2 cores in a release build (longer while other work shares them):
 //! `cargo test --release -p fishprobe --test learns -- --ignored --nocapture`.
 //!
-//! π_Zone and π_Force must beat the goal-seeker. π_Follow must reach at least 90 % of it: against
-//! a fish that always swims straight at the robot the goal-seeker is close to the best
-//! controller (scripted variants land within 3 % of it on the training task) and PPO gets
-//! 95-99 % of it, so "beat it" would demand an optimal PPO (README, "Does it learn?"; the
-//! `training_task` example of fishprobe-learn measures it).
+//! Each policy must beat the goal-seeker (issue 4). π_Follow does so only since the `paper`
+//! preset bounds the policy's log-s.d. (`PpoConfig::log_std_max`): with RLlib's unbounded one
+//! its mean action was untrained wherever the goal lay behind the robot and it reached 95 % of
+//! the goal-seeker (README, "Does it learn?").
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
@@ -50,7 +49,7 @@ fn evaluate(policy: &str, model: &str, out: &Path) -> f64 {
 }
 
 #[test]
-#[ignore = "trains three paper-preset policies (about 10 minutes); run with --ignored"]
+#[ignore = "trains three paper-preset policies (about 3 minutes in a release build); run with --ignored"]
 fn paper_preset_policies_learn_their_models() {
     let d = fresh_dir("learns");
     let mut failures = Vec::new();
@@ -76,17 +75,10 @@ fn paper_preset_policies_learn_their_models() {
             model,
             &d.join(format!("base-{model}")),
         );
-        let bar = if model == "Follow" {
-            0.9 * baseline
-        } else {
-            baseline
-        };
-        println!(
-            "π_{model}: {policy:.1} goals per 15 min; goal-seeker {baseline:.1}; needed {bar:.1}"
-        );
-        if policy <= bar {
+        println!("π_{model}: {policy:.1} goals per 15 min; goal-seeker {baseline:.1}");
+        if policy <= baseline {
             failures.push(format!(
-                "π_{model} {policy:.1} goals, needed more than {bar:.1} (goal-seeker {baseline:.1})"
+                "π_{model} {policy:.1} goals, not more than the goal-seeker's {baseline:.1}"
             ));
         }
     }

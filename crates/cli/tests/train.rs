@@ -364,12 +364,23 @@ fn a_ppo_file_overrides_the_preset_field_by_field() {
     // The diagnostics are logged.
     let head = std::fs::read_to_string(out.join("progress.csv")).unwrap();
     assert!(head.contains(",clip_frac,action_clip_frac,vf_explained_var,vf_explained_var_fit,"));
+    // The paper's log-s.d. bound is on unless the file lifts it (TOML inf: no bound), and the
+    // policy carries it.
+    assert_eq!(ppo["log_std_max"], 0.0);
+    let (o, out) = train("log_std_max = inf\n", "unbounded");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let sidecar: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("policy.safetensors.json")).unwrap(),
+    )
+    .unwrap();
+    assert!(sidecar["log_std_max"].is_null(), "{sidecar}");
 
     for (text, needle) in [
         ("num_sgd_iters = 3\n", "num_sgd_iters"),
         ("num_sgd_iter = 0\n", "num_sgd_iter"),
         ("lr = \"fast\"\n", "lr"),
         ("lr = nan\n", "`lr`: not a finite number"),
+        ("log_std_max = 20.0\n", "log_std_max"),
     ] {
         let (o, _) = train(text, "bad-run");
         assert!(!o.status.success());

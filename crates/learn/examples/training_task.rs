@@ -8,7 +8,10 @@
 //! ```
 //!
 //! Prints, per controller, goals per episode (mean ± standard error), the mean return (goals
-//! minus the wall penalties) and the robot's wall-contact frames per episode. The scripted
+//! minus the wall penalties) and the robot's wall-contact frames per episode. For a policy's
+//! mean action it adds what the policy does in the seconds when the goal lies more than 120°
+//! off its heading: its s.d. there and how often its mean action turns by less than 90°, i.e.
+//! drives on instead of turning toward the goal (README, "Does it learn?", the log-s.d. bound). The scripted
 //! controllers, each turning every second toward a target point:
 //! - `goal-seeker`: the goal's centre (the baseline of `fishprobe evaluate`);
 //! - `goal-seeker, 10° sectors`: the centre of the goal's observation sector, i.e. only what
@@ -93,6 +96,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     writeln!(stdout, "{}, {episodes} training episodes", model.name())?;
     for (name, pilot) in &pilots {
         let (mut goals, mut goals2, mut ret, mut walls) = (0.0f64, 0.0f64, 0.0f64, 0u64);
+        // Seconds with the goal behind: count, sum of the policy's s.d., mean turns < 90°.
+        let (mut behind, mut behind_sd, mut behind_on) = (0u64, 0.0f64, 0u64);
         let mut ws = MlpWorkspace::default();
         for ep in 0..episodes {
             let mut env = TankEnv::new(cfg.clone(), model.build()?)?;
@@ -136,7 +141,13 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                         } else {
                             0.0
                         };
-                        to_env_action(y[0] + y[1].exp() * z)
+                        let turn = to_env_action(y[0] + p.log_std(y[1]).exp() * z);
+                        if !*sampled && toward(g).abs() > 2.0 * std::f32::consts::FRAC_PI_3 {
+                            behind += 1;
+                            behind_sd += f64::from(p.log_std(y[1]).exp());
+                            behind_on += u64::from(turn.abs() < std::f32::consts::FRAC_PI_2);
+                        }
+                        turn
                     }
                 };
                 if env.step(&[action], &mut obs)?.truncated {
@@ -159,6 +170,16 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             ret / n,
             walls as f64 / n
         )?;
+        if behind > 0 {
+            let b = behind as f64;
+            writeln!(
+                stdout,
+                "{:>40}  goal > 120° off: s.d. {:.2} (normalised; 1 = π rad), turns < 90° in {:.0} % of {behind} s",
+                "",
+                behind_sd / b,
+                100.0 * behind_on as f64 / b
+            )?;
+        }
     }
     Ok(())
 }

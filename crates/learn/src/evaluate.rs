@@ -108,7 +108,7 @@ pub fn run_episode(
                 let y = policy.pi.forward(&obs, 1, &mut ws);
                 let a = if *stochastic {
                     let z: f32 = StandardNormal.sample(&mut rng);
-                    y[0] + y[1].exp() * z
+                    y[0] + policy.log_std(y[1]).exp() * z
                 } else {
                     y[0]
                 };

@@ -2,6 +2,8 @@
 //! from one MLP, and a separate MLP for the value (RLlib's default continuous model with
 //! `vf_share_layers = false`). Actions are "normalised" as in RLlib: the network acts in
 //! [-1, 1], which maps linearly onto the action space [-π, π] (samples are clipped to it).
+//! The log-s.d. may be bounded above ([`PpoConfig::log_std_max`]); the bound belongs to the
+//! policy and is saved with it, so that sampling after training uses the training distribution.
 
 use crate::config::PpoConfig;
 use crate::error::LearnError;
@@ -24,6 +26,18 @@ pub struct GaussianPolicy {
     pub pi: Mlp,
     /// Value network: observation → V.
     pub vf: Mlp,
+    /// Upper bound on the log-s.d. (`None`: unbounded); see [`PpoConfig::log_std_max`].
+    pub log_std_max: Option<f32>,
+}
+
+/// `raw` limited to `max` (`None`: unlimited). Above the bound the log-s.d. is constant, so
+/// it gets no gradient there.
+#[inline]
+pub fn bounded_log_std(raw: f32, max: Option<f32>) -> f32 {
+    match max {
+        Some(m) => raw.min(m),
+        None => raw,
+    }
 }
 
 /// The normalised action's scale: env action = clip(a, -1, 1) · π.
@@ -58,7 +72,14 @@ impl GaussianPolicy {
                 1.0,
                 rng,
             ),
+            log_std_max: cfg.log_std_max,
         }
+    }
+
+    /// The log-s.d. of the action distribution for the network's raw log-s.d. output.
+    #[inline]
+    pub fn log_std(&self, raw: f32) -> f32 {
+        bounded_log_std(raw, self.log_std_max)
     }
 
     /// Observation length it expects.
@@ -99,6 +120,7 @@ impl GaussianPolicy {
             "pi": self.pi.spec(),
             "vf": self.vf.spec(),
             "action": "normalised; env action = clip(a, -1, 1) * pi rad",
+            "log_std_max": self.log_std_max,
             "about": about,
         });
         let path = dir.join(POLICY_FILE);
@@ -154,9 +176,20 @@ impl GaussianPolicy {
             Mlp::from_params(spec, params)
                 .ok_or_else(|| bad(format!("{prefix}: parameter count does not match")))
         };
+        // Absent in files written before the bound existed: those policies were unbounded.
+        let log_std_max = match &meta["log_std_max"] {
+            serde_json::Value::Null => None,
+            v => Some(
+                v.as_f64()
+                    .filter(|m| m.is_finite())
+                    .ok_or_else(|| bad(format!("log_std_max {v} is not a number")))?
+                    as f32,
+            ),
+        };
         let policy = Self {
             pi: net("pi")?,
             vf: net("vf")?,
+            log_std_max,
         };
         if policy.pi.output_size() != 2
             || policy.vf.output_size() != 1
@@ -179,5 +212,41 @@ impl GaussianPolicy {
                 self.obs_dim()
             )))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn the_log_std_bound_caps_and_travels_with_the_policy() {
+        assert_eq!(bounded_log_std(0.7, Some(0.0)), 0.0);
+        assert_eq!(bounded_log_std(-0.7, Some(0.0)), -0.7);
+        assert_eq!(bounded_log_std(3.0, None), 3.0);
+
+        let dir = std::env::temp_dir().join(format!("fishprobe-policy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(1);
+        let cfg = PpoConfig::preset("smoke").unwrap();
+        let p = GaussianPolicy::new(6, &cfg, &mut rng);
+        assert_eq!(p.log_std_max, Some(0.0));
+        p.save(&dir, json!({})).unwrap();
+        assert_eq!(GaussianPolicy::load(&dir).unwrap().0, p);
+
+        // A sidecar from before the bound existed: an unbounded policy.
+        let sidecar = dir.join(format!("{POLICY_FILE}.json"));
+        let mut meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&sidecar).unwrap()).unwrap();
+        meta.as_object_mut().unwrap().remove("log_std_max");
+        std::fs::write(&sidecar, meta.to_string()).unwrap();
+        assert_eq!(GaussianPolicy::load(&dir).unwrap().0.log_std_max, None);
+
+        meta["log_std_max"] = json!("wide");
+        std::fs::write(&sidecar, meta.to_string()).unwrap();
+        let e = GaussianPolicy::load(&dir).unwrap_err().to_string();
+        assert!(e.contains("log_std_max"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

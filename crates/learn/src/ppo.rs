@@ -13,7 +13,7 @@
 
 use crate::config::PpoConfig;
 use crate::gae::gae;
-use crate::policy::{to_env_action, GaussianPolicy};
+use crate::policy::{bounded_log_std, to_env_action, GaussianPolicy};
 use fishprobe_nn::dist::{
     gaussian_entropy, gaussian_kl, gaussian_kl_grad, gaussian_log_prob, gaussian_log_prob_grad,
 };
@@ -131,7 +131,7 @@ pub fn collect(
         let (out, v) = rayon::join(|| pi.forward(obs, n, ws_pi), || vf.forward(obs, n, ws_vf));
         roll.values[base..base + n].copy_from_slice(v);
         for i in 0..n {
-            let (mean, log_std) = (out[2 * i], out[2 * i + 1]);
+            let (mean, log_std) = (out[2 * i], policy.log_std(out[2 * i + 1]));
             let z: f32 = StandardNormal.sample(rng);
             let a = mean + log_std.exp() * z;
             roll.mean[base + i] = mean;
@@ -294,6 +294,7 @@ pub fn update(
     let (mut stats, mut batches) = (UpdateStats::default(), 0usize);
     let (mut last_kl, mut last_batches, mut last_clipped) = (0.0f64, 0usize, 0usize);
     let mut last_sq_err = 0.0f64;
+    let log_std_max = policy.log_std_max;
     for epoch in 0..cfg.num_sgd_iter {
         // Shuffle (Fisher-Yates), then full minibatches; a remainder smaller than a minibatch
         // is dropped this epoch (it is shuffled into others).
@@ -321,7 +322,7 @@ pub fn update(
             );
             let roll_ref = &*roll;
             let (pi_sums, (vf_sum, vf_sq_err)) = rayon::join(
-                || policy_step(cfg, kl_coeff, roll_ref, chunk, pi_part),
+                || policy_step(cfg, kl_coeff, log_std_max, roll_ref, chunk, pi_part),
                 || value_step(cfg, roll_ref, chunk, vf_part),
             );
             let (surr, kl, ent, clipped) = pi_sums;
@@ -380,6 +381,7 @@ fn gather(roll: &Rollout, rows: &[usize], obs: &mut [f32]) {
 fn policy_step(
     cfg: &PpoConfig,
     kl_coeff: f32,
+    log_std_max: Option<f32>,
     roll: &Rollout,
     rows: &[usize],
     part: NetPart<'_>,
@@ -392,7 +394,8 @@ fn policy_step(
     let out = net.forward(obs, m, ws);
     let (mut surr_sum, mut kl_sum, mut ent_sum, mut clipped) = (0.0f64, 0.0f64, 0.0f64, 0usize);
     for (j, &k) in rows.iter().enumerate() {
-        let (mean, log_std) = (out[2 * j], out[2 * j + 1]);
+        let (mean, raw_log_std) = (out[2 * j], out[2 * j + 1]);
+        let log_std = bounded_log_std(raw_log_std, log_std_max);
         let a = roll.actions[k];
         let adv = roll.advantages[k];
         let ratio = (gaussian_log_prob(a, mean, log_std) - roll.logp[k]).exp();
@@ -408,7 +411,12 @@ fn policy_step(
         let (lp_m, lp_s) = gaussian_log_prob_grad(a, mean, log_std);
         let (kl_m, kl_s) = gaussian_kl_grad(roll.mean[k], roll.log_std[k], mean, log_std);
         dy[2 * j] = (d_logp * lp_m + kl_coeff * kl_m) * inv_m;
-        dy[2 * j + 1] = (d_logp * lp_s + kl_coeff * kl_s - cfg.entropy_coeff) * inv_m;
+        // Above the bound the log-s.d. is a constant: no gradient reaches the network's output.
+        dy[2 * j + 1] = if raw_log_std > log_std {
+            0.0
+        } else {
+            (d_logp * lp_s + kl_coeff * kl_s - cfg.entropy_coeff) * inv_m
+        };
     }
     grads.fill(0.0);
     net.backward(obs, m, &dy[..2 * m], ws, grads, None);
@@ -467,6 +475,70 @@ mod tests {
         assert!(explained_variance(&y, &[7.0; 4]).abs() < 1e-6);
         assert_eq!(explained_variance(&y, &[40.0, -40.0, 40.0, -40.0]), -1.0);
         assert_eq!(explained_variance(&[2.0; 3], &[1.0, 2.0, 3.0]), 0.0);
+    }
+
+    /// With the log-s.d. above its bound the policy step sends no gradient into it, and the
+    /// bounded distribution is the one the rollout sampled from (ratio 1 before any step).
+    #[test]
+    fn a_bounded_log_std_gets_no_gradient_above_the_bound() {
+        use fishprobe_nn::{Activation, Mlp, MlpSpec};
+        let spec = MlpSpec {
+            sizes: vec![3, 4, 2],
+            hidden: Activation::Tanh,
+        };
+        let mut params: Vec<f32> = (0..spec.sizes.windows(2).map(|w| w[0] * w[1] + w[1]).sum())
+            .map(|i| ((i * 37 % 11) as f32 - 5.0) / 10.0)
+            .collect();
+        // Output layer: the log-s.d. column's weights 0 and its bias 0.5, above a bound of 0.
+        let n = params.len();
+        for i in 0..4 {
+            params[n - 10 + 2 * i + 1] = 0.0;
+        }
+        params[n - 1] = 0.5;
+        let rows = 8;
+        for (bound, sd) in [(Some(0.0f32), 1.0f32), (None, 0.5f32.exp())] {
+            let mut net = Mlp::from_params(spec.clone(), params.clone()).unwrap();
+            let mut roll = Rollout::new(rows, 1, 3);
+            let mut ws = MlpWorkspace::default();
+            roll.obs
+                .iter_mut()
+                .enumerate()
+                .for_each(|(i, o)| *o = (i as f32 * 0.7).sin());
+            let out = net.forward(&roll.obs, rows, &mut ws).to_vec();
+            for k in 0..rows {
+                let (mean, ls) = (out[2 * k], bounded_log_std(out[2 * k + 1], bound));
+                assert!((ls.exp() - sd).abs() < 1e-6);
+                roll.actions[k] = mean + sd * if k % 2 == 0 { 0.8 } else { -1.3 };
+                roll.mean[k] = mean;
+                roll.log_std[k] = ls;
+                roll.logp[k] = gaussian_log_prob(roll.actions[k], mean, ls);
+                roll.advantages[k] = k as f32 - 2.0;
+            }
+            let mut adam = Adam::new(net.num_params(), 1e-3);
+            let (mut obs, mut grads, mut dy) =
+                (vec![0.0; rows * 3], vec![0.0; n], vec![0.0; 2 * rows]);
+            let idx: Vec<usize> = (0..rows).collect();
+            let cfg = PpoConfig::default();
+            let (surr, kl, _, clipped) = policy_step(
+                &cfg,
+                0.2,
+                bound,
+                &roll,
+                &idx,
+                (&mut net, &mut adam, &mut ws, &mut obs, &mut grads, &mut dy),
+            );
+            // Ratio 1 everywhere: the surrogate is minus the sum of the advantages (12).
+            assert!(
+                (surr + 12.0).abs() < 1e-4 && kl.abs() < 1e-9 && clipped == 0,
+                "{surr} {kl} {clipped}"
+            );
+            let log_std_grads = dy.iter().skip(1).step_by(2);
+            match bound {
+                Some(_) => assert!(log_std_grads.clone().all(|&g| g == 0.0)),
+                None => assert!(log_std_grads.clone().any(|&g| g.abs() > 1e-4)),
+            }
+            assert!(dy.iter().step_by(2).any(|&g| g.abs() > 1e-4));
+        }
     }
 
     #[test]

@@ -661,15 +661,17 @@ mod tests {
             assert_eq!(a.hash, b.hash, "{}", a.id);
         }
         // The published epochs, by override or by preset, change the training and all that
-        // follows it, and nothing else; both ways give the same training.
+        // follows it, and nothing else; the override keeps the `paper` preset's log-s.d. bound
+        // and the preset does not, so the two trainings differ.
         let mut hundred = paper.clone();
         hundred.ppo_epochs = Some(100);
         let published = StudyConfig::preset("published").unwrap();
         for (a, (b, c)) in base.iter().zip(plan(hundred).iter().zip(&plan(published))) {
             let downstream = !a.id.starts_with("fit-convnet");
             assert_eq!(a.hash != b.hash, downstream, "{}", a.id);
+            assert_eq!(a.hash != c.hash, downstream, "{}", a.id);
             if a.id.starts_with("train-") {
-                assert_eq!(b.hash, c.hash, "{}", a.id);
+                assert_ne!(b.hash, c.hash, "{}", a.id);
             }
         }
         // A marker written by fishprobe 0.1.0, when the `paper` preset meant 100 epochs and the

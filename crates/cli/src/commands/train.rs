@@ -124,8 +124,9 @@ pub fn ppo_overrides(base: PpoConfig, path: &std::path::Path) -> Result<PpoConfi
     };
     // serde names unknown fields but not the field of a wrong value: try them one by one.
     for (k, v) in &over {
-        // TOML's nan and inf arrive here as null (JSON has no such numbers).
-        if v.is_null() {
+        // TOML's nan and inf arrive here as null (JSON has no such numbers). Only the log-s.d.
+        // bound takes null (JSON) or inf (TOML): no bound.
+        if v.is_null() && k != "log_std_max" {
             bail!(
                 "in PPO settings file {}, field `{k}`: not a finite number",
                 path.display()
