@@ -23,11 +23,16 @@
 //! - `fetch D cm`: the fish while it is farther than D cm from the robot, else the lead point
 //!   10 cm ahead of it: fetch the fish, then lead it (for fish that perceive the robot only
 //!   nearby, like M_Zone's 18 cm and M_Force's 15 cm).
+//!
+//! For M_Follow it first prints a limit no controller can pass: a fish that swims straight to
+//! every goal at M_Follow's constant speed, from each episode's start position and first goal
+//! (later goals drawn by the task's rule from a stream of their own).
 
 use fishprobe_learn::{to_env_action, GaussianPolicy};
-use fishprobe_models::ModelSpec;
+use fishprobe_models::{FollowParams, ModelSpec};
 use fishprobe_nn::MlpWorkspace;
 use fishprobe_sim::{derive_seed, stream, wrap_angle, Env, EnvConfig, TankEnv};
+use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
 use std::io::Write;
 use std::path::Path;
@@ -45,6 +50,51 @@ enum Pilot {
 fn unit(v: [f32; 2]) -> [f32; 2] {
     let n = v[0].hypot(v[1]).max(1e-6);
     [v[0] / n, v[1] / n]
+}
+
+/// Goals per episode (mean, standard error) of a fish that swims straight to every goal at
+/// `speed` cm/s.
+fn straight_fish(
+    cfg: &EnvConfig,
+    model: &ModelSpec,
+    speed: f32,
+    episodes: u64,
+) -> Result<(f64, f64), Box<dyn std::error::Error>> {
+    let (r, step) = (cfg.task.goal_radius_cm, speed / cfg.frame_rate_hz);
+    let lim = cfg.tank.half_size_cm - cfg.task.goal_wall_clearance_cm;
+    let frames = cfg.task.training_episode_actions * cfg.frames_per_action;
+    let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+    for ep in 0..episodes {
+        let mut env = TankEnv::new(cfg.clone(), model.build()?)?;
+        let mut obs = vec![0.0; env.observation_space().dim()];
+        env.reset(Some(derive_seed(0, "training-task", ep)), &mut obs)?;
+        let (f, mut g) = (env.fish()[0], env.active_goal());
+        let mut p = [f.x, f.y];
+        let mut rng = stream(0, "training-task-limit", ep);
+        let mut n = 0.0;
+        for _ in 0..frames {
+            let d = (g[0] - p[0]).hypot(g[1] - p[1]);
+            let s = step.min(d) / d.max(1e-6);
+            p = [p[0] + s * (g[0] - p[0]), p[1] + s * (g[1] - p[1])];
+            if (g[0] - p[0]).hypot(g[1] - p[1]) < r {
+                n += 1.0;
+                for _ in 0..64 {
+                    g = [rng.random_range(-lim..=lim), rng.random_range(-lim..=lim)];
+                    if (g[0] - p[0]).hypot(g[1] - p[1]) >= r {
+                        break;
+                    }
+                }
+            }
+        }
+        sum += n;
+        sum2 += n * n;
+    }
+    let n = episodes as f64;
+    let mean = sum / n;
+    Ok((
+        mean,
+        ((sum2 - n * mean * mean) / (n - 1.0)).max(0.0).sqrt() / n.sqrt(),
+    ))
 }
 
 fn main() {
@@ -94,6 +144,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let radius = cfg.task.goal_radius_cm;
     let mut stdout = std::io::stdout().lock();
     writeln!(stdout, "{}, {episodes} training episodes", model.name())?;
+    if model.name() == "Follow" {
+        let speed = FollowParams::default().speed_cm_s;
+        let (mean, se) = straight_fish(&cfg, &model, speed, episodes)?;
+        writeln!(
+            stdout,
+            "{:>40}: {mean:.2} ± {se:.2} goals per episode",
+            format!("limit: straight to each goal, {speed} cm/s")
+        )?;
+    }
     for (name, pilot) in &pilots {
         let (mut goals, mut goals2, mut ret, mut walls) = (0.0f64, 0.0f64, 0.0f64, 0u64);
         // Seconds with the goal behind: count, sum of the policy's s.d., mean turns < 90°.
