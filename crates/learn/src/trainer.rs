@@ -436,6 +436,21 @@ impl Trainer {
         if policy.pi.spec() != self.policy.pi.spec() || policy.vf.spec() != self.policy.vf.spec() {
             return Err(run_err(dir, "checkpoint networks do not match params.json"));
         }
+        // A checkpoint written before the bound existed holds an unbounded policy; continuing it
+        // under params.json's (default) bound would change the run half-way.
+        if policy.log_std_max != self.policy.log_std_max {
+            let show = |b: Option<f32>| b.map_or_else(|| "none".to_string(), |m| m.to_string());
+            return Err(run_err(
+                dir,
+                format!(
+                    "the checkpoint's log-s.d. bound ({}) is not params.json's ({}): the run \
+                     was started by another fishprobe version; finish it with that version or \
+                     start it again",
+                    show(policy.log_std_max),
+                    show(self.policy.log_std_max)
+                ),
+            ));
+        }
         self.policy = policy;
         let (optim, _) = load(&dir.join("optim.safetensors"))?;
         for (k, adam) in [("pi", &mut self.adam_pi), ("vf", &mut self.adam_vf)] {
@@ -510,5 +525,18 @@ mod tests {
         // And the run resumes from it.
         let r = Trainer::resume(&dir).unwrap();
         assert_eq!(r.iteration(), 1);
+        // But not when its policy's log-s.d. bound disagrees with params.json (a checkpoint from
+        // before the bound existed).
+        let sidecar = dir.join("checkpoints/ckpt_000001/policy.safetensors.json");
+        let mut meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&sidecar).unwrap()).unwrap();
+        meta.as_object_mut().unwrap().remove("log_std_max");
+        std::fs::write(&sidecar, meta.to_string()).unwrap();
+        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        assert!(
+            e.contains("log-s.d. bound (none) is not params.json's (0)"),
+            "{e}"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
