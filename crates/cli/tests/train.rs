@@ -381,6 +381,7 @@ fn a_ppo_file_overrides_the_preset_field_by_field() {
         ("lr = \"fast\"\n", "lr"),
         ("lr = nan\n", "`lr`: not a finite number"),
         ("log_std_max = 20.0\n", "log_std_max"),
+        ("log_std_max = nan\n", "`log_std_max`: nan is not a bound"),
     ] {
         let (o, _) = train(text, "bad-run");
         assert!(!o.status.success());

@@ -106,8 +106,18 @@ pub fn ppo_overrides(base: PpoConfig, path: &std::path::Path) -> Result<PpoConfi
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     let over: serde_json::Value = if is_toml {
-        toml::from_str(&text)
-            .with_context(|| format!("{} is not valid PPO settings TOML", path.display()))?
+        let table: toml::Table = toml::from_str(&text)
+            .with_context(|| format!("{} is not valid PPO settings TOML", path.display()))?;
+        // Converted to JSON, TOML's inf and nan both become null; only inf lifts the bound.
+        if let Some(toml::Value::Float(f)) = table.get("log_std_max") {
+            if f.is_nan() {
+                bail!(
+                    "in PPO settings file {}, field `log_std_max`: nan is not a bound (inf: none)",
+                    path.display()
+                );
+            }
+        }
+        serde_json::to_value(table)?
     } else {
         serde_json::from_str(&text)
             .with_context(|| format!("{} is not valid PPO settings JSON", path.display()))?
