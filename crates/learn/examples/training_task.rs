@@ -200,10 +200,11 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                         } else {
                             0.0
                         };
-                        let turn = to_env_action(y[0] + p.log_std(y[1]).exp() * z);
+                        let sd = p.log_std(y[1]).exp();
+                        let turn = to_env_action(y[0] + sd * z);
                         if !*sampled && toward(g).abs() > 2.0 * std::f32::consts::FRAC_PI_3 {
                             behind += 1;
-                            behind_sd += f64::from(p.log_std(y[1]).exp());
+                            behind_sd += f64::from(sd);
                             behind_on += u64::from(turn.abs() < std::f32::consts::FRAC_PI_2);
                         }
                         turn
