@@ -141,6 +141,44 @@ fn bad_input_is_skipped_with_reasons_and_the_rest_analysed() {
     assert!(r["sim_to_real"]["Follow"]["w"].is_number());
 }
 
+/// Entries named `*.hdf5` that are no regular files are listed in `skipped` with the reason,
+/// not silently dropped (which made n = 6 where 7 trials were meant).
+#[cfg(unix)]
+#[test]
+fn entries_that_are_not_files_are_skipped_by_name() {
+    use std::os::unix::fs::symlink;
+    let s = small_study("notfiles");
+    let real = s.join("rollouts/Follow__Real");
+    symlink(real.join("nowhere.hdf5"), real.join("zz_dangling.hdf5")).unwrap();
+    symlink(real.join("zz_loop_b.hdf5"), real.join("zz_loop_a.hdf5")).unwrap();
+    symlink(real.join("zz_loop_a.hdf5"), real.join("zz_loop_b.hdf5")).unwrap();
+    std::fs::create_dir_all(real.join("zz_directory.hdf5")).unwrap();
+    symlink("/dev/zero", real.join("zz_zero.hdf5")).unwrap();
+    let ok = std::process::Command::new("mkfifo")
+        .arg(real.join("zz_fifo.hdf5"))
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok);
+    let r = analyze(&s, &s.join("out"), "2");
+    let skipped = r["skipped"].to_string();
+    for needle in [
+        "zz_dangling.hdf5",
+        "zz_loop_a.hdf5",
+        "zz_loop_b.hdf5",
+        "cannot be followed",
+        "zz_directory.hdf5",
+        "a directory, not a regular file",
+        "zz_zero.hdf5",
+        "a symbolic link to a device",
+        "zz_fifo.hdf5",
+        "FIFO",
+    ] {
+        assert!(skipped.contains(needle), "{needle} not in {skipped}");
+    }
+    assert_eq!(r["goals"]["Follow"]["real"].as_array().unwrap().len(), 6);
+}
+
 #[test]
 fn a_virtual_lab_arm_is_labelled_virtual() {
     let s = small_study("virtual");

@@ -12,8 +12,10 @@
 
 use crate::attr::Attr;
 use crate::error::IoError;
+use crate::limits::{not_regular, ReadLimits};
 use hdf5_pure::{AttrValue, DType, FileBuilder};
 use std::collections::BTreeMap;
+use std::io::Read;
 use std::path::Path;
 
 fn format_err(path: &Path, what: impl Into<String>) -> IoError {
@@ -23,24 +25,63 @@ fn format_err(path: &Path, what: impl Into<String>) -> IoError {
     }
 }
 
-/// Opens an HDF5 file for reading.
+/// Opens an HDF5 file for reading, within the default [`ReadLimits`].
 pub fn open(path: &Path) -> Result<H5Group, IoError> {
-    let bytes = std::fs::read(path).map_err(|reason| IoError::Read {
+    open_with(path, ReadLimits::default())
+}
+
+/// Opens an HDF5 file for reading within `limits`: only regular files (a FIFO would block, a
+/// device or a symbolic link to one would be read without end), at most
+/// `limits.max_file_bytes`, read with a bound even if the file grows meanwhile.
+pub fn open_with(path: &Path, limits: ReadLimits) -> Result<H5Group, IoError> {
+    if let Some(what) = not_regular(path) {
+        return Err(IoError::NotRegular {
+            path: path.to_path_buf(),
+            what,
+        });
+    }
+    let read_err = |reason| IoError::Read {
         path: path.to_path_buf(),
         reason,
-    })?;
+    };
+    let file = std::fs::File::open(path).map_err(read_err)?;
+    let declared = file.metadata().map_err(read_err)?.len();
+    let too_large = |bytes: u64| IoError::TooLarge {
+        path: path.to_path_buf(),
+        bytes,
+        limit: limits.max_file_bytes,
+    };
+    if declared > limits.max_file_bytes {
+        return Err(too_large(declared));
+    }
+    let mut bytes = Vec::with_capacity(declared as usize);
+    file.take(limits.max_file_bytes + 1)
+        .read_to_end(&mut bytes)
+        .map_err(read_err)?;
+    if bytes.len() as u64 > limits.max_file_bytes {
+        return Err(too_large(bytes.len() as u64));
+    }
     if !hdf5_pure::is_hdf5_bytes(&bytes) {
         return Err(IoError::NotHdf5 {
             path: path.to_path_buf(),
         });
     }
+    let file_bytes = bytes.len() as u64;
     let file = hdf5_pure::File::from_bytes(bytes)
         .map_err(|e| format_err(path, format!("cannot parse HDF5: {e}")))?;
     Ok(H5Group {
         g: file.root(),
         path: path.to_path_buf(),
         name: "/".into(),
+        bound: Bound { limits, file_bytes },
     })
+}
+
+/// The limits in force for one open file.
+#[derive(Debug, Clone, Copy)]
+struct Bound {
+    limits: ReadLimits,
+    file_bytes: u64,
 }
 
 /// A group of an open file.
@@ -48,6 +89,7 @@ pub struct H5Group {
     g: hdf5_pure::Group,
     path: std::path::PathBuf,
     name: String,
+    bound: Bound,
 }
 
 /// A dataset of an open file.
@@ -55,6 +97,7 @@ pub struct H5Dataset {
     d: hdf5_pure::Dataset,
     path: std::path::PathBuf,
     name: String,
+    bound: Bound,
 }
 
 fn child(parent: &str, name: &str) -> String {
@@ -167,6 +210,7 @@ impl H5Group {
             g,
             path: self.path.clone(),
             name: child(&self.name, name),
+            bound: self.bound,
         }))
     }
 
@@ -185,6 +229,7 @@ impl H5Group {
             d,
             path: self.path.clone(),
             name: child(&self.name, name),
+            bound: self.bound,
         }))
     }
 }
@@ -209,9 +254,40 @@ impl H5Dataset {
         Ok(convert_attrs(self.d.attrs().map_err(|e| self.err(e))?))
     }
 
+    /// Refuses, before anything is allocated, a dataset that declares more rows than
+    /// [`ReadLimits::max_frames`] or more data than the file can hold.
+    fn check_declared(&self, dtype: &DType) -> Result<(), IoError> {
+        let shape = self.shape()?;
+        let limits = self.bound.limits;
+        if let Some(&rows) = shape.first() {
+            limits.check_frames(&self.path, &self.name, rows)?;
+        }
+        let elements = shape
+            .iter()
+            .try_fold(1u64, |n, &d| n.checked_mul(d))
+            .unwrap_or(u64::MAX);
+        let element_bytes = match dtype {
+            DType::I8 | DType::U8 => 1,
+            DType::I16 | DType::U16 => 2,
+            DType::F32 | DType::I32 | DType::U32 => 4,
+            DType::F64 | DType::I64 | DType::U64 => 8,
+            _ => 1,
+        };
+        let compressed = !self.d.filter_pipeline().is_empty();
+        limits.check_declared(
+            &self.path,
+            &self.name,
+            elements,
+            element_bytes,
+            compressed,
+            self.bound.file_bytes,
+        )
+    }
+
     /// Numeric contents as f32 (any float or integer type; other types are an error).
     pub fn read_f32(&self) -> Result<Vec<f32>, IoError> {
         let dtype = self.d.dtype().map_err(|e| self.err(e))?;
+        self.check_declared(&dtype)?;
         let r = match dtype {
             DType::F32 => self.d.read_f32(),
             DType::F64 => self
@@ -236,6 +312,7 @@ impl H5Dataset {
     /// Integer contents (integer types only).
     pub fn read_i64(&self) -> Result<Vec<i64>, IoError> {
         let dtype = self.d.dtype().map_err(|e| self.err(e))?;
+        self.check_declared(&dtype)?;
         match dtype {
             DType::I8
             | DType::I16
@@ -251,6 +328,7 @@ impl H5Dataset {
     /// String contents (fixed or variable length).
     pub fn read_strings(&self) -> Result<Vec<String>, IoError> {
         let dtype = self.d.dtype().map_err(|e| self.err(e))?;
+        self.check_declared(&dtype)?;
         match dtype {
             DType::String | DType::VariableLengthString => {
                 self.d.read_string().map_err(|e| self.err(e))

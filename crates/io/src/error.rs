@@ -15,6 +15,25 @@ pub enum IoError {
         /// The OS error.
         reason: std::io::Error,
     },
+    /// The path is not a regular file (a directory, FIFO, device, or a dangling symbolic
+    /// link): refused before opening, since reading it could block or never end.
+    #[error("{}: {what}", path.display())]
+    NotRegular {
+        /// The path.
+        path: PathBuf,
+        /// What it is instead.
+        what: String,
+    },
+    /// The file is larger than [`crate::ReadLimits::max_file_bytes`].
+    #[error("{}: {bytes} bytes, more than the limit of {limit} bytes for a trial file (fishprobe_io::ReadLimits::max_file_bytes)", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size.
+        bytes: u64,
+        /// The limit.
+        limit: u64,
+    },
     /// The file is not HDF5.
     #[error("{}: not an HDF5 file (no HDF5 signature)", path.display())]
     NotHdf5 {

@@ -26,25 +26,31 @@ pub mod attr;
 pub mod backend;
 pub mod error;
 pub mod legacy;
+pub mod limits;
+pub mod lock;
 pub mod robofish;
 pub mod trial;
 
 pub use attr::Attr;
 pub use error::IoError;
 pub use legacy::read_legacy;
+pub use limits::ReadLimits;
+pub use lock::{DirLock, LockError};
 pub use robofish::{read_trial, write_atomically, write_trial};
 pub use trial::{
     heading_from_motion, Category, Entity, TaskRecord, TrialFile, TrialKind, TrialMeta,
 };
 
-/// The trial files (`.hdf5`, `.h5`) directly in `dir`, sorted by name; none when `dir` cannot
-/// be read.
+/// Every entry directly in `dir` named `*.hdf5` or `*.h5`, sorted by name; none when `dir`
+/// cannot be read. Entries that are not regular files (directories, FIFOs, dangling or looping
+/// symbolic links) are listed too, so that a reader refuses them with a reason and an
+/// analysis reports them as skipped instead of silently counting fewer trials.
 pub fn trial_files(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     let mut v: Vec<std::path::PathBuf> = std::fs::read_dir(dir)
         .into_iter()
         .flatten()
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
+        .filter(|p| p.extension().is_some_and(|x| x == "hdf5" || x == "h5"))
         .collect();
     v.sort();
     v
