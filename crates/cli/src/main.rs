@@ -11,7 +11,8 @@ fn main() -> ExitCode {
     match commands::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            // Not `eprintln!`: it panics when stderr is closed or full (`2>/dev/full`).
+            commands::note(&format!("error: {e:#}"));
             ExitCode::FAILURE
         }
     }

@@ -68,6 +68,19 @@ impl CloneConfig {
                 return Err(ConfigError::new("clone", f, 0, "must be at least 1"));
             }
         }
+        // Upper bounds, checked before anything is allocated: a batch is held in memory, and
+        // the paper's fit takes well under 1,000 epochs.
+        if self.batch_size > 1 << 20 || self.max_epochs > 1_000_000 {
+            return Err(ConfigError::new(
+                "clone",
+                "max_epochs",
+                self.max_epochs,
+                &format!(
+                    "at most 1,000,000 epochs of batches of at most 1,048,576 (batch_size = {})",
+                    self.batch_size
+                ),
+            ));
+        }
         Ok(())
     }
 }

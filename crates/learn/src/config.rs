@@ -139,12 +139,47 @@ impl PpoConfig {
                 "num_sgd_iter, total_timesteps and checkpoint_every must be at least 1",
             ));
         }
-        if self.hidden.is_empty() || self.hidden.contains(&0) {
+        if self.hidden.is_empty()
+            || self.hidden.len() > Self::MAX_HIDDEN_LAYERS
+            || self
+                .hidden
+                .iter()
+                .any(|&w| w == 0 || w > Self::MAX_HIDDEN_WIDTH)
+        {
             return Err(ConfigError::new(
                 p,
                 "hidden",
                 format!("{:?}", self.hidden),
-                "needs at least one layer, none empty",
+                &format!(
+                    "needs 1 to {} layers of 1 to {} units",
+                    Self::MAX_HIDDEN_LAYERS,
+                    Self::MAX_HIDDEN_WIDTH
+                ),
+            ));
+        }
+        if self.num_envs > Self::MAX_NUM_ENVS || self.train_batch_size > Self::MAX_BATCH {
+            return Err(ConfigError::new(
+                p,
+                "train_batch_size",
+                self.train_batch_size,
+                &format!(
+                    "at most {} steps per batch from at most {} environments (num_envs = {})",
+                    Self::MAX_BATCH,
+                    Self::MAX_NUM_ENVS,
+                    self.num_envs
+                ),
+            ));
+        }
+        if self.total_timesteps > Self::MAX_TOTAL_TIMESTEPS || self.num_sgd_iter > 10_000 {
+            return Err(ConfigError::new(
+                p,
+                "total_timesteps",
+                self.total_timesteps,
+                &format!(
+                    "at most {} steps and 10,000 epochs per batch (num_sgd_iter = {})",
+                    Self::MAX_TOTAL_TIMESTEPS,
+                    self.num_sgd_iter
+                ),
             ));
         }
         check::positive(p, "lr", self.lr)?;
@@ -160,6 +195,18 @@ impl PpoConfig {
         }
         check::positive(p, "vf_clip_param", self.vf_clip_param)
     }
+
+    /// Widest hidden layer accepted: 4,096 units (the paper uses 256). Checked before any
+    /// network is allocated (`hidden = [100000, 100000]` asked for 40 GB).
+    pub const MAX_HIDDEN_WIDTH: usize = 4096;
+    /// Most hidden layers accepted (the paper uses 2).
+    pub const MAX_HIDDEN_LAYERS: usize = 8;
+    /// Most parallel environments (the paper's RLlib run used a handful).
+    pub const MAX_NUM_ENVS: usize = 4096;
+    /// Largest batch of steps per iteration (the paper: 8,192).
+    pub const MAX_BATCH: usize = 1 << 20;
+    /// Longest run in environment steps (the paper: 832,300; this is 12,000 times that).
+    pub const MAX_TOTAL_TIMESTEPS: u64 = 10_000_000_000;
 
     /// Iterations until `total_timesteps` is reached.
     pub fn iterations(&self) -> u64 {

@@ -51,6 +51,14 @@ impl LiveConfig {
                 ));
             }
         }
+        if self.habituation_s + self.control_s > 86_400.0 || self.command_hz > 100.0 {
+            return Err(ConfigError::new(
+                "live",
+                "control_s",
+                self.control_s,
+                "habituation and control may last at most 24 hours together, commands at most 100 Hz",
+            ));
+        }
         if !(self.release_s >= 0.0 && self.release_s <= self.habituation_s) {
             return Err(ConfigError::new(
                 "live",

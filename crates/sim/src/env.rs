@@ -41,16 +41,48 @@ crate::documented_params! {
     }
 }
 
+/// Most frames one episode may last: 24 hours at 25 Hz. An environment reserves its
+/// episode's trajectory up front (no allocation per frame), so an absurd length must be
+/// refused before anything is allocated (`--minutes 1e9` asked for 1.2 TB).
+pub const MAX_EPISODE_FRAMES: u64 = 24 * 3600 * 25;
+
+/// Highest frame rate accepted, in Hz (the tracking systems in use run at 20-100 Hz).
+pub const MAX_FRAME_RATE_HZ: f32 = 1000.0;
+
 impl EnvConfig {
     /// Checks every field; errors name the dotted field path and the value.
     pub fn validate(&self) -> Result<(), ConfigError> {
         check::positive("", "frame_rate_hz", self.frame_rate_hz)?;
+        if self.frame_rate_hz > MAX_FRAME_RATE_HZ {
+            return Err(ConfigError::new(
+                "",
+                "frame_rate_hz",
+                self.frame_rate_hz,
+                &format!("must be at most {MAX_FRAME_RATE_HZ} Hz"),
+            ));
+        }
         if self.frames_per_action == 0 {
             return Err(ConfigError::new(
                 "",
                 "frames_per_action",
                 0,
                 "must be at least 1",
+            ));
+        }
+        let longest = self
+            .task
+            .training_episode_actions
+            .max(self.task.evaluation_episode_actions);
+        if u64::from(longest) * u64::from(self.frames_per_action) > MAX_EPISODE_FRAMES {
+            return Err(ConfigError::new(
+                "",
+                "task.evaluation_episode_actions",
+                longest,
+                &format!(
+                    "with {} frames per action an episode would exceed {MAX_EPISODE_FRAMES} \
+                     frames (24 hours at 25 Hz)",
+                    self.frames_per_action
+                ),
             ));
         }
         if !(1..=MAX_OTHERS as u32).contains(&self.fish_count) {

@@ -40,6 +40,7 @@ pub fn run(a: AnalyzeArgs) -> Result<()> {
         cfg.sim_trials = n;
     }
     let out = a.out.clone().unwrap_or_else(|| a.study.join("analysis"));
+    let _lock = super::lock_out(&out, "analyze")?;
     let started = Instant::now();
     let results = super::with_jobs(a.jobs, || analyze_dir(&a.study, &cfg, a.seed))?
         .with_context(|| format!("analysing {}", a.study.display()))?;

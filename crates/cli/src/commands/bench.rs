@@ -124,7 +124,12 @@ pub fn run(a: BenchArgs) -> Result<()> {
             json,
             iterations,
             model,
-        } => bench_train(json, iterations, &model),
+        } => {
+            if iterations == 0 || iterations > 1000 {
+                anyhow::bail!("--iterations must lie in [1, 1000], got {iterations}");
+            }
+            bench_train(json, iterations, &model)
+        }
         BenchWhat::Stats {
             json,
             dir,
@@ -208,6 +213,12 @@ fn walk_count(dir: &std::path::Path) -> usize {
 }
 
 fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {
+    if !(seconds.is_finite() && seconds > 0.0 && seconds <= 3600.0) {
+        anyhow::bail!("--seconds must lie in (0, 3600], got {seconds}");
+    }
+    if envs.is_some_and(|n| n == 0 || n > 65_536) {
+        anyhow::bail!("--envs must lie in [1, 65536]");
+    }
     if !(seconds.is_finite() && seconds > 0.0) {
         anyhow::bail!("--seconds must be a positive number, got {seconds}");
     }

@@ -75,11 +75,12 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
     let res = super::with_jobs(a.jobs, || -> Result<_> {
         let (real, skipped) = read_pairs(&files, read_any, &cfg);
         for (f, why) in &skipped {
-            eprintln!("warning: skipped {f}: {why}");
+            say!("warning: skipped {f}: {why}");
         }
         compare_offline(&real, skipped, &models, &cfg, a.seed).map_err(anyhow::Error::msg)
     })??;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let _lock = super::lock_out(&a.out, "compare-offline")?;
     let put = |name: &str, text: &str| -> Result<()> {
         let p = a.out.join(name);
         fishprobe_io::write_atomically(&p, text.as_bytes())

@@ -10,6 +10,9 @@ use std::path::PathBuf;
 use super::config::SimSettings;
 use super::emit;
 
+/// Most episodes one `evaluate` runs (each is one trial file).
+const MAX_EPISODES: usize = 100_000;
+
 #[derive(Debug, Args)]
 pub struct EvaluateArgs {
     /// A policy directory from `fishprobe train`, or `scripted:goal-seeker` (turns toward the
@@ -43,9 +46,14 @@ pub struct EvaluateArgs {
 }
 
 pub fn run(a: EvaluateArgs) -> Result<()> {
-    if a.episodes == 0 || !(a.minutes.is_finite() && a.minutes > 0.0) {
-        bail!("--episodes must be at least 1 and --minutes a positive number");
+    if a.episodes == 0 || a.episodes > MAX_EPISODES {
+        bail!(
+            "--episodes must lie in [1, {MAX_EPISODES}], got {}",
+            a.episodes
+        );
     }
+    super::check_minutes("--minutes", f64::from(a.minutes))?;
+    let _lock = super::lock_out(&a.out, "evaluate")?;
     let env = match &a.settings {
         Some(p) => SimSettings::load(p)?.env,
         None => SimSettings::default().env,

@@ -58,6 +58,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         cfg.max_epochs = n;
     }
     cfg.validate()?;
+    let _lock = super::lock_out(&a.out, "fit-convnet")?;
     let data = if a.data.is_empty() {
         shared("train")?
     } else {
@@ -84,7 +85,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         FitProgress::Loaded { train, validation } => {
             for (f, why) in train.skipped.iter().chain(&validation.skipped) {
                 // Warnings go to stderr whether or not a bar is drawn.
-                bar.suspend(|| eprintln!("warning: skipped {}: {why}", f.display()));
+                bar.suspend(|| say!("warning: skipped {}: {why}", f.display()));
             }
             let line = format!(
                 "{} training examples from {} files, {} validation examples from {} files \
@@ -97,7 +98,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
                 train.headings_from_motion + validation.headings_from_motion
             );
             if bar.is_hidden() {
-                eprintln!("{line}");
+                say!("{line}");
             } else {
                 bar.println(line);
             }
@@ -117,7 +118,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
                 l.epoch, l.train_nll, l.val_nll, l.seconds
             );
             if bar.is_hidden() {
-                eprintln!("{line}");
+                say!("{line}");
             } else {
                 bar.println(line);
             }

@@ -62,6 +62,7 @@ pub fn run(a: ImportLegacyArgs) -> Result<()> {
     if files.is_empty() {
         bail!("no .hdf5 files in {:?}", a.inputs);
     }
+    let _lock = super::lock_out(&a.out, "import-legacy")?;
     let mut done = 0;
     let mut failed = 0;
     for f in &files {
@@ -69,7 +70,7 @@ pub fn run(a: ImportLegacyArgs) -> Result<()> {
             Ok(_) => done += 1,
             Err(e) => {
                 failed += 1;
-                eprintln!("error: {e:#}");
+                say!("error: {e:#}");
             }
         }
     }

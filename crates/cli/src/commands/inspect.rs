@@ -129,7 +129,7 @@ pub fn run(a: InspectArgs) -> Result<()> {
             }
             Err(e) => {
                 failed += 1;
-                eprintln!("error: {e}");
+                say!("error: {e}");
                 reports.push(json!({ "file": path.display().to_string(), "error": e.to_string() }));
             }
         }

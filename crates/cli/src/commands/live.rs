@@ -16,6 +16,9 @@ use std::path::{Path, PathBuf};
 
 use super::emit;
 
+/// Most virtual trials one `lab` runs (each is a trial file of up to 24 hours).
+const MAX_LAB_TRIALS: usize = 10_000;
+
 #[derive(Debug, Args)]
 pub struct LiveArgs {
     #[command(subcommand)]
@@ -120,7 +123,7 @@ fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
 
 fn report(o: &TrialOutcome) {
     if let Some(f) = &o.file {
-        eprintln!(
+        say!(
             "trial {}: {} frames, {} goals{}",
             f.display(),
             o.frames,
@@ -135,12 +138,16 @@ fn report(o: &TrialOutcome) {
 }
 
 fn serve_cmd(a: ServeArgs) -> Result<()> {
+    if a.token.as_deref().is_some_and(|t| t.trim().is_empty()) {
+        bail!("--token is empty: a token must be a non-empty secret (or leave --token out on loopback)");
+    }
     let remote_ok = a.allow_remote && a.token.is_some();
     if !(is_loopback(&a.listen) || remote_ok) {
         bail!(fishprobe_live::LiveError::Unsafe {
             addr: a.listen.to_string()
         });
     }
+    let _lock = super::lock_out(&a.out, "live serve")?;
     let opts = ServeOptions {
         live: live_config(a.config.as_deref())?,
         task: fishprobe_sim::TaskParams::default(),
@@ -152,7 +159,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
     let mut make = pilot_factory(&a.policy)?;
     let listener =
         TcpListener::bind(a.listen).with_context(|| format!("listening on {}", a.listen))?;
-    eprintln!(
+    say!(
         "bridge for {} listening on {} (trials go to {})",
         a.policy,
         a.listen,
@@ -237,9 +244,17 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
     let guppy = GuppyParams::default();
     let mut live = LiveConfig::default();
     if let Some(m) = a.minutes {
+        super::check_minutes("--minutes", m)?;
         live.control_s = m * 60.0;
     }
     live.validate()?;
+    if a.trials == 0 || a.trials > MAX_LAB_TRIALS {
+        bail!(
+            "--trials must lie in [1, {MAX_LAB_TRIALS}], got {}",
+            a.trials
+        );
+    }
+    let _lock = super::lock_out(&a.out, "lab")?;
     let (addr, bridge) = match a.connect {
         Some(addr) => (addr, None),
         None => {
@@ -267,7 +282,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
             "trial {k}: {} goals, {} frames ({} with the fish lost), {} stops -> {}\n",
             t.goals_reached, t.frames_sent, t.frames_lost, t.stops, t.file
         );
-        eprint!("{line}");
+        say!("{line}");
         text += &line;
     }
     if let Some(h) = bridge {

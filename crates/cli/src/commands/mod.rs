@@ -1,5 +1,13 @@
 //! Subcommands.
 
+/// `eprintln!` that cannot panic: a line on stderr through [`note`], ignoring a closed or
+/// full stderr.
+macro_rules! say {
+    ($($t:tt)*) => {
+        $crate::commands::note(&format!($($t)*))
+    };
+}
+
 mod analyze;
 mod bench;
 mod compare_offline;
@@ -83,16 +91,67 @@ pub fn params_json<T: serde::Serialize>(p: &T) -> anyhow::Result<serde_json::Val
     Ok(serde_json::from_str(&serde_json::to_string(p)?)?)
 }
 
+/// Most threads or concurrent steps a command starts, as a multiple of the cores: beyond it
+/// they only contend (`train --jobs 100000` ran for minutes where 16 took 0.05 s).
+pub const MAX_JOBS_PER_CORE: usize = 4;
+
+/// Checks `--jobs`: 0 is an error; more than [`MAX_JOBS_PER_CORE`] x the cores is capped
+/// there, with a note.
+pub fn resolve_jobs(jobs: Option<usize>) -> anyhow::Result<Option<usize>> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cap = MAX_JOBS_PER_CORE * cores;
+    match jobs {
+        None => Ok(None),
+        Some(0) => anyhow::bail!("--jobs must be at least 1"),
+        Some(n) if n > cap => {
+            note(&format!(
+                "note: --jobs {n} capped to {cap} ({MAX_JOBS_PER_CORE} x the {cores} cores)"
+            ));
+            Ok(Some(cap))
+        }
+        Some(n) => Ok(Some(n)),
+    }
+}
+
 /// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
 pub fn with_jobs<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> anyhow::Result<T> {
-    match jobs {
+    match resolve_jobs(jobs)? {
         None => Ok(f()),
-        Some(0) => anyhow::bail!("--jobs must be at least 1"),
         Some(n) => Ok(rayon::ThreadPoolBuilder::new()
             .num_threads(n)
             .build()?
             .install(f)),
     }
+}
+
+/// Takes the one-writer lock of an output directory for the whole command (see
+/// [`fishprobe_io::DirLock`]); a second writer is refused with the holder's PID.
+pub fn lock_out(dir: &std::path::Path, what: &str) -> anyhow::Result<fishprobe_io::DirLock> {
+    Ok(fishprobe_io::DirLock::acquire(dir, what)?)
+}
+
+/// A line on stderr (a note, a warning, progress). A closed or full stderr is ignored: losing
+/// a note must not abort (or, as `eprintln!` does, panic) a command.
+pub fn note(line: &str) {
+    use std::io::Write;
+    let mut err = std::io::stderr().lock();
+    let _ = err.write_all(line.as_bytes());
+    if !line.ends_with('\n') {
+        let _ = err.write_all(b"\n");
+    }
+}
+
+/// Longest episode or trial a command accepts, in minutes (24 hours): the simulator
+/// reserves an episode's trajectory up front (`--minutes 1e9` asked for 1.2 TB), and trial
+/// files of up to 48 hours are read back (`fishprobe_io::ReadLimits::max_frames`).
+pub const MAX_MINUTES: f64 = 24.0 * 60.0;
+
+/// Checks a `--minutes` value: positive, finite, at most [`MAX_MINUTES`].
+pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
+    if !(m.is_finite() && m > 0.0 && m <= MAX_MINUTES) {
+        anyhow::bail!("{flag} must be a number of minutes in (0, {MAX_MINUTES}], got {m}");
+    }
+    Ok(())
 }
 
 /// Runs the parsed command.

@@ -42,8 +42,9 @@ pub fn run(a: ModelsArgs) -> Result<()> {
         .map(|n| ModelSpec::by_name(n))
         .collect::<Result<_, _>>()?;
     let measurements = if a.measure {
-        if !(a.minutes.is_finite() && a.minutes > 0.0) || a.episodes == 0 {
-            anyhow::bail!("--minutes must be > 0 and --episodes at least 1");
+        super::check_minutes("--minutes", f64::from(a.minutes))?;
+        if a.episodes == 0 || a.episodes > 10_000 {
+            anyhow::bail!("--episodes must lie in [1, 10000], got {}", a.episodes);
         }
         let jobs: Vec<(&ModelSpec, Condition)> = specs
             .iter()

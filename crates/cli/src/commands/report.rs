@@ -36,6 +36,8 @@ pub fn run(a: ReportArgs) -> Result<()> {
         }
         None => ReportConfig::default(),
     };
+    let out_dir = a.out.clone().unwrap_or_else(|| a.study.join("report"));
+    let _lock = super::lock_out(&out_dir, "report")?;
     let started = Instant::now();
     let out = super::with_jobs(a.jobs, || {
         build_report(&a.study, a.out.as_deref(), a.analysis.as_deref(), &cfg)

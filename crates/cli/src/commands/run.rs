@@ -74,15 +74,21 @@ pub fn run(a: RunArgs) -> Result<()> {
     if let Some(s) = a.seed {
         cfg.seed = s;
     }
+    let jobs = super::resolve_jobs(a.jobs)?
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let study =
         Study::with_convnet_data(a.out.clone(), cfg, a.real.clone(), a.convnet_data.clone())?;
     if let Some(id) = &a.step {
+        // A SLURM array task: steps run concurrently in one study, so each locks only itself
+        // (the submitting `run` holds the study's lock meanwhile).
+        let lock = a.out.join(".fishprobe/locks").join(format!("{id}.lock"));
+        let _lock =
+            fishprobe_io::DirLock::acquire_file(&a.out, &lock, &format!("run --step {id}"))?;
         study.run_one(id)?;
         return emit(&format!("step {id} complete\n"));
     }
-    let jobs = a
-        .jobs
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    // One writer per study: a second `run` on it is refused at once.
+    let _lock = super::lock_out(&a.out, "run")?;
     let bar = ProgressBar::new(0);
     bar.set_style(
         ProgressStyle::with_template(
@@ -112,7 +118,7 @@ pub fn run(a: RunArgs) -> Result<()> {
         };
         bar.set_message(r.iter().cloned().collect::<Vec<_>>().join(", "));
         if bar.is_hidden() {
-            eprintln!("[{:7.1} s] {line}", started.elapsed().as_secs_f64());
+            say!("[{:7.1} s] {line}", started.elapsed().as_secs_f64());
         }
     };
     let result = if a.executor == "slurm" {

@@ -44,9 +44,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     if let Some(m) = &a.model {
         settings.fish = ModelSpec::by_name(m)?;
     }
-    if !(a.minutes.is_finite() && a.minutes > 0.0) {
-        bail!("--minutes must be a positive number, got {}", a.minutes);
-    }
+    super::check_minutes("--minutes", f64::from(a.minutes))?;
     if let Some(dir) = a.robot.strip_prefix("policy:") {
         return simulate_policy(dir, &settings, &a);
     }

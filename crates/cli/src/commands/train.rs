@@ -46,9 +46,11 @@ pub struct TrainArgs {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
+    // One writer per run directory: a second `train` (or a `--resume`) into it is refused.
+    let _lock = super::lock_out(&a.out, "train")?;
     let mut trainer = if a.resume && a.out.join("params.json").exists() {
         if a.model.is_some() || a.settings.is_some() || a.steps.is_some() || a.ppo.is_some() {
-            eprintln!("note: --resume continues the run as params.json records it; --model, --settings, --steps and --ppo are ignored");
+            say!("note: --resume continues the run as params.json records it; --model, --settings, --steps and --ppo are ignored");
         }
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
@@ -176,7 +178,7 @@ fn train_loop(t: &mut Trainer) -> Result<()> {
             continue;
         }
         // Without a terminal (CI, logs), a line per iteration instead of the bar.
-        eprintln!(
+        say!(
             "iteration {} steps {} return {:.3} goals/episode {:.3} kl {:.4} {:.0} steps/s",
             s.iteration,
             s.timesteps,

@@ -1,0 +1,275 @@
+//! Every subcommand with hostile values: each ends in a clean error (exit 1, or clap's 2 for
+//! what it parses), with a message naming the problem, quickly, without a panic or an abort.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fresh_dir, stderr};
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// Runs fishprobe with `args`; kills it and fails after `limit`.
+fn run_within(args: &[&str], limit: Duration) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            panic!("fishprobe {args:?} still running after {limit:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Asserts a clean refusal whose message contains `needle`.
+fn refused(args: &[&str], needle: &str) {
+    let o = run_within(args, Duration::from_secs(60));
+    let err = stderr(&o);
+    let code = o.status.code();
+    assert!(
+        matches!(code, Some(1 | 2)),
+        "fishprobe {args:?}: exit {:?} (a panic is 101, a signal none)\n{err}",
+        o.status
+    );
+    assert!(
+        !err.contains("panicked"),
+        "fishprobe {args:?} panicked:\n{err}"
+    );
+    assert!(
+        err.contains(needle),
+        "fishprobe {args:?}: `{needle}` not in:\n{err}"
+    );
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn absurd_numbers_are_refused_before_any_work() {
+    let d = fresh_dir("hostile-numbers");
+    let trial = d.join("t.hdf5");
+    let out = d.join("out");
+    for m in ["1e9", "1e7", "NaN", "inf", "-1", "0"] {
+        let flag = format!("--minutes={m}");
+        refused(
+            &["simulate", "--model", "Zone", &flag, "--out", s(&trial)],
+            "--minutes must be a number of minutes in (0, 1440]",
+        );
+    }
+    refused(
+        &[
+            "evaluate",
+            "--policy",
+            "scripted:goal-seeker",
+            "--model",
+            "Zone",
+            "--minutes",
+            "1e9",
+            "--out",
+            s(&out),
+        ],
+        "--minutes must be",
+    );
+    refused(
+        &[
+            "evaluate",
+            "--policy",
+            "scripted:goal-seeker",
+            "--model",
+            "Zone",
+            "--episodes",
+            "0",
+            "--out",
+            s(&out),
+        ],
+        "--episodes must lie in",
+    );
+    refused(
+        &[
+            "evaluate",
+            "--policy",
+            "scripted:goal-seeker",
+            "--model",
+            "Zone",
+            "--episodes",
+            "1",
+            "--jobs",
+            "0",
+            "--out",
+            s(&out),
+        ],
+        "--jobs must be at least 1",
+    );
+    refused(
+        &["models", "--measure", "--minutes", "1e9"],
+        "--minutes must be",
+    );
+    refused(
+        &[
+            "lab",
+            "--policy",
+            "scripted:goal-seeker",
+            "--minutes",
+            "1e9",
+            "--out",
+            s(&out),
+        ],
+        "--minutes must be",
+    );
+    refused(
+        &[
+            "lab",
+            "--policy",
+            "scripted:goal-seeker",
+            "--trials",
+            "0",
+            "--out",
+            s(&out),
+        ],
+        "--trials must lie in",
+    );
+    refused(
+        &["run", "--jobs", "0", "--out", s(&d.join("study"))],
+        "--jobs must be at least 1",
+    );
+    refused(
+        &["analyze", s(&d), "--jobs", "0"],
+        "--jobs must be at least 1",
+    );
+    refused(
+        &["bench", "sim", "--seconds", "1e12"],
+        "--seconds must lie in",
+    );
+    refused(&["bench", "sim", "--envs", "0"], "--envs must lie in");
+    refused(
+        &["bench", "train", "--iterations", "1000000"],
+        "--iterations must lie in",
+    );
+    refused(
+        &[
+            "train",
+            "--model",
+            "Zone",
+            "--steps",
+            "0",
+            "--out",
+            s(&d.join("t0")),
+        ],
+        "total_timesteps",
+    );
+    refused(
+        &[
+            "train",
+            "--model",
+            "Zone",
+            "--steps",
+            "99999999999999",
+            "--out",
+            s(&d.join("t1")),
+        ],
+        "total_timesteps",
+    );
+    // Values clap cannot parse are its errors (exit 2), not panics.
+    refused(
+        &[
+            "train",
+            "--model",
+            "Zone",
+            "--steps",
+            "1e99",
+            "--out",
+            s(&d.join("t2")),
+        ],
+        "invalid value",
+    );
+    refused(&["run", "--jobs", "-3"], "unexpected argument");
+    // A network of 100,000 x 100,000 units is refused, not allocated (40 GB).
+    let ppo = d.join("huge.toml");
+    std::fs::write(&ppo, "hidden = [100000, 100000]\n").unwrap();
+    refused(
+        &[
+            "train",
+            "--model",
+            "Zone",
+            "--preset",
+            "smoke",
+            "--ppo",
+            s(&ppo),
+            "--out",
+            s(&d.join("t3")),
+        ],
+        "needs 1 to 8 layers of 1 to 4096 units",
+    );
+    let settings = d.join("settings.toml");
+    std::fs::write(&settings, "frame_rate_hz = 1e30\n").unwrap();
+    refused(&["config", "check", s(&settings)], "frame_rate_hz");
+    refused(
+        &[
+            "live",
+            "serve",
+            "--policy",
+            "scripted:goal-seeker",
+            "--token",
+            "",
+            "--out",
+            s(&out),
+        ],
+        "token",
+    );
+}
+
+#[test]
+fn too_many_jobs_are_capped_with_a_note() {
+    let d = fresh_dir("hostile-jobs");
+    let start = Instant::now();
+    let o = run_within(
+        &[
+            "train",
+            "--model",
+            "Follow",
+            "--preset",
+            "smoke",
+            "--jobs",
+            "100000",
+            "--out",
+            s(&d.join("t")),
+        ],
+        Duration::from_secs(120),
+    );
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("--jobs 100000 capped to"), "{err}");
+    assert!(start.elapsed() < Duration::from_secs(120));
+}
+
+#[cfg(unix)]
+#[test]
+fn a_full_stdout_and_stderr_is_an_error_not_a_panic() {
+    let Some(data) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return;
+    };
+    let example = data.join("examples/example.hdf5");
+    assert!(example.is_file(), "{} missing", example.display());
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(["inspect", s(&example)])
+        .stdout(full.try_clone().unwrap())
+        .stderr(full)
+        .status()
+        .unwrap();
+    assert_eq!(o.code(), Some(1), "{o:?}");
+}
