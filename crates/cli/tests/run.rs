@@ -57,6 +57,33 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     );
     assert!(results(&a) == before, "a rerun changed the results");
 
+    // Outputs that no longer match their markers (a trial lost, a stranger added, a trial
+    // swapped for another, as when two processes wrote one study) are
+    // redone, and the results come out as before.
+    let lost = fishprobe_io::trial_files(&a.join("rollouts/Zone__Force"))[0].clone();
+    std::fs::remove_file(&lost).unwrap();
+    let stranger = a.join("rollouts/Force__Force/trial_999.hdf5");
+    let follow = fishprobe_io::trial_files(&a.join("rollouts/Follow__Follow"));
+    std::fs::copy(&follow[0], &stranger).unwrap();
+    let zone = fishprobe_io::trial_files(&a.join("rollouts/Zone__Zone"));
+    let (swapped, original) = (zone[0].clone(), std::fs::read(&zone[0]).unwrap());
+    std::fs::copy(&zone[1], &swapped).unwrap();
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(!err.contains("42 steps, 42 complete"), "{err}");
+    assert!(lost.is_file(), "the lost trial was not redone");
+    assert!(!stranger.exists(), "the stranger is still there");
+    assert_eq!(
+        std::fs::read(&swapped).unwrap(),
+        original,
+        "the swap was kept"
+    );
+    assert!(
+        results(&a) == before,
+        "redoing the damaged steps changed the results"
+    );
+
     // Killed (SIGKILL) once some steps are done, then rerun: the same results.
     let b = base.join("b");
     let mut child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))

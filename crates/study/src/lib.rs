@@ -29,6 +29,7 @@
 //! thread pool.
 
 pub mod config;
+mod manifest;
 pub mod pilot;
 pub mod slurm;
 mod steps;
@@ -391,21 +392,28 @@ impl Study {
             .join(format!("{}.json", s.id))
     }
 
-    /// Whether a step is complete and valid: its marker matches and its output exists.
+    /// Whether a step is complete and valid: its marker's hash matches the step's inputs, its
+    /// output is there, and the output holds exactly the files (names and sizes) the marker
+    /// recorded when the step finished.
     pub fn is_complete(&self, s: &Step) -> bool {
-        let ok_marker = std::fs::read_to_string(self.marker(s))
+        let Some(marker) = std::fs::read_to_string(self.marker(s))
             .ok()
             .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-            .and_then(|v| v["hash"].as_str().map(|h| h == format!("{:016x}", s.hash)))
-            .unwrap_or(false);
-        ok_marker && steps::output_valid(self, s)
+        else {
+            return false;
+        };
+        let hash_ok = marker["hash"].as_str() == Some(format!("{:016x}", s.hash).as_str());
+        hash_ok
+            && steps::output_valid(self, s)
+            && manifest::matches(&marker, &manifest::manifest(&self.output(&s.kind)))
     }
 
     fn mark(&self, s: &Step, secs: f64) -> Result<(), StudyError> {
         let p = self.marker(s);
+        let outputs = manifest::manifest(&self.output(&s.kind));
         let text =
             serde_json::json!({"step": s.id, "hash": format!("{:016x}", s.hash), "seconds": secs,
-            "inputs": self.inputs(&s.kind)})
+            "inputs": self.inputs(&s.kind), "outputs": outputs})
             .to_string();
         if let Some(d) = p.parent() {
             std::fs::create_dir_all(d).map_err(|e| StudyError::Io {
