@@ -273,3 +273,34 @@ fn a_full_stdout_and_stderr_is_an_error_not_a_panic() {
         .unwrap();
     assert_eq!(o.code(), Some(1), "{o:?}");
 }
+
+/// A policy whose weights are NaN is refused by the bridge and the virtual lab before any
+/// trial (the bridge would also stop the robot on its first non-finite turn).
+#[test]
+fn a_policy_with_nan_weights_is_refused_by_the_bridge() {
+    let d = fresh_dir("hostile-nan-policy");
+    let policy = d.join("p");
+    let o = run_within(
+        &[
+            "train",
+            "--model",
+            "Follow",
+            "--preset",
+            "smoke",
+            "--out",
+            s(&policy),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    // safetensors: an 8-byte header length, the JSON header, then the raw floats.
+    let file = policy.join("policy.safetensors");
+    let mut bytes = std::fs::read(&file).unwrap();
+    let header = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    bytes[8 + header..].fill(0xff);
+    std::fs::write(&file, bytes).unwrap();
+    refused(
+        &["lab", "--policy", s(&policy), "--out", s(&d.join("lab"))],
+        "non-finite weights",
+    );
+}

@@ -78,6 +78,9 @@ pub struct LabTrial {
     pub frames_lost: u64,
     /// Stop commands received.
     pub stops: u64,
+    /// What the bridge reported going wrong (a trial file written elsewhere, or kept in its
+    /// memory, because the disk was full).
+    pub warnings: Vec<String>,
 }
 
 fn normal(rng: &mut SimRng) -> f32 {
@@ -161,6 +164,7 @@ pub fn run_trial(
         frames_sent: 0,
         frames_lost: 0,
         stops: 0,
+        warnings: Vec::new(),
     };
     let apply = |m: ServerMsg,
                  robot: &mut Robot,
@@ -193,6 +197,10 @@ pub fn run_trial(
                 out.file = file;
                 out.goals_reached = goals_reached;
                 Some((None, true))
+            }
+            ServerMsg::Error { reason } => {
+                out.warnings.push(reason);
+                None
             }
             _ => None,
         }
@@ -247,10 +255,14 @@ pub fn run_trial(
             let m = match rx.recv_timeout(wait) {
                 Ok(m) => m.map_err(LiveError::Net)?,
                 Err(_) => {
+                    let last = out
+                        .warnings
+                        .last()
+                        .map_or_else(String::new, |w| format!(" (it last said: {w})"));
                     return Err(LiveError::Net(format!(
-                        "no answer from the bridge for {:.0} s",
+                        "no answer from the bridge for {:.0} s{last}",
                         cfg.command_timeout_s
-                    )))
+                    )));
                 }
             };
             if matches!(m, ServerMsg::Ack { .. }) {
@@ -269,15 +281,26 @@ pub fn run_trial(
         }
     }
     // The bridge never said done (it was killed, or the trial ran past its end).
-    match rx.recv_timeout(wait) {
-        Ok(Ok(ServerMsg::Done {
-            file,
-            goals_reached,
-        })) => {
-            out.file = file;
-            out.goals_reached = goals_reached;
-            Ok(out)
+    loop {
+        match rx.recv_timeout(wait) {
+            Ok(Ok(ServerMsg::Done {
+                file,
+                goals_reached,
+            })) => {
+                out.file = file;
+                out.goals_reached = goals_reached;
+                return Ok(out);
+            }
+            Ok(Ok(ServerMsg::Error { reason })) => out.warnings.push(reason),
+            Ok(Ok(_)) => {}
+            _ => {
+                return Err(LiveError::Net(format!(
+                    "the bridge did not finish the trial{}",
+                    out.warnings
+                        .last()
+                        .map_or_else(String::new, |w| format!(" (it last said: {w})"))
+                )))
+            }
         }
-        _ => Err(LiveError::Net("the bridge did not finish the trial".into())),
     }
 }

@@ -25,6 +25,7 @@
 //!     token: None,
 //!     max_trials: Some(1),
 //!     fish_label: "live guppy".into(),
+//!     guard: server::BridgeGuard::default(),
 //! };
 //! let bridge = std::thread::spawn(move || {
 //!     server::serve(&listener, &opts, &mut || Ok(Box::new(Straight) as Box<dyn Pilot>), |_| {})
@@ -36,7 +37,9 @@
 //! ```
 
 pub mod error;
+pub mod keep;
 pub mod lab;
+mod lines;
 pub mod protocol;
 pub mod server;
 pub mod session;

@@ -1,17 +1,55 @@
-//! The bridge's TCP side: one trial per connection, one connection at a time.
+//! The bridge's TCP side: one trial at a time, any number of connections knocking.
 //!
-//! Lines longer than `max_message_bytes` are dropped (the robot is stopped and told why);
-//! malformed lines stop the robot; a client that goes quiet for `stale_s` of wall-clock time
-//! gets a stop; a client that disconnects leaves a complete trial file of what was recorded.
+//! Every connection says hello in its own thread, within [`BridgeGuard::handshake_s`]; only an
+//! authenticated hello claims the trial slot, so a peer that connects and says nothing (or
+//! trickles a byte at a time) never blocks a real lab client, and at most
+//! [`BridgeGuard::max_pending`] connections wait at once (the oldest is dropped beyond). While a
+//! trial runs, a new connection is refused at once with a "busy" error.
+//!
+//! During a trial, lines longer than `max_message_bytes` are dropped (the robot is stopped and
+//! told why); malformed lines stop the robot; the silence stop counts from the last complete,
+//! valid tracking frame, so blank lines, partial lines and garbage never keep a robot going. A
+//! client that disconnects leaves a complete trial file of every frame it sent, and a trial
+//! that cannot be written is kept (see [`crate::keep`]).
 
 use crate::error::LiveError;
+use crate::keep::{Keeper, Kept};
+use crate::lines::{Line, LineReader};
 use crate::protocol::{parse_client, to_line, ClientMsg, ServerMsg, PROTOCOL_VERSION};
 use crate::session::{LiveConfig, Pilot, Session};
+use fishprobe_sim::params::ConfigError;
 use fishprobe_sim::TaskParams;
-use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
+use std::collections::VecDeque;
+use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Mutex};
 use std::time::{Duration, Instant};
+
+/// How the bridge defends itself against peers (not part of the trial protocol).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BridgeGuard {
+    /// Time a new connection has to send a valid hello, in seconds (choice: 5 s; a lab client
+    /// says hello at once). Counted from the connection, not reset by partial input.
+    pub handshake_s: f64,
+    /// Connections allowed to wait for their hello at once (choice: 32); beyond, the oldest
+    /// waiting one is dropped, so a flood of idle connections cannot lock out a lab client.
+    pub max_pending: usize,
+    /// Where a trial goes when it cannot be written under `out` (None: the system's temporary
+    /// directory, `fishprobe-unsaved/`).
+    pub fallback_dir: Option<PathBuf>,
+}
+
+impl Default for BridgeGuard {
+    fn default() -> Self {
+        Self {
+            handshake_s: 5.0,
+            max_pending: 32,
+            fallback_dir: None,
+        }
+    }
+}
 
 /// How the bridge serves.
 #[derive(Debug, Clone)]
@@ -22,18 +60,51 @@ pub struct ServeOptions {
     pub task: TaskParams,
     /// Where trial files go: `<out>/<Policy>__Real/` or `<out>/<Policy>__VirtualLab/`.
     pub out: PathBuf,
-    /// Required in the hello when set (always set when listening beyond loopback).
+    /// Required in the hello when set (always set when listening beyond loopback); never
+    /// empty.
     pub token: Option<String>,
     /// Stop after this many trials (None: serve until killed).
     pub max_trials: Option<usize>,
     /// The fish's label in trial files ("live guppy"; the virtual lab says "virtual guppy").
     pub fish_label: String,
+    /// Defences against peers.
+    pub guard: BridgeGuard,
+}
+
+impl ServeOptions {
+    /// Checks the settings before the bridge listens.
+    pub fn validate(&self) -> Result<(), LiveError> {
+        self.live.validate()?;
+        if self.token.as_deref().is_some_and(|t| t.trim().is_empty()) {
+            return Err(ConfigError::new("bridge", "token", "\"\"", "must not be empty").into());
+        }
+        let g = &self.guard;
+        if !(g.handshake_s.is_finite() && g.handshake_s > 0.0 && g.handshake_s <= 600.0) {
+            return Err(ConfigError::new(
+                "bridge",
+                "handshake_s",
+                g.handshake_s,
+                "must lie in (0, 600]",
+            )
+            .into());
+        }
+        if !(1..=4096).contains(&g.max_pending) {
+            return Err(ConfigError::new(
+                "bridge",
+                "max_pending",
+                g.max_pending,
+                "must lie in [1, 4096]",
+            )
+            .into());
+        }
+        Ok(())
+    }
 }
 
 /// What one connection produced.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrialOutcome {
-    /// The trial file (None when the client never completed the handshake).
+    /// The trial file (None when it is held in memory because nothing could be written).
     pub file: Option<PathBuf>,
     /// Goals reached.
     pub goals_reached: u32,
@@ -41,87 +112,78 @@ pub struct TrialOutcome {
     pub complete: bool,
     /// Frames recorded.
     pub frames: usize,
+    /// What went wrong writing the trial (it went to the fallback, or stays in memory).
+    pub warning: Option<String>,
 }
 
 fn send(stream: &mut TcpStream, m: &ServerMsg) -> std::io::Result<()> {
     stream.write_all(to_line(m).as_bytes())
 }
 
-/// What one read produced.
-enum Line {
-    /// A complete line.
-    Text(String),
-    /// A line longer than the limit was dropped (its length so far).
-    TooLong(usize),
-    /// A line that is not UTF-8.
-    Binary,
-    /// Nothing complete within the read timeout (a partial line is kept).
-    Timeout,
-    /// The peer closed.
-    Closed,
-}
-
-/// Lines of at most `max` bytes from a stream with a read timeout. A partial line survives a
-/// timeout; an oversized one is discarded up to its newline without being stored.
-struct LineReader {
-    r: BufReader<TcpStream>,
-    buf: Vec<u8>,
-    max: usize,
-    discarding: Option<usize>,
-}
-
-impl LineReader {
-    fn new(s: TcpStream, max: usize) -> Self {
-        Self {
-            r: BufReader::new(s),
-            buf: Vec::new(),
-            max,
-            discarding: None,
-        }
-    }
-
-    fn next(&mut self) -> std::io::Result<Line> {
-        loop {
-            let available = match self.r.fill_buf() {
-                Ok(b) => b,
-                Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
-                    return Ok(Line::Timeout)
-                }
-                Err(e) if e.kind() == ErrorKind::Interrupted => continue,
-                Err(e) => return Err(e),
-            };
-            if available.is_empty() {
-                return Ok(Line::Closed);
-            }
-            let newline = available.iter().position(|&b| b == b'\n');
-            let take = newline.map_or(available.len(), |i| i + 1);
-            let chunk = &available[..newline.unwrap_or(available.len())];
-            match &mut self.discarding {
-                Some(n) => *n += chunk.len(),
-                None if self.buf.len() + chunk.len() > self.max => {
-                    self.discarding = Some(self.buf.len() + chunk.len());
-                    self.buf.clear();
-                }
-                None => self.buf.extend_from_slice(chunk),
-            }
-            self.r.consume(take);
-            if newline.is_some() {
-                if let Some(n) = self.discarding.take() {
-                    return Ok(Line::TooLong(n));
-                }
-                let bytes = std::mem::take(&mut self.buf);
-                return Ok(match String::from_utf8(bytes) {
-                    Ok(s) => Line::Text(s),
-                    Err(_) => Line::Binary,
-                });
-            }
-        }
-    }
+fn refuse(mut stream: TcpStream, reason: String) {
+    let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
+    let _ = send(&mut stream, &ServerMsg::Error { reason });
+    let _ = stream.shutdown(std::net::Shutdown::Both);
 }
 
 /// Whether an address is on this machine only.
 pub fn is_loopback(addr: &SocketAddr) -> bool {
     addr.ip().is_loopback()
+}
+
+/// A name from a policy file as one safe path component: letters, digits, `-`, `_` and `.`
+/// kept, anything else (`/`, `\`, `:`, spaces, ...) replaced by `_`, no leading dot (so neither
+/// `..` nor a hidden name), at most 100 characters. A trial path is then always inside
+/// `--out`, whatever a policy's `about.model` says.
+pub fn safe_component(name: &str) -> String {
+    let mut s: String = name
+        .chars()
+        .take(100)
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    while s.starts_with('.') {
+        s.replace_range(0..1, "_");
+    }
+    if s.is_empty() {
+        s.push_str("policy");
+    }
+    s
+}
+
+/// Compares tokens in time independent of where they differ.
+fn same_token(a: &str, b: &str) -> bool {
+    a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |d, (x, y)| d | (x ^ y)) == 0
+}
+
+/// A connection whose hello was accepted and that holds the trial slot.
+struct Admitted {
+    stream: TcpStream,
+    reader: LineReader,
+    source: String,
+    sync: bool,
+}
+
+/// Connections waiting for their hello, so that the oldest can be dropped and all can be
+/// closed when the bridge stops.
+#[derive(Default)]
+struct Waiting {
+    next: u64,
+    conns: VecDeque<(u64, TcpStream)>,
+}
+
+/// What the threads of one `serve` share.
+struct Shared<'a> {
+    opts: &'a ServeOptions,
+    busy: AtomicBool,
+    stop: AtomicBool,
+    waiting: Mutex<Waiting>,
+    accept_error: Mutex<Option<String>>,
 }
 
 /// Serves trials on `listener` until `max_trials` are done; `pilot` makes the pilot of each
@@ -132,20 +194,392 @@ pub fn serve(
     pilot: &mut dyn FnMut() -> Result<Box<dyn Pilot>, LiveError>,
     mut on_trial: impl FnMut(&TrialOutcome),
 ) -> Result<Vec<TrialOutcome>, LiveError> {
-    opts.live.validate()?;
-    let mut outcomes = Vec::new();
-    let mut n = 0usize;
-    while opts.max_trials.is_none_or(|m| outcomes.len() < m) {
-        let (stream, _) = listener
-            .accept()
-            .map_err(|e| LiveError::Net(format!("accept: {e}")))?;
-        let o = handle(stream, opts, pilot()?, &mut n)?;
-        on_trial(&o);
-        if o.file.is_some() {
+    opts.validate()?;
+    listener
+        .set_nonblocking(true)
+        .map_err(|e| LiveError::Net(format!("listener: {e}")))?;
+    let shared = Shared {
+        opts,
+        busy: AtomicBool::new(false),
+        stop: AtomicBool::new(false),
+        waiting: Mutex::new(Waiting::default()),
+        accept_error: Mutex::new(None),
+    };
+    let mut keeper = Keeper::new(opts.guard.fallback_dir.clone());
+    let (tx, rx) = mpsc::channel::<Admitted>();
+    let result = std::thread::scope(|scope| {
+        let sh = &shared;
+        scope.spawn(move || accept_loop(listener, sh, tx, scope));
+        let mut outcomes = Vec::new();
+        let mut n = 0usize;
+        let r = loop {
+            if opts.max_trials.is_some_and(|m| outcomes.len() >= m) {
+                break Ok(outcomes);
+            }
+            let Ok(adm) = rx.recv() else {
+                let why = sh.accept_error.lock().map(|e| e.clone()).ok().flatten();
+                break Err(LiveError::Net(format!(
+                    "accept: {}",
+                    why.unwrap_or_else(|| "the listener stopped".into())
+                )));
+            };
+            let p = match pilot() {
+                Ok(p) => p,
+                Err(e) => {
+                    refuse(adm.stream, format!("the bridge cannot make its pilot: {e}"));
+                    break Err(e);
+                }
+            };
+            let o = run_trial(adm, opts, p, &mut n, &mut keeper, &sh.busy);
+            sh.busy.store(false, Ordering::SeqCst);
+            on_trial(&o);
             outcomes.push(o);
+        };
+        sh.stop.store(true, Ordering::SeqCst);
+        // Whoever was admitted meanwhile is told why nothing happens.
+        while let Ok(adm) = rx.recv_timeout(Duration::from_millis(50)) {
+            refuse(adm.stream, "the bridge is shutting down".into());
+        }
+        r
+    });
+    let _ = listener.set_nonblocking(false);
+    keeper.retry();
+    let unsaved = keeper.unsaved();
+    if !unsaved.is_empty() {
+        return Err(LiveError::Write {
+            path: unsaved[0].to_path_buf(),
+            what: format!(
+                "{} trial(s) could not be written anywhere and are lost when the bridge exits",
+                unsaved.len()
+            ),
+        });
+    }
+    result
+}
+
+fn accept_loop<'scope, 'env>(
+    listener: &'env TcpListener,
+    sh: &'scope Shared<'scope>,
+    tx: mpsc::Sender<Admitted>,
+    scope: &'scope std::thread::Scope<'scope, 'env>,
+) {
+    loop {
+        if sh.stop.load(Ordering::SeqCst) {
+            if let Ok(mut w) = sh.waiting.lock() {
+                for (_, c) in w.conns.drain(..) {
+                    let _ = c.shutdown(std::net::Shutdown::Both);
+                }
+            }
+            return;
+        }
+        let stream = match listener.accept() {
+            Ok((s, _)) => s,
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(10));
+                continue;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) if matches!(e.raw_os_error(), Some(23 | 24)) => {
+                // Out of file descriptors: wait for connections to end rather than stop.
+                std::thread::sleep(Duration::from_millis(100));
+                continue;
+            }
+            Err(e) => {
+                if let Ok(mut slot) = sh.accept_error.lock() {
+                    *slot = Some(e.to_string());
+                }
+                return;
+            }
+        };
+        let _ = stream.set_nonblocking(false);
+        if sh.busy.load(Ordering::SeqCst) {
+            refuse(
+                stream,
+                "busy: a trial is running on this bridge; connect again when it has ended".into(),
+            );
+            continue;
+        }
+        let Ok(watch) = stream.try_clone() else {
+            continue;
+        };
+        let id = {
+            let Ok(mut w) = sh.waiting.lock() else {
+                return;
+            };
+            while w.conns.len() >= sh.opts.guard.max_pending {
+                if let Some((_, oldest)) = w.conns.pop_front() {
+                    let _ = oldest.shutdown(std::net::Shutdown::Both);
+                }
+            }
+            w.next += 1;
+            let id = w.next;
+            w.conns.push_back((id, watch));
+            id
+        };
+        let tx = tx.clone();
+        scope.spawn(move || {
+            let admitted = handshake(stream, sh);
+            if let Ok(mut w) = sh.waiting.lock() {
+                w.conns.retain(|(i, _)| *i != id);
+            }
+            if let Some(a) = admitted {
+                if let Err(mpsc::SendError(a)) = tx.send(a) {
+                    refuse(a.stream, "the bridge is shutting down".into());
+                }
+            }
+        });
+    }
+}
+
+/// Reads and checks the hello within the deadline; claims the trial slot for a valid one.
+fn handshake(stream: TcpStream, sh: &Shared<'_>) -> Option<Admitted> {
+    let opts = sh.opts;
+    let deadline = Instant::now() + Duration::from_secs_f64(opts.guard.handshake_s);
+    let _ = stream.set_nodelay(true);
+    let _ = stream.set_read_timeout(Some(Duration::from_millis(100)));
+    let mut reader = LineReader::new(stream.try_clone().ok()?, opts.live.max_message_bytes);
+    let hello = loop {
+        if Instant::now() >= deadline {
+            refuse(
+                stream,
+                format!("no hello within {} s", opts.guard.handshake_s),
+            );
+            return None;
+        }
+        match reader.next() {
+            Ok(Line::Text(l)) if l.trim().is_empty() => {}
+            Ok(Line::Text(l)) => break parse_client(&l),
+            Ok(Line::Partial | Line::Timeout) => {}
+            Ok(Line::Closed) | Err(_) => return None,
+            Ok(Line::TooLong(_) | Line::Binary) => break Err("unreadable hello".into()),
+        }
+    };
+    let (source, sync) = match check_hello(hello, opts) {
+        Ok(ok) => ok,
+        Err(reason) => {
+            refuse(stream, reason);
+            return None;
+        }
+    };
+    if sh
+        .busy
+        .compare_exchange(false, true, Ordering::SeqCst, Ordering::SeqCst)
+        .is_err()
+    {
+        refuse(
+            stream,
+            "busy: a trial is running on this bridge; connect again when it has ended".into(),
+        );
+        return None;
+    }
+    Some(Admitted {
+        stream,
+        reader,
+        source,
+        sync,
+    })
+}
+
+/// The hello's source and lockstep flag, or why it is refused.
+fn check_hello(
+    hello: Result<ClientMsg, String>,
+    opts: &ServeOptions,
+) -> Result<(String, bool), String> {
+    let ClientMsg::Hello {
+        protocol,
+        world_size_cm,
+        tracking_hz,
+        source,
+        token,
+        sync,
+    } = hello?
+    else {
+        return Err("expected hello".into());
+    };
+    if let Some(want) = &opts.token {
+        if !token.as_deref().is_some_and(|t| same_token(t, want)) {
+            return Err("missing or wrong token".into());
         }
     }
-    Ok(outcomes)
+    if protocol != PROTOCOL_VERSION {
+        return Err(format!(
+            "protocol {protocol} not supported (this bridge speaks {PROTOCOL_VERSION})"
+        ));
+    }
+    if (world_size_cm[0] - 100.0).abs() > 0.5 || (world_size_cm[1] - 100.0).abs() > 0.5 {
+        return Err(format!(
+            "tank {world_size_cm:?} cm; the policy was trained for 100 x 100"
+        ));
+    }
+    if !(tracking_hz.is_finite() && tracking_hz > 0.0) {
+        return Err(format!("tracking rate {tracking_hz} Hz"));
+    }
+    match source.as_str() {
+        "virtual_lab" => Ok((source, sync)),
+        "lab" if sync => Err(
+            "\"sync\": true is for the virtual lab only: a live lab streams frames, and the \
+             bridge's silence stop must protect its robot"
+                .into(),
+        ),
+        "lab" => Ok((source, false)),
+        _ => Err(format!(
+            "source `{source}`: expected \"lab\" or \"virtual_lab\""
+        )),
+    }
+}
+
+/// Runs one admitted trial to its end and keeps its file.
+fn run_trial(
+    adm: Admitted,
+    opts: &ServeOptions,
+    pilot: Box<dyn Pilot>,
+    n: &mut usize,
+    keeper: &mut Keeper,
+    busy: &AtomicBool,
+) -> TrialOutcome {
+    let Admitted {
+        mut stream,
+        mut reader,
+        source,
+        sync,
+    } = adm;
+    let cfg = &opts.live;
+    let mut session = match Session::new(cfg.clone(), opts.task.clone(), pilot, &source) {
+        Ok(s) => s,
+        Err(e) => {
+            refuse(stream, e.to_string());
+            return TrialOutcome {
+                file: None,
+                goals_reached: 0,
+                complete: false,
+                frames: 0,
+                warning: Some(e.to_string()),
+            };
+        }
+    };
+    let poll = Duration::from_secs_f64((cfg.stale_s / 5.0).clamp(0.01, 0.2));
+    let _ = reader.get_ref().set_read_timeout(Some(poll));
+    let _ = stream.set_write_timeout(Some(Duration::from_secs(2)));
+    let arm = if source == "virtual_lab" {
+        "VirtualLab"
+    } else {
+        "Real"
+    };
+    let dir = opts
+        .out
+        .join(format!("{}__{arm}", safe_component(&session.policy())));
+    let file = next_free(&dir, n);
+    let welcome = ServerMsg::Welcome {
+        protocol: PROTOCOL_VERSION,
+        policy: session.policy(),
+        habituation_s: cfg.habituation_s,
+        release_s: cfg.release_s,
+        control_s: cfg.control_s,
+        command_hz: cfg.command_hz,
+    };
+    let mut alive = send(&mut stream, &welcome).is_ok();
+    // The silence stop counts from the last complete, valid frame (or the welcome).
+    let mut last_frame = Instant::now();
+    // Without a live robot (the virtual lab in lockstep) a slow client is no danger.
+    let watch_silence = !(sync && source == "virtual_lab");
+    while !session.is_done() {
+        let replies = match reader.next() {
+            Ok(Line::Text(l)) if l.trim().is_empty() => {
+                silence(&mut session, watch_silence, last_frame)
+            }
+            Ok(Line::Text(l)) => match parse_client(&l) {
+                Ok(ClientMsg::End) => break,
+                Ok(m) => {
+                    let t = match &m {
+                        ClientMsg::Frame { t, .. } => Some(*t),
+                        _ => None,
+                    };
+                    let accepted = session.frames_accepted();
+                    let mut r = session.on_message(m);
+                    if session.frames_accepted() > accepted {
+                        last_frame = Instant::now();
+                    }
+                    if let (true, Some(t)) = (sync, t) {
+                        if !session.is_done() {
+                            r.push(ServerMsg::Ack { t });
+                        }
+                    }
+                    r
+                }
+                Err(e) => session.on_malformed(&e),
+            },
+            Ok(Line::TooLong(len)) => session.on_malformed(&format!(
+                "message of more than {} bytes ({len} read) dropped",
+                cfg.max_message_bytes
+            )),
+            Ok(Line::Binary) => session.on_malformed("not UTF-8"),
+            Ok(Line::Partial | Line::Timeout) => silence(&mut session, watch_silence, last_frame),
+            Ok(Line::Closed) | Err(_) => break,
+        };
+        // A client that stopped listening may still have frames on the way: keep reading
+        // them (into the trial file), only stop answering.
+        if alive {
+            for r in &replies {
+                if send(&mut stream, r).is_err() {
+                    alive = false;
+                    break;
+                }
+            }
+        }
+    }
+    let complete = session.is_done();
+    let label = if session.kind() == fishprobe_io::TrialKind::Virtual {
+        "virtual guppy"
+    } else {
+        opts.fish_label.as_str()
+    };
+    let kept = keeper.keep(&file, session.trial_file(label));
+    // Trials held in memory since an earlier failure get another chance.
+    keeper.retry();
+    // The slot is free before `done` goes out, so a client that reconnects on `done` (the
+    // virtual lab's next trial) is never told "busy".
+    busy.store(false, Ordering::SeqCst);
+    let warning = kept.warning();
+    if alive {
+        if let Some(w) = &warning {
+            let _ = send(&mut stream, &ServerMsg::Error { reason: w.clone() });
+        }
+        let _ = send(
+            &mut stream,
+            &ServerMsg::Done {
+                file: kept
+                    .written()
+                    .map_or_else(String::new, |f| f.display().to_string()),
+                goals_reached: session.goals_reached(),
+            },
+        );
+    }
+    drain(&mut stream);
+    TrialOutcome {
+        file: match &kept {
+            Kept::InMemory { .. } => None,
+            k => k.written().map(Path::to_path_buf),
+        },
+        goals_reached: session.goals_reached(),
+        complete,
+        frames: session.frames(),
+        warning,
+    }
+}
+
+fn silence(session: &mut Session, watch: bool, last_frame: Instant) -> Vec<ServerMsg> {
+    if watch {
+        session.on_silence(last_frame.elapsed().as_secs_f64())
+    } else {
+        Vec::new()
+    }
+}
+
+/// Reads what the client still sends, briefly, so it sees `done` before the close.
+fn drain(stream: &mut TcpStream) {
+    let _ = stream.set_read_timeout(Some(Duration::from_millis(50)));
+    let mut sink = [0u8; 1024];
+    let _ = stream.read(&mut sink);
 }
 
 fn next_free(dir: &Path, n: &mut usize) -> PathBuf {
@@ -158,184 +592,31 @@ fn next_free(dir: &Path, n: &mut usize) -> PathBuf {
     }
 }
 
-fn handle(
-    mut stream: TcpStream,
-    opts: &ServeOptions,
-    pilot: Box<dyn Pilot>,
-    n: &mut usize,
-) -> Result<TrialOutcome, LiveError> {
-    let cfg = &opts.live;
-    let poll = Duration::from_secs_f64((cfg.stale_s / 2.0).clamp(0.01, 1.0));
-    let _ = stream.set_nodelay(true);
-    let _ = stream.set_read_timeout(Some(poll));
-    let mut reader = LineReader::new(
-        stream
-            .try_clone()
-            .map_err(|e| LiveError::Net(e.to_string()))?,
-        cfg.max_message_bytes,
-    );
-    let nothing = TrialOutcome {
-        file: None,
-        goals_reached: 0,
-        complete: false,
-        frames: 0,
-    };
-    // Handshake (10 s to say hello).
-    let started = Instant::now();
-    let hello = loop {
-        match reader.next() {
-            Ok(Line::Text(l)) if l.trim().is_empty() => continue,
-            Ok(Line::Text(l)) => break parse_client(&l),
-            Ok(Line::Timeout) if started.elapsed() < Duration::from_secs(10) => continue,
-            Ok(Line::Closed) | Err(_) => return Ok(nothing),
-            Ok(Line::Timeout) => break Err("no hello within 10 s".into()),
-            Ok(Line::TooLong(_)) | Ok(Line::Binary) => break Err("unreadable hello".into()),
-        }
-    };
-    let refuse = |stream: &mut TcpStream, reason: String| {
-        let _ = send(stream, &ServerMsg::Error { reason });
-    };
-    let (source, sync) = match hello {
-        Ok(ClientMsg::Hello {
-            protocol,
-            world_size_cm,
-            tracking_hz,
-            source,
-            token,
-            sync,
-        }) => {
-            if protocol != PROTOCOL_VERSION {
-                refuse(
-                    &mut stream,
-                    format!(
-                        "protocol {protocol} not supported (this bridge speaks {PROTOCOL_VERSION})"
-                    ),
-                );
-                return Ok(nothing);
-            }
-            if (world_size_cm[0] - 100.0).abs() > 0.5 || (world_size_cm[1] - 100.0).abs() > 0.5 {
-                refuse(
-                    &mut stream,
-                    format!("tank {world_size_cm:?} cm; the policy was trained for 100 x 100"),
-                );
-                return Ok(nothing);
-            }
-            if !(tracking_hz.is_finite() && tracking_hz > 0.0) {
-                refuse(&mut stream, format!("tracking rate {tracking_hz} Hz"));
-                return Ok(nothing);
-            }
-            if opts.token.is_some() && token != opts.token {
-                refuse(&mut stream, "missing or wrong token".into());
-                return Ok(nothing);
-            }
-            if source != "lab" && source != "virtual_lab" {
-                refuse(
-                    &mut stream,
-                    format!("source `{source}`: expected \"lab\" or \"virtual_lab\""),
-                );
-                return Ok(nothing);
-            }
-            (source, sync)
-        }
-        Ok(other) => {
-            refuse(&mut stream, format!("expected hello, got {other:?}"));
-            return Ok(nothing);
-        }
-        Err(e) => {
-            refuse(&mut stream, e);
-            return Ok(nothing);
-        }
-    };
-    let mut session = Session::new(cfg.clone(), opts.task.clone(), pilot, &source)?;
-    let arm = if source == "virtual_lab" {
-        "VirtualLab"
-    } else {
-        "Real"
-    };
-    let dir = opts.out.join(format!("{}__{arm}", session.policy()));
-    std::fs::create_dir_all(&dir).map_err(|e| LiveError::Write {
-        path: dir.clone(),
-        what: e.to_string(),
-    })?;
-    let file = next_free(&dir, n);
-    let welcome = ServerMsg::Welcome {
-        protocol: PROTOCOL_VERSION,
-        policy: session.policy(),
-        habituation_s: cfg.habituation_s,
-        release_s: cfg.release_s,
-        control_s: cfg.control_s,
-        command_hz: cfg.command_hz,
-    };
-    let mut alive = send(&mut stream, &welcome).is_ok();
-    let mut last_msg = Instant::now();
-    while alive && !session.is_done() {
-        let replies = match reader.next() {
-            Ok(Line::Text(l)) if l.trim().is_empty() => Vec::new(),
-            Ok(Line::Text(l)) => {
-                last_msg = Instant::now();
-                match parse_client(&l) {
-                    Ok(ClientMsg::End) => break,
-                    Ok(m) => {
-                        let t = match &m {
-                            ClientMsg::Frame { t, .. } => Some(*t),
-                            _ => None,
-                        };
-                        let mut r = session.on_message(m);
-                        if let (true, Some(t)) = (sync, t) {
-                            if !session.is_done() {
-                                r.push(ServerMsg::Ack { t });
-                            }
-                        }
-                        r
-                    }
-                    Err(e) => session.on_malformed(&e),
-                }
-            }
-            Ok(Line::TooLong(len)) => {
-                last_msg = Instant::now();
-                session.on_malformed(&format!(
-                    "message of more than {} bytes ({len} read) dropped",
-                    cfg.max_message_bytes
-                ))
-            }
-            Ok(Line::Binary) => session.on_malformed("not UTF-8"),
-            Ok(Line::Timeout) if sync => Vec::new(),
-            Ok(Line::Timeout) => session.on_silence(last_msg.elapsed().as_secs_f64()),
-            Ok(Line::Closed) | Err(_) => break,
-        };
-        for r in &replies {
-            if send(&mut stream, r).is_err() {
-                alive = false;
-            }
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_from_policy_files_stay_one_path_component() {
+        assert_eq!(safe_component("Zone"), "Zone");
+        assert_eq!(safe_component("Zone-radii_2.v1"), "Zone-radii_2.v1");
+        assert_eq!(safe_component("../../x"), "_._.._x");
+        assert_eq!(safe_component("/etc/passwd"), "_etc_passwd");
+        assert_eq!(safe_component(".."), "_.");
+        assert_eq!(safe_component("C:\\x y"), "C__x_y");
+        assert_eq!(safe_component(""), "policy");
+        assert_eq!(safe_component(&"a".repeat(500)).len(), 100);
+        for hostile in ["../../x", "/abs", "..", ".", "a/../../b"] {
+            let p = Path::new("/out").join(safe_component(hostile));
+            assert_eq!(p.parent(), Some(Path::new("/out")), "{hostile}");
         }
     }
-    let complete = session.is_done();
-    let label = if session.kind() == fishprobe_io::TrialKind::Virtual {
-        "virtual guppy"
-    } else {
-        opts.fish_label.as_str()
-    };
-    fishprobe_io::write_trial(&file, &session.trial_file(label)).map_err(|e| LiveError::Write {
-        path: file.clone(),
-        what: e.to_string(),
-    })?;
-    if alive {
-        let _ = send(
-            &mut stream,
-            &ServerMsg::Done {
-                file: file.display().to_string(),
-                goals_reached: session.goals_reached(),
-            },
-        );
+
+    #[test]
+    fn tokens_compare_whole() {
+        assert!(same_token("s3cret", "s3cret"));
+        assert!(!same_token("s3cret", "s3cre"));
+        assert!(!same_token("s3cret", "s3creT"));
+        assert!(!same_token("", "x"));
     }
-    // Drain what the client still sends, briefly, so it sees `done` before the close.
-    let _ = stream.set_read_timeout(Some(Duration::from_millis(50)));
-    let mut sink = [0u8; 1024];
-    let _ = stream.read(&mut sink);
-    Ok(TrialOutcome {
-        file: Some(file),
-        goals_reached: session.goals_reached(),
-        complete,
-        frames: session.frames(),
-    })
 }

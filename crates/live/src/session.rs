@@ -127,6 +127,10 @@ pub struct Session {
     gaps: Vec<[u64; 2]>,
     malformed: u64,
     goals_reached: u32,
+    accepted: u64,
+    /// Set when the pilot failed (a non-finite turn): the robot stays stopped for the rest of
+    /// the trial, since good tracking does not mend a broken policy.
+    pilot_fault: Option<String>,
 }
 
 impl std::fmt::Debug for Session {
@@ -187,6 +191,8 @@ impl Session {
             gaps: Vec::new(),
             malformed: 0,
             goals_reached: 0,
+            accepted: 0,
+            pilot_fault: None,
         })
     }
 
@@ -208,6 +214,12 @@ impl Session {
     /// Frames stored so far.
     pub fn frames(&self) -> usize {
         self.robot.len()
+    }
+
+    /// Tracking frames accepted so far (well-formed, with a time stamp after the last one):
+    /// the only sign of life the bridge's silence stop counts.
+    pub fn frames_accepted(&self) -> u64 {
+        self.accepted
     }
 
     /// Stops ordered so far.
@@ -255,11 +267,19 @@ impl Session {
         }
     }
 
+    /// Marks the robot stopped (recording why); false when it already was.
+    fn mark_stopped(&mut self, t: f64, reason: String) -> bool {
+        if self.stopped.is_some() {
+            return false;
+        }
+        self.stopped = Some(reason.clone());
+        let frame = self.frame_index(t);
+        self.stops.push(StopEvent { frame, reason });
+        true
+    }
+
     fn stop(&mut self, t: f64, reason: String, out: &mut Vec<ServerMsg>) {
-        if self.stopped.is_none() {
-            self.stopped = Some(reason.clone());
-            let frame = self.frame_index(t);
-            self.stops.push(StopEvent { frame, reason });
+        if self.mark_stopped(t, reason) {
             let phase = self.phase_at(self.rel(t));
             out.push(self.command(t, None, 0.0, phase));
         }
@@ -311,6 +331,7 @@ impl Session {
             self.t0 = Some(t);
         }
         self.last_t = t;
+        self.accepted += 1;
         let rel = self.rel(t);
         let phase = self.phase_at(rel);
         if phase == Phase::Done {
@@ -348,7 +369,7 @@ impl Session {
                 }
             }
             self.last_good = Some(t);
-            if self.stopped.is_some() {
+            if self.pilot_fault.is_none() {
                 self.stopped = None;
             }
         } else {
@@ -385,7 +406,7 @@ impl Session {
         if rel + 1e-9 >= due {
             let seq = self.next_seq;
             self.next_seq += 1;
-            let turn = if self.stopped.is_some() {
+            let mut turn = if self.stopped.is_some() {
                 0.0
             } else {
                 match phase {
@@ -394,6 +415,17 @@ impl Session {
                     Phase::Done => 0.0,
                 }
             };
+            if !turn.is_finite() {
+                // A policy that outputs NaN or infinity never drives the robot.
+                let reason = format!(
+                    "the policy produced a non-finite turn ({turn}) at {:.2} s; the robot stays \
+                     stopped for the rest of the trial",
+                    rel
+                );
+                self.pilot_fault = Some(reason.clone());
+                self.mark_stopped(t, reason);
+                turn = 0.0;
+            }
             if phase == Phase::Control && self.stopped.is_none() {
                 self.command_frames.push(k as u64);
                 self.command_turns.push(turn);
@@ -429,11 +461,12 @@ impl Session {
         self.encoder
             .encode(scene, &mut self.prev, self.first_obs, &mut self.obs);
         self.first_obs = false;
+        // Non-finite turns are returned as they are: the caller stops the robot.
         let turn = self.pilot.turn(&self.obs);
         if turn.is_finite() {
             turn.clamp(-std::f32::consts::PI, std::f32::consts::PI)
         } else {
-            0.0
+            turn
         }
     }
 

@@ -5,7 +5,7 @@
 use fishprobe_io::{read_trial, TrialKind};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
-use fishprobe_live::server::{serve, ServeOptions, TrialOutcome};
+use fishprobe_live::server::{serve, BridgeGuard, ServeOptions, TrialOutcome};
 use fishprobe_live::session::{LiveConfig, Pilot};
 use fishprobe_models::GuppyParams;
 use fishprobe_sim::TaskParams;
@@ -61,6 +61,7 @@ fn bridge(
         token: None,
         max_trials: Some(trials),
         fish_label: "live guppy".into(),
+        guard: BridgeGuard::default(),
     };
     let h = std::thread::spawn(move || {
         serve(
@@ -292,6 +293,7 @@ fn a_bridge_with_a_token_refuses_a_hello_without_it() {
         token: Some("s3cret".into()),
         max_trials: Some(1),
         fish_label: "live guppy".into(),
+        guard: BridgeGuard::default(),
     };
     std::thread::spawn(move || {
         let _ = serve(

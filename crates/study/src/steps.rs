@@ -4,7 +4,7 @@ use crate::pilot::PolicyPilot;
 use crate::{commit_dir, Step, StepKind, Study};
 use fishprobe_learn::{controller, Evaluation, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
-use fishprobe_live::server::{serve, ServeOptions};
+use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::{LiveConfig, Pilot};
 use fishprobe_models::{GuppyParams, ModelSpec};
 use fishprobe_sim::{derive_seed, EnvConfig, StartPoses};
@@ -273,6 +273,7 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
         token: None,
         max_trials: Some(c.virtual_trials),
         fish_label: "virtual guppy".into(),
+        guard: BridgeGuard::default(),
     };
     let pilot_name = name.clone();
     let bridge = std::thread::spawn(move || {
@@ -285,6 +286,9 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
         let t = run_trial(addr, &LabConfig::default(), &GuppyParams::default(), s)
             .map_err(|e| e.to_string())?;
         say(&format!("virtual trial {k}: {} goals", t.goals_reached));
+        for w in &t.warnings {
+            say(&format!("warning: the bridge says: {w}"));
+        }
     }
     bridge
         .join()

@@ -6,7 +6,7 @@ use clap::{Args, Subcommand};
 use fishprobe_learn::{controller, Controller};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
-use fishprobe_live::server::{is_loopback, serve, ServeOptions, TrialOutcome};
+use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions, TrialOutcome};
 use fishprobe_live::session::{LiveConfig, Pilot};
 use fishprobe_models::GuppyParams;
 use fishprobe_study::pilot::PolicyPilot;
@@ -100,6 +100,11 @@ fn pilot_factory(
     if let Controller::Policy { policy: p, .. } = &c {
         p.check_obs_dim(180)
             .context("the policy's observation size")?;
+        // A policy with NaN or infinite weights would only ever stop the robot: refuse it
+        // before the lab sets up (the bridge also stops the robot on any non-finite turn).
+        if p.pi.params().iter().any(|v| !v.is_finite()) {
+            bail!("policy {policy}: its network holds non-finite weights (NaN or infinity); it cannot drive a robot");
+        }
     }
     // Directory names of the study layout: the model the policy was trained on.
     let name = match &c {
@@ -122,6 +127,9 @@ fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
 }
 
 fn report(o: &TrialOutcome) {
+    if let Some(w) = &o.warning {
+        say!("warning: {w}");
+    }
     if let Some(f) = &o.file {
         say!(
             "trial {}: {} frames, {} goals{}",
@@ -155,6 +163,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         token: a.token.clone(),
         max_trials: a.trials,
         fish_label: "live guppy".into(),
+        guard: BridgeGuard::default(),
     };
     let mut make = pilot_factory(&a.policy)?;
     let listener =
@@ -267,6 +276,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
                 token: None,
                 max_trials: Some(a.trials),
                 fish_label: "virtual guppy".into(),
+                guard: BridgeGuard::default(),
             };
             let mut make = pilot_factory(&a.policy)?;
             let h = std::thread::spawn(move || serve(&listener, &opts, &mut make, |_| {}));
@@ -283,6 +293,9 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
             t.goals_reached, t.frames_sent, t.frames_lost, t.stops, t.file
         );
         say!("{line}");
+        for w in &t.warnings {
+            say!("warning: the bridge says: {w}");
+        }
         text += &line;
     }
     if let Some(h) = bridge {

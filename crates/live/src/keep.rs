@@ -1,0 +1,139 @@
+//! Finished trials are never lost: a trial that cannot be written where it belongs (a full
+//! disk, a vanished directory) goes to a fallback directory; if that fails too it stays in
+//! memory and every later trial's end tries again. The bridge keeps serving either way, and
+//! the client is told where its trial went.
+
+use fishprobe_io::TrialFile;
+use std::path::{Path, PathBuf};
+
+/// Where a trial ended up.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Kept {
+    /// Written where it belongs.
+    Written(PathBuf),
+    /// Written to the fallback directory; why the proper place failed.
+    Fallback {
+        /// Where it is.
+        file: PathBuf,
+        /// Where it should have gone, and why it could not.
+        why: String,
+    },
+    /// Held in memory, to be written at the next chance; why nothing worked.
+    InMemory {
+        /// Where it should go.
+        file: PathBuf,
+        /// What failed.
+        why: String,
+    },
+}
+
+impl Kept {
+    /// The file, if one was written.
+    pub fn written(&self) -> Option<&Path> {
+        match self {
+            Kept::Written(f) | Kept::Fallback { file: f, .. } => Some(f),
+            Kept::InMemory { .. } => None,
+        }
+    }
+
+    /// What the client (and the operator) should be told, if anything went wrong.
+    pub fn warning(&self) -> Option<String> {
+        match self {
+            Kept::Written(_) => None,
+            Kept::Fallback { file, why } => Some(format!(
+                "{why}; the trial was written to {} instead",
+                file.display()
+            )),
+            Kept::InMemory { file, why } => Some(format!(
+                "{why}; the trial is kept in the bridge's memory and written to {} as soon as \
+                 that works (at the end of a later trial, or when the bridge stops)",
+                file.display()
+            )),
+        }
+    }
+}
+
+/// Trials waiting to be written.
+#[derive(Debug, Default)]
+pub struct Keeper {
+    unsaved: Vec<(PathBuf, TrialFile)>,
+    fallback: Option<PathBuf>,
+}
+
+impl Keeper {
+    /// A keeper whose fallback directory is `fallback` (none: the system's temporary
+    /// directory, `fishprobe-unsaved/`).
+    pub fn new(fallback: Option<PathBuf>) -> Self {
+        Self {
+            unsaved: Vec::new(),
+            fallback,
+        }
+    }
+
+    fn fallback_dir(&self) -> PathBuf {
+        self.fallback
+            .clone()
+            .unwrap_or_else(|| std::env::temp_dir().join("fishprobe-unsaved"))
+    }
+
+    /// Writes `trial` to `file`, else to the fallback directory, else keeps it.
+    pub fn keep(&mut self, file: &Path, trial: TrialFile) -> Kept {
+        let first = match write(file, &trial) {
+            Ok(()) => return Kept::Written(file.to_path_buf()),
+            Err(e) => format!("cannot write {}: {e}", file.display()),
+        };
+        let name = file
+            .file_name()
+            .map_or_else(|| "trial.hdf5".into(), |n| n.to_string_lossy().into_owned());
+        let arm = file
+            .parent()
+            .and_then(Path::file_name)
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        let stamp = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis());
+        let alt = self
+            .fallback_dir()
+            .join(arm)
+            .join(format!("{stamp}-{}-{name}", std::process::id()));
+        match write(&alt, &trial) {
+            Ok(()) => Kept::Fallback {
+                file: alt,
+                why: first,
+            },
+            Err(e) => {
+                self.unsaved.push((file.to_path_buf(), trial));
+                Kept::InMemory {
+                    file: file.to_path_buf(),
+                    why: format!("{first}; the fallback {} failed too: {e}", alt.display()),
+                }
+            }
+        }
+    }
+
+    /// Tries again to write the trials held in memory; returns those written.
+    pub fn retry(&mut self) -> Vec<PathBuf> {
+        let mut done = Vec::new();
+        self.unsaved
+            .retain(|(file, trial)| match write(file, trial) {
+                Ok(()) => {
+                    done.push(file.clone());
+                    false
+                }
+                Err(_) => true,
+            });
+        done
+    }
+
+    /// Trials still held in memory.
+    pub fn unsaved(&self) -> Vec<&Path> {
+        self.unsaved.iter().map(|(f, _)| f.as_path()).collect()
+    }
+}
+
+fn write(file: &Path, trial: &TrialFile) -> Result<(), String> {
+    if let Some(d) = file.parent() {
+        std::fs::create_dir_all(d).map_err(|e| format!("{}: {e}", d.display()))?;
+    }
+    fishprobe_io::write_trial(file, trial).map_err(|e| e.to_string())
+}

@@ -1,0 +1,387 @@
+//! The bridge against peers that try to blind or block it, and against a disk that fails:
+//! one test per way issue 21 found to defeat it (all over loopback, bounded in time).
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+use fishprobe_io::read_trial;
+use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
+use fishprobe_live::server::{serve, BridgeGuard, ServeOptions, TrialOutcome};
+use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_live::LiveError;
+use fishprobe_sim::TaskParams;
+use std::io::{BufRead, BufReader, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// A pilot with a name and a fixed turn (NaN for a broken policy).
+struct Fixed(&'static str, f32);
+impl Pilot for Fixed {
+    fn name(&self) -> String {
+        self.0.into()
+    }
+    fn turn(&mut self, _obs: &[f32]) -> f32 {
+        self.1
+    }
+}
+
+fn tmp(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fishprobe-peers-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn short() -> LiveConfig {
+    LiveConfig {
+        habituation_s: 2.0,
+        release_s: 1.0,
+        control_s: 20.0,
+        ..LiveConfig::default()
+    }
+}
+
+fn options(out: &Path, trials: usize) -> ServeOptions {
+    ServeOptions {
+        live: short(),
+        task: TaskParams::default(),
+        out: out.to_path_buf(),
+        token: None,
+        max_trials: Some(trials),
+        fish_label: "live guppy".into(),
+        guard: BridgeGuard::default(),
+    }
+}
+
+type Bridge = JoinHandle<Result<Vec<TrialOutcome>, LiveError>>;
+
+fn start(opts: ServeOptions, name: &'static str, turn: f32) -> (SocketAddr, Bridge) {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let h = std::thread::spawn(move || {
+        serve(
+            &listener,
+            &opts,
+            &mut || Ok(Box::new(Fixed(name, turn)) as Box<dyn Pilot>),
+            |_| {},
+        )
+    });
+    (addr, h)
+}
+
+fn hello(source: &str, sync: bool, token: Option<&str>) -> String {
+    to_line(&ClientMsg::Hello {
+        protocol: 1,
+        world_size_cm: [100.0, 100.0],
+        tracking_hz: 25.0,
+        source: source.into(),
+        token: token.map(Into::into),
+        sync,
+    })
+}
+
+fn frame(t: f64) -> String {
+    let pose = |x: f32| Pose {
+        x,
+        y: 0.0,
+        heading: 0.0,
+    };
+    to_line(&ClientMsg::Frame {
+        t,
+        robot: Some(pose(0.0)),
+        fish: vec![FishPose {
+            id: "f".into(),
+            pose: Some(pose(10.0)),
+        }],
+    })
+}
+
+/// A lab client: the connection and the lines it receives, with their arrival times.
+struct Client {
+    s: TcpStream,
+    rx: mpsc::Receiver<(Instant, String)>,
+}
+
+impl Client {
+    fn connect(addr: SocketAddr) -> Self {
+        let s = TcpStream::connect(addr).unwrap();
+        let r = BufReader::new(s.try_clone().unwrap());
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for l in r.lines() {
+                let Ok(l) = l else { break };
+                if tx.send((Instant::now(), l)).is_err() {
+                    break;
+                }
+            }
+        });
+        Self { s, rx }
+    }
+
+    fn send(&mut self, text: &str) {
+        self.s.write_all(text.as_bytes()).unwrap();
+    }
+
+    /// The next line within `limit`.
+    fn line(&self, limit: Duration) -> Option<String> {
+        self.rx.recv_timeout(limit).ok().map(|(_, l)| l)
+    }
+
+    /// Lines until one contains `needle`, within `limit`; the time it arrived.
+    fn until(&self, needle: &str, limit: Duration) -> (Instant, String) {
+        let end = Instant::now() + limit;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            match self.rx.recv_timeout(left) {
+                Ok((at, l)) if l.contains(needle) => return (at, l),
+                Ok(_) => {}
+                Err(_) => panic!("no line with `{needle}` within {limit:?}"),
+            }
+        }
+    }
+
+    fn welcomed(addr: SocketAddr) -> Self {
+        let mut c = Self::connect(addr);
+        c.send(&hello("lab", false, None));
+        c.until("welcome", Duration::from_secs(3));
+        c
+    }
+}
+
+#[test]
+fn blank_lines_and_partial_lines_do_not_defeat_the_silence_stop() {
+    for keepalive in ["\n", "   \n", "x"] {
+        let out = tmp("silence");
+        let (addr, h) = start(options(&out, 1), "Seeker", 0.1);
+        let mut c = Client::welcomed(addr);
+        for k in 0..10 {
+            c.send(&frame(f64::from(k) * 0.04));
+        }
+        // Then only keep-alive noise, every 0.1 s for 2 s: the stop must come as for silence
+        // (stale_s = 0.5 s after the last frame), not never.
+        let last_frame = Instant::now();
+        for _ in 0..20 {
+            std::thread::sleep(Duration::from_millis(100));
+            c.send(keepalive);
+        }
+        let (at, line) = c.until("no tracking frame", Duration::from_secs(1));
+        let after = at.duration_since(last_frame).as_secs_f64();
+        assert!(line.contains("\"stop\":true"), "{line}");
+        assert!(
+            (0.45..1.0).contains(&after),
+            "{keepalive:?}: stop {after:.2} s after the last frame"
+        );
+        c.send("\n");
+        c.send(&to_line(&ClientMsg::End));
+        h.join().unwrap().unwrap();
+    }
+}
+
+#[test]
+fn lockstep_is_refused_for_a_live_lab() {
+    let (addr, _h) = start(options(&tmp("sync"), 1), "Seeker", 0.1);
+    let mut c = Client::connect(addr);
+    c.send(&hello("lab", true, None));
+    let l = c.line(Duration::from_secs(3)).unwrap();
+    assert!(l.contains("error") && l.contains("virtual lab only"), "{l}");
+}
+
+#[test]
+fn idle_and_trickling_peers_cannot_hold_the_bridge_and_a_busy_bridge_says_so() {
+    let out = tmp("block");
+    let (addr, h) = start(options(&out, 1), "Seeker", 0.1);
+    // 130 connections that never say anything, and one that trickles a byte every 0.1 s.
+    let idle: Vec<TcpStream> = (0..130)
+        .map(|_| TcpStream::connect(addr).unwrap())
+        .collect();
+    let mut trickler = TcpStream::connect(addr).unwrap();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let stop2 = stop.clone();
+    let trickle = std::thread::spawn(move || {
+        while !stop2.load(std::sync::atomic::Ordering::SeqCst) {
+            if trickler.write_all(b"{").is_err() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    // A real lab client is welcomed at once.
+    let start = Instant::now();
+    let mut lab = Client::welcomed(addr);
+    assert!(
+        start.elapsed() < Duration::from_secs(2),
+        "welcome took {:?}",
+        start.elapsed()
+    );
+    // While its trial runs, a second client is refused at once with "busy".
+    let start = Instant::now();
+    let mut second = Client::connect(addr);
+    second.send(&hello("lab", false, None));
+    let l = second.line(Duration::from_secs(2)).unwrap();
+    assert!(l.contains("busy"), "{l}");
+    assert!(start.elapsed() < Duration::from_secs(1));
+    for k in 0..50 {
+        lab.send(&frame(f64::from(k) * 0.04));
+    }
+    lab.send(&to_line(&ClientMsg::End));
+    let outcomes = h.join().unwrap().unwrap();
+    assert_eq!(outcomes.len(), 1);
+    assert_eq!(outcomes[0].frames, 50);
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    trickle.join().unwrap();
+    drop(idle);
+}
+
+#[test]
+fn empty_tokens_are_refused() {
+    let out = tmp("token");
+    let mut opts = options(&out, 1);
+    opts.token = Some(String::new());
+    let (_, h) = start(opts, "Seeker", 0.1);
+    let e = h.join().unwrap().unwrap_err().to_string();
+    assert!(e.contains("token"), "{e}");
+    // A bridge with a token refuses an empty one in the hello.
+    let mut opts = options(&out, 1);
+    opts.token = Some("s3cret".into());
+    let (addr, _h) = start(opts, "Seeker", 0.1);
+    let mut c = Client::connect(addr);
+    c.send(&hello("lab", false, Some("")));
+    let l = c.line(Duration::from_secs(3)).unwrap();
+    assert!(l.contains("wrong token"), "{l}");
+    let mut c = Client::connect(addr);
+    c.send(&hello("lab", false, Some("s3cret")));
+    assert!(c.line(Duration::from_secs(3)).unwrap().contains("welcome"));
+}
+
+#[test]
+fn a_policy_name_cannot_put_a_trial_outside_out() {
+    let base = tmp("traversal");
+    let out = base.join("out");
+    for name in ["../../escape", "/tmp/fishprobe-abs-escape"] {
+        let (addr, h) = start(options(&out, 1), name, 0.1);
+        let mut c = Client::welcomed(addr);
+        c.send(&frame(0.0));
+        c.send(&to_line(&ClientMsg::End));
+        let o = h.join().unwrap().unwrap();
+        let file = o[0].file.clone().unwrap();
+        assert!(file.starts_with(&out), "{}", file.display());
+        assert_eq!(file.parent().unwrap().parent().unwrap(), out);
+    }
+    assert!(!base.join("escape__Real").exists());
+    assert!(!Path::new("/tmp/fishprobe-abs-escape__Real").exists());
+}
+
+#[test]
+fn a_burst_of_frames_then_a_reset_loses_no_frame() {
+    let out = tmp("reset");
+    let trials = 20;
+    let (addr, h) = start(options(&out, trials), "Seeker", 0.1);
+    for _ in 0..trials {
+        // The bridge may still be reading the last burst: a client retries on "busy".
+        let start = Instant::now();
+        let (mut s, r) = loop {
+            let mut s = TcpStream::connect(addr).unwrap();
+            s.write_all(hello("lab", false, None).as_bytes()).unwrap();
+            let mut r = BufReader::new(s.try_clone().unwrap());
+            let mut welcome = String::new();
+            r.read_line(&mut welcome).unwrap();
+            if welcome.contains("welcome") {
+                break (s, r);
+            }
+            assert!(welcome.contains("busy"), "{welcome}");
+            assert!(start.elapsed() < Duration::from_secs(5), "busy for 5 s");
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let burst: String = (0..250).map(|k| frame(f64::from(k) * 0.04)).collect();
+        s.write_all(burst.as_bytes()).unwrap();
+        // Commands pile up unread; closing with unread data sends a TCP reset.
+        std::thread::sleep(Duration::from_millis(30));
+        drop(r);
+        drop(s);
+    }
+    let outcomes = h.join().unwrap().unwrap();
+    for o in &outcomes {
+        let f = read_trial(o.file.as_ref().unwrap()).unwrap();
+        let stored = f.fish().next().unwrap().positions.len();
+        assert_eq!(stored, 250, "{}", o.file.as_ref().unwrap().display());
+    }
+}
+
+#[test]
+fn a_policy_that_outputs_nan_never_drives_the_robot() {
+    let out = tmp("nan");
+    let (addr, h) = start(options(&out, 1), "Broken", f32::NAN);
+    let mut c = Client::welcomed(addr);
+    // Habituation (2 s) and 3 s of control at 25 Hz.
+    for k in 0..125 {
+        c.send(&frame(f64::from(k) * 0.04));
+    }
+    c.send(&to_line(&ClientMsg::End));
+    let o = h.join().unwrap().unwrap();
+    let mut control = 0;
+    while let Some(l) = c.line(Duration::from_millis(500)) {
+        if l.contains("\"phase\":\"control\"") {
+            control += 1;
+            assert!(
+                l.contains("\"stop\":true") && l.contains("\"turn\":0.0"),
+                "{l}"
+            );
+        }
+    }
+    assert!(control >= 3, "{control} control commands");
+    let f = read_trial(o[0].file.as_ref().unwrap()).unwrap();
+    let cfg = &f.task.unwrap().config_json;
+    assert!(cfg.contains("non-finite turn"), "{cfg}");
+}
+
+#[test]
+fn a_write_failure_keeps_the_bridge_alive_and_the_trial() {
+    let base = tmp("fulldisk");
+    let out = base.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    // The trial directory cannot be made (a file stands in its place), as on a full disk.
+    std::fs::write(out.join("Seeker__Real"), b"in the way").unwrap();
+    let fallback = base.join("fallback");
+    let mut opts = options(&out, 3);
+    opts.guard.fallback_dir = Some(fallback.clone());
+    let (addr, h) = start(opts, "Seeker", 0.1);
+    let run = |expect: &str| {
+        let mut c = Client::welcomed(addr);
+        for k in 0..10 {
+            c.send(&frame(f64::from(k) * 0.04));
+        }
+        c.send(&to_line(&ClientMsg::End));
+        let (_, warning) = c.until(expect, Duration::from_secs(5));
+        let (_, done) = c.until("done", Duration::from_secs(5));
+        (warning, done)
+    };
+    // 1: written to the fallback, and the client is told where.
+    let (w, done) = run("instead");
+    assert!(
+        w.contains("cannot write") && w.contains(&fallback.display().to_string()),
+        "{w}"
+    );
+    assert!(done.contains(&fallback.display().to_string()), "{done}");
+    // 2: the fallback fails too: kept in memory, and the client is told.
+    std::fs::remove_dir_all(&fallback).unwrap();
+    std::fs::write(&fallback, b"in the way too").unwrap();
+    let (w, _) = run("kept in the bridge's memory");
+    assert!(w.contains("fallback"), "{w}");
+    // 3: the disk is back; the next trial's end writes both.
+    std::fs::remove_file(out.join("Seeker__Real")).unwrap();
+    let mut c = Client::welcomed(addr);
+    c.send(&frame(0.0));
+    c.send(&to_line(&ClientMsg::End));
+    c.until("done", Duration::from_secs(5));
+    let outcomes = h.join().unwrap().unwrap();
+    assert_eq!(outcomes.len(), 3);
+    assert!(outcomes[1].file.is_none() && outcomes[1].warning.is_some());
+    let written = fishprobe_io::trial_files(&out.join("Seeker__Real"));
+    assert_eq!(written.len(), 2, "{written:?}");
+    for f in written {
+        read_trial(&f).unwrap();
+    }
+}
