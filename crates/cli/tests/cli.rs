@@ -228,7 +228,7 @@ fn simulate_rejects_bad_arguments_before_work() {
         (vec!["--model", "Couzin"], "unknown fish model `Couzin`"),
         (
             vec!["--minutes", "0"],
-            "--minutes must be a positive number",
+            "--minutes must be a number of minutes in (0, 1440]",
         ),
     ] {
         let mut all = vec!["simulate", "--out", f];
@@ -287,8 +287,10 @@ fn import_legacy_converts_the_validation_split() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("converted 5 of 5"), "{}", stdout(&o));
-    for entry in std::fs::read_dir(&d).unwrap() {
-        let p = entry.unwrap().path();
+    // The trial files (the directory also holds the hidden one-writer lock).
+    let converted = fishprobe_io::trial_files(&d);
+    assert_eq!(converted.len(), 5);
+    for p in converted {
         let ours = fishprobe_io::read_trial(&p).unwrap();
         let theirs = fishprobe_io::read_trial(
             &data

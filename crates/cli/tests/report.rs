@@ -188,7 +188,10 @@ fn bad_input_gets_a_clear_error() {
 }
 
 /// Installs Debian's Chromium when it is missing (CI runs as root with the Debian registry).
+/// Two tests need it; one installs while the other waits (apt refuses a second apt at once).
 fn chromium() -> String {
+    static INSTALL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    let _one_at_a_time = INSTALL.lock().unwrap_or_else(|p| p.into_inner());
     for c in ["chromium", "chromium-browser"] {
         if Command::new("which")
             .arg(c)

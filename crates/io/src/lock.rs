@@ -63,8 +63,9 @@ impl DirLock {
         Self::acquire_file(dir, &dir.join(LOCK_FILE), what)
     }
 
-    /// Locks the file `lock` (creating it and its directory), on behalf of `dir` in messages:
-    /// for locks finer than a directory, such as one step of a study.
+    /// Locks the file `lock` (creating it and its directory), on behalf of `dir` in messages
+    /// (a directory, or the output file the lock guards): for locks finer than a directory,
+    /// such as one step of a study or one output file.
     pub fn acquire_file(dir: &Path, lock: &Path, what: &str) -> Result<Self, LockError> {
         let io = |reason| LockError::Io {
             path: lock.to_path_buf(),

@@ -39,6 +39,9 @@ pub fn run(a: AnalyzeArgs) -> Result<()> {
     if let Some(n) = a.sim_trials {
         cfg.sim_trials = n;
     }
+    if !a.study.is_dir() {
+        anyhow::bail!("{}: no such study directory", a.study.display());
+    }
     let out = a.out.clone().unwrap_or_else(|| a.study.join("analysis"));
     let _lock = super::lock_out(&out, "analyze")?;
     let started = Instant::now();

@@ -58,7 +58,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         cfg.max_epochs = n;
     }
     cfg.validate()?;
-    let _lock = super::lock_out(&a.out, "fit-convnet")?;
+    let _lock = super::lock_out_file(&a.out, "fit-convnet")?;
     let data = if a.data.is_empty() {
         shared("train")?
     } else {

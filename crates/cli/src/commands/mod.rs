@@ -130,6 +130,18 @@ pub fn lock_out(dir: &std::path::Path, what: &str) -> anyhow::Result<fishprobe_i
     Ok(fishprobe_io::DirLock::acquire(dir, what)?)
 }
 
+/// The one-writer lock of an output *file* (`fit-convnet --out convnet.safetensors`): a hidden
+/// `.<name>.lock` beside it, so two commands writing the same file exclude each other and
+/// commands writing other files in the same directory do not.
+pub fn lock_out_file(file: &std::path::Path, what: &str) -> anyhow::Result<fishprobe_io::DirLock> {
+    let name = file
+        .file_name()
+        .ok_or_else(|| anyhow::anyhow!("{}: not a file path", file.display()))?
+        .to_string_lossy();
+    let lock = file.with_file_name(format!(".{name}.lock"));
+    Ok(fishprobe_io::DirLock::acquire_file(file, &lock, what)?)
+}
+
 /// A line on stderr (a note, a warning, progress). A closed or full stderr is ignored: losing
 /// a note must not abort (or, as `eprintln!` does, panic) a command.
 pub fn note(line: &str) {

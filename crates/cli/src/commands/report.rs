@@ -36,6 +36,9 @@ pub fn run(a: ReportArgs) -> Result<()> {
         }
         None => ReportConfig::default(),
     };
+    if !a.study.is_dir() {
+        anyhow::bail!("{}: no such study directory", a.study.display());
+    }
     let out_dir = a.out.clone().unwrap_or_else(|| a.study.join("report"));
     let _lock = super::lock_out(&out_dir, "report")?;
     let started = Instant::now();
