@@ -53,7 +53,6 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         );
     }
     super::check_minutes("--minutes", f64::from(a.minutes))?;
-    let _lock = super::lock_out(&a.out, "evaluate")?;
     let env = match &a.settings {
         Some(p) => SimSettings::load(p)?.env,
         None => SimSettings::default().env,
@@ -70,6 +69,7 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         out: a.out.clone(),
         prefix: "trial".into(),
     };
+    let _lock = super::lock_out(&a.out, "evaluate")?;
     let results = super::with_jobs(a.jobs, || evaluate(&c, &e))??;
     let (mean, sd) = goals_mean_sd(&results);
     emit(&format!(

@@ -155,7 +155,6 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
             addr: a.listen.to_string()
         });
     }
-    let _lock = super::lock_out(&a.out, "live serve")?;
     let opts = ServeOptions {
         live: live_config(a.config.as_deref())?,
         task: fishprobe_sim::TaskParams::default(),
@@ -166,6 +165,8 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         guard: BridgeGuard::default(),
     };
     let mut make = pilot_factory(&a.policy)?;
+    // One bridge per output directory (taken once the inputs are known to be good).
+    let _lock = super::lock_out(&a.out, "live serve")?;
     let listener =
         TcpListener::bind(a.listen).with_context(|| format!("listening on {}", a.listen))?;
     say!(
@@ -263,7 +264,8 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
             a.trials
         );
     }
-    let _lock = super::lock_out(&a.out, "lab")?;
+    // The in-process bridge writes --out; with --connect the remote bridge writes its own.
+    let mut _lock = None;
     let (addr, bridge) = match a.connect {
         Some(addr) => (addr, None),
         None => {
@@ -279,6 +281,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
                 guard: BridgeGuard::default(),
             };
             let mut make = pilot_factory(&a.policy)?;
+            _lock = Some(super::lock_out(&a.out, "lab")?);
             let h = std::thread::spawn(move || serve(&listener, &opts, &mut make, |_| {}));
             (addr, Some(h))
         }
