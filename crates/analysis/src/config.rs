@@ -36,6 +36,10 @@ fishprobe_sim::documented_params! {
 }
 
 impl AnalysisConfig {
+    /// Most replicates, permutations, trials or minutes any count may be (10^7: 100 times the
+    /// paper's 100,000 permutations).
+    pub const MAX_RESAMPLES: usize = 10_000_000;
+
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
         for (name, v) in [
@@ -50,6 +54,16 @@ impl AnalysisConfig {
         ] {
             if v == 0 {
                 return Err(ConfigError::new("analysis", name, 0, "must be at least 1"));
+            }
+            // Bootstrap replicates are held in memory (8 bytes each) and every resample
+            // costs time: far above the paper's 5,000 and 100,000 is a typo, not a wish.
+            if v > Self::MAX_RESAMPLES {
+                return Err(ConfigError::new(
+                    "analysis",
+                    name,
+                    v,
+                    &format!("must be at most {}", Self::MAX_RESAMPLES),
+                ));
             }
         }
         if !(self.ci_level > 0.0 && self.ci_level < 1.0) {

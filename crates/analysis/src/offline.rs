@@ -64,12 +64,16 @@ fishprobe_sim::documented_params! {
 impl OfflineConfig {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        if self.bootstrap_reps == 0 || self.hist_bins < 10 {
+        if self.bootstrap_reps == 0
+            || self.bootstrap_reps > 10_000_000
+            || self.hist_bins < 10
+            || self.hist_bins > 100_000
+        {
             return Err(ConfigError::new(
                 "offline",
                 "bootstrap_reps/hist_bins",
                 self.bootstrap_reps,
-                "need at least 1 replicate and 10 bins",
+                "need 1 to 10,000,000 replicates and 10 to 100,000 bins",
             ));
         }
         if !(self.ci_level > 0.0 && self.ci_level < 1.0) {

@@ -228,6 +228,100 @@ fn absurd_numbers_are_refused_before_any_work() {
     );
 }
 
+/// The subcommands not covered above: each with a value that cannot work.
+#[test]
+fn every_other_subcommand_refuses_cleanly() {
+    let d = fresh_dir("hostile-rest");
+    let nowhere = d.join("nowhere");
+    let study = d.join("study");
+    std::fs::create_dir_all(&study).unwrap();
+    refused(&["report", s(&nowhere)], "no such study directory");
+    refused(
+        &["report", s(&study), "--jobs", "0"],
+        "--jobs must be at least 1",
+    );
+    refused(
+        &[
+            "fit-convnet",
+            "--data",
+            s(&nowhere),
+            "--validation",
+            s(&nowhere),
+            "--out",
+            s(&d.join("w.safetensors")),
+            "--max-epochs",
+            "0",
+        ],
+        "max_epochs",
+    );
+    refused(
+        &[
+            "fit-convnet",
+            "--data",
+            s(&nowhere),
+            "--validation",
+            s(&nowhere),
+            "--out",
+            s(&d.join("w.safetensors")),
+            "--max-epochs",
+            "99999999999",
+        ],
+        "max_epochs",
+    );
+    refused(
+        &[
+            "compare-offline",
+            "--data",
+            s(&nowhere),
+            "--out",
+            s(&d.join("c")),
+            "--reps",
+            "99999999999",
+        ],
+        "bootstrap_reps",
+    );
+    refused(
+        &[
+            "compare-offline",
+            "--data",
+            s(&nowhere),
+            "--out",
+            s(&d.join("c")),
+            "--jobs",
+            "0",
+        ],
+        "no trial files",
+    );
+    refused(
+        &["import-legacy", s(&nowhere), "--out", s(&d.join("i"))],
+        "nowhere",
+    );
+    refused(
+        &[
+            "export",
+            "--policy",
+            s(&nowhere),
+            "--onnx",
+            s(&d.join("p.onnx")),
+        ],
+        "nowhere",
+    );
+    refused(
+        &["live", "replay", s(&nowhere), "--connect", "127.0.0.1:9"],
+        "nowhere",
+    );
+    refused(&["inspect", s(&nowhere)], "nowhere");
+    refused(
+        &["models", "--measure", "--episodes", "0"],
+        "--episodes must lie in",
+    );
+    refused(&["config", "check", s(&nowhere)], "nowhere");
+    refused(
+        &["analyze", s(&study), "--sim-trials", "99999999999"],
+        "sim_trials",
+    );
+}
+
 #[test]
 fn too_many_jobs_are_capped_with_a_note() {
     let d = fresh_dir("hostile-jobs");
