@@ -476,6 +476,24 @@ impl FishModel for ConvNetFish {
     }
 }
 
+impl crate::ModelParams for ConvNetParams {
+    const NAME: &'static str = "ConvNet";
+    const SUMMARY: &'static str =
+        "behavioural cloning of live guppy pairs: (speed, turn) sampled from a ConvNet";
+
+    fn check(&self, prefix: &str) -> Result<(), fishprobe_sim::params::ConfigError> {
+        let _ = prefix;
+        Ok(())
+    }
+
+    fn build_model(
+        &self,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::FishModel>, crate::ModelError> {
+        use std::sync::Arc;
+        Ok(Arc::new(ConvNetFish::new(self)?))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -57,6 +57,23 @@ impl FishModel for Follow {
     }
 }
 
+impl crate::ModelParams for FollowParams {
+    const NAME: &'static str = "Follow";
+    const SUMMARY: &'static str =
+        "baseline: constant speed straight at the closest other agent, no overshoot";
+
+    fn check(&self, prefix: &str) -> Result<(), fishprobe_sim::params::ConfigError> {
+        self.validate(prefix)
+    }
+
+    fn build_model(
+        &self,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::FishModel>, crate::ModelError> {
+        use std::sync::Arc;
+        Ok(Arc::new(Follow::new(self.clone())?))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

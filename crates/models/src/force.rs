@@ -214,6 +214,23 @@ impl FishModel for Force {
     }
 }
 
+impl crate::ModelParams for ForceParams {
+    const NAME: &'static str = "Force";
+    const SUMMARY: &'static str =
+        "Klamser et al. 2021 variable-speed force model with noise and a wall module";
+
+    fn check(&self, prefix: &str) -> Result<(), fishprobe_sim::params::ConfigError> {
+        self.validate(prefix)
+    }
+
+    fn build_model(
+        &self,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::FishModel>, crate::ModelError> {
+        use std::sync::Arc;
+        Ok(Arc::new(Force::new(self.clone())?))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

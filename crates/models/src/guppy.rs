@@ -268,6 +268,24 @@ impl FishModel for Guppy {
     }
 }
 
+impl crate::ModelParams for GuppyParams {
+    const NAME: &'static str = "Guppy";
+    const ALIASES: &'static [&'static str] = &["virtualguppy"];
+    const SUMMARY: &'static str =
+        "the virtual lab's guppy: burst and glide, pauses, thigmotaxis, individual sociability";
+
+    fn check(&self, prefix: &str) -> Result<(), fishprobe_sim::params::ConfigError> {
+        self.validate(prefix)
+    }
+
+    fn build_model(
+        &self,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::FishModel>, crate::ModelError> {
+        use std::sync::Arc;
+        Ok(Arc::new(Guppy::new(self.clone())?))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,6 +3,12 @@
 //! stationary fish for the approach assay. Each is a [`FishModel`] built from a [`ModelSpec`],
 //! the serialisable choice of model plus its documented parameters.
 //!
+//! **Adding a model** is one file and one line: the file holds the model (a [`FishModel`]), its
+//! `…Params` (declared with `fishprobe_sim::documented_params!`) and `impl ModelParams for
+//! …Params` (name, one-line summary, checks, construction); the line adds `Name(NameParams),`
+//! to the `model_registry!` list in this file, which generates [`ModelSpec`] and every lookup
+//! (`by_name`, `NAMES`, `summary`, `field_docs`, `validate`, `build`).
+//!
 //! ```
 //! use fishprobe_models::ModelSpec;
 //! use fishprobe_sim::{Env, EnvConfig, TankEnv};
@@ -58,10 +64,86 @@ pub enum ModelError {
     Weights(#[from] WeightsError),
 }
 
-/// A fish model and its parameters, as written in config files: `{"model": "Zone", ...}`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "model")]
-pub enum ModelSpec {
+/// What a model's parameter struct says about its model: the one place a model is described.
+/// A new model is its file (the model, its `…Params` and this impl) plus one line in
+/// [`ModelSpec`]'s registry below.
+pub trait ModelParams: DocumentedParams + Clone {
+    /// Its name in config files (`{"model": NAME, ...}`) and on the command line; the
+    /// registry's variant has the same name.
+    const NAME: &'static str;
+    /// Other names accepted by [`ModelSpec::by_name`] (lower case).
+    const ALIASES: &'static [&'static str] = &[];
+    /// One line on what the model is.
+    const SUMMARY: &'static str;
+    /// Checks the parameters; errors name `prefix.field` and the value.
+    fn check(&self, prefix: &str) -> Result<(), ConfigError>;
+    /// The model, ready to drive fish (parameters already checked).
+    fn build_model(&self) -> Result<Arc<dyn FishModel>, ModelError>;
+}
+
+/// Declares [`ModelSpec`] from one line per model: `Variant(Params)`, with `Params:
+/// ModelParams` and `Params::NAME` = the variant's name.
+macro_rules! model_registry {
+    ($( $(#[$doc:meta])* $variant:ident($params:ty), )*) => {
+        /// A fish model and its parameters, as written in config files: `{"model": "Zone", ...}`.
+        #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+        #[serde(tag = "model")]
+        pub enum ModelSpec {
+            $( $(#[$doc])* $variant($params), )*
+        }
+
+        impl ModelSpec {
+            /// Names of every model, in the paper's order (candidate models first).
+            pub const NAMES: &'static [&'static str] = &[$(<$params as ModelParams>::NAME),*];
+
+            /// A model with its default (published) parameters, by name or alias
+            /// (case-insensitive).
+            pub fn by_name(name: &str) -> Result<Self, ModelError> {
+                let lower = name.to_ascii_lowercase();
+                $(
+                    if lower == <$params as ModelParams>::NAME.to_ascii_lowercase()
+                        || <$params as ModelParams>::ALIASES.contains(&lower.as_str())
+                    {
+                        return Ok(Self::$variant(<$params>::default()));
+                    }
+                )*
+                Err(ModelError::Unknown {
+                    name: name.to_string(),
+                    known: Self::NAMES.join(", "),
+                })
+            }
+
+            /// The model's name.
+            pub fn name(&self) -> &'static str {
+                match self { $( Self::$variant(_) => <$params as ModelParams>::NAME, )* }
+            }
+
+            /// One line on what the model is.
+            pub fn summary(&self) -> &'static str {
+                match self { $( Self::$variant(_) => <$params as ModelParams>::SUMMARY, )* }
+            }
+
+            /// The documented fields of this model's parameters.
+            pub fn field_docs(&self) -> &'static [FieldDoc] {
+                match self { $( Self::$variant(_) => <$params as DocumentedParams>::field_docs(), )* }
+            }
+
+            /// Checks the parameters; errors name the field.
+            pub fn validate(&self) -> Result<(), ConfigError> {
+                let prefix = self.name();
+                match self { $( Self::$variant(p) => p.check(prefix), )* }
+            }
+
+            /// The model, ready to drive fish.
+            pub fn build(&self) -> Result<Arc<dyn FishModel>, ModelError> {
+                self.validate()?;
+                match self { $( Self::$variant(p) => p.build_model(), )* }
+            }
+        }
+    };
+}
+
+model_registry! {
     /// M_Follow.
     Follow(FollowParams),
     /// M_Zone.
@@ -77,98 +159,8 @@ pub enum ModelSpec {
 }
 
 impl ModelSpec {
-    /// Names of every model, in the paper's order (candidate models first).
-    pub const NAMES: [&'static str; 6] =
-        ["Follow", "Zone", "Force", "Stationary", "ConvNet", "Guppy"];
-
     /// The rule-based candidate models of the paper.
     pub const RULE_BASED: [&'static str; 3] = ["Follow", "Zone", "Force"];
-
-    /// A model with its default (published) parameters, by name (case-insensitive).
-    pub fn by_name(name: &str) -> Result<Self, ModelError> {
-        match name.to_ascii_lowercase().as_str() {
-            "follow" => Ok(Self::Follow(FollowParams::default())),
-            "zone" => Ok(Self::Zone(ZoneParams::default())),
-            "force" => Ok(Self::Force(ForceParams::default())),
-            "stationary" => Ok(Self::Stationary(StationaryParams::default())),
-            "convnet" => Ok(Self::ConvNet(ConvNetParams::default())),
-            "guppy" | "virtualguppy" => Ok(Self::Guppy(GuppyParams::default())),
-            _ => Err(ModelError::Unknown {
-                name: name.to_string(),
-                known: Self::NAMES.join(", "),
-            }),
-        }
-    }
-
-    /// The model's name.
-    pub fn name(&self) -> &'static str {
-        match self {
-            Self::Follow(_) => "Follow",
-            Self::Zone(_) => "Zone",
-            Self::Force(_) => "Force",
-            Self::Stationary(_) => "Stationary",
-            Self::ConvNet(_) => "ConvNet",
-            Self::Guppy(_) => "Guppy",
-        }
-    }
-
-    /// One line on what the model is.
-    pub fn summary(&self) -> &'static str {
-        match self {
-            Self::Follow(_) => {
-                "baseline: constant speed straight at the closest other agent, no overshoot"
-            }
-            Self::Zone(_) => "Couzin et al. 2002 zonal model with turn noise and a wall module",
-            Self::Force(_) => {
-                "Klamser et al. 2021 variable-speed force model with noise and a wall module"
-            }
-            Self::Stationary(_) => "never moves (approach assay)",
-            Self::ConvNet(_) => {
-                "behavioural cloning of live guppy pairs: (speed, turn) sampled from a ConvNet"
-            }
-            Self::Guppy(_) => {
-                "the virtual lab's guppy: burst and glide, pauses, thigmotaxis, individual sociability"
-            }
-        }
-    }
-
-    /// The documented fields of this model's parameters.
-    pub fn field_docs(&self) -> &'static [FieldDoc] {
-        match self {
-            Self::Follow(_) => FollowParams::field_docs(),
-            Self::Zone(_) => ZoneParams::field_docs(),
-            Self::Force(_) => ForceParams::field_docs(),
-            Self::Stationary(_) => StationaryParams::field_docs(),
-            Self::ConvNet(_) => ConvNetParams::field_docs(),
-            Self::Guppy(_) => GuppyParams::field_docs(),
-        }
-    }
-
-    /// Checks the parameters; errors name the field.
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        let prefix = self.name();
-        match self {
-            Self::Follow(p) => p.validate(prefix),
-            Self::Zone(p) => p.validate(prefix),
-            Self::Force(p) => p.validate(prefix),
-            Self::Stationary(p) => p.validate(prefix),
-            Self::ConvNet(_) => Ok(()),
-            Self::Guppy(p) => p.validate(prefix),
-        }
-    }
-
-    /// The model, ready to drive fish.
-    pub fn build(&self) -> Result<Arc<dyn FishModel>, ModelError> {
-        self.validate()?;
-        Ok(match self {
-            Self::Follow(p) => Arc::new(Follow::new(p.clone())?),
-            Self::Zone(p) => Arc::new(Zone::new(p.clone())?),
-            Self::Force(p) => Arc::new(Force::new(p.clone())?),
-            Self::Stationary(_) => Arc::new(Stationary),
-            Self::ConvNet(p) => Arc::new(ConvNetFish::new(p)?),
-            Self::Guppy(p) => Arc::new(Guppy::new(p.clone())?),
-        })
-    }
 }
 
 #[cfg(test)]
@@ -177,14 +169,19 @@ mod tests {
 
     #[test]
     fn names_round_trip_and_unknown_is_clear() {
-        for n in ModelSpec::NAMES {
+        for &n in ModelSpec::NAMES {
             let s = ModelSpec::by_name(n).unwrap();
             assert_eq!(s.name(), n);
+            // The serde tag (the variant) is the model's NAME.
+            let tagged = serde_json::to_value(&s).unwrap();
+            assert_eq!(tagged["model"], n);
             assert_eq!(s.build().unwrap().name(), n);
             let json = serde_json::to_string(&s).unwrap();
             let back: ModelSpec = serde_json::from_str(&json).unwrap();
             assert_eq!(back, s);
         }
+        assert_eq!(ModelSpec::by_name("virtualguppy").unwrap().name(), "Guppy");
+        assert_eq!(ModelSpec::by_name("ZONE").unwrap().name(), "Zone");
         let e = ModelSpec::by_name("Couzin").unwrap_err().to_string();
         assert!(e.contains("Couzin") && e.contains("Zone"), "{e}");
     }

@@ -31,3 +31,19 @@ impl FishModel for Stationary {
         }
     }
 }
+
+impl crate::ModelParams for StationaryParams {
+    const NAME: &'static str = "Stationary";
+    const SUMMARY: &'static str = "never moves (approach assay)";
+
+    fn check(&self, prefix: &str) -> Result<(), fishprobe_sim::params::ConfigError> {
+        self.validate(prefix)
+    }
+
+    fn build_model(
+        &self,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::FishModel>, crate::ModelError> {
+        use std::sync::Arc;
+        Ok(Arc::new(Stationary))
+    }
+}

@@ -278,6 +278,23 @@ impl FishModel for Zone {
     }
 }
 
+impl crate::ModelParams for ZoneParams {
+    const NAME: &'static str = "Zone";
+    const SUMMARY: &'static str =
+        "Couzin et al. 2002 zonal model with turn noise and a wall module";
+
+    fn check(&self, prefix: &str) -> Result<(), fishprobe_sim::params::ConfigError> {
+        self.validate(prefix)
+    }
+
+    fn build_model(
+        &self,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::FishModel>, crate::ModelError> {
+        use std::sync::Arc;
+        Ok(Arc::new(Zone::new(self.clone())?))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
