@@ -31,7 +31,9 @@
 use fishprobe_learn::{to_env_action, GaussianPolicy};
 use fishprobe_models::{FollowParams, ModelSpec};
 use fishprobe_nn::MlpWorkspace;
-use fishprobe_sim::{derive_seed, stream, wrap_angle, Env, EnvConfig, TankEnv};
+use fishprobe_sim::{
+    derive_seed, stream, wrap_angle, ControlInput, Controller, Env, EnvConfig, GoalSeeker, TankEnv,
+};
 use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
 use std::io::Write;
@@ -171,7 +173,16 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 let to_goal = unit([g[0] - f.x, g[1] - f.y]);
                 let fish_goal = (g[0] - f.x).hypot(g[1] - f.y);
                 let action = match pilot {
-                    Pilot::Seek => toward(g),
+                    // fishprobe's one goal-seeker, the baseline of `evaluate` and the bridge.
+                    Pilot::Seek => GoalSeeker.act(
+                        &ControlInput {
+                            obs: &obs,
+                            robot: r,
+                            fish: env.fish(),
+                            goal: g,
+                        },
+                        &mut rng,
+                    ),
                     Pilot::SeekSectors(n) => {
                         let w = std::f32::consts::TAU / *n as f32;
                         let i = ((toward(g) + std::f32::consts::PI) / w).floor();

@@ -1,42 +1,13 @@
 //! Running a controller on the evaluation task: one trial file per episode and a summary.
 
 use crate::error::LearnError;
-use crate::policy::{to_env_action, GaussianPolicy};
 use fishprobe_io::{write_trial, TrialFile, TrialKind, TrialMeta};
 use fishprobe_models::ModelSpec;
-use fishprobe_nn::MlpWorkspace;
 use fishprobe_sim::{
-    derive_seed, stream, wrap_angle, Env, EnvConfig, StartPoses, TankEnv, TaskMode,
+    derive_seed, stream, ControlInput, Controller, Env, EnvConfig, StartPoses, TankEnv, TaskMode,
 };
-use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
-
-/// What drives the robot.
-#[derive(Debug, Clone)]
-pub enum Controller {
-    /// A trained policy: its mean action, or samples with `stochastic`.
-    Policy {
-        /// The policy.
-        policy: Box<GaussianPolicy>,
-        /// Sample instead of taking the mean.
-        stochastic: bool,
-        /// Name recorded in trial files.
-        name: String,
-    },
-    /// The scripted baseline: every second, turn toward the active goal, ignoring the fish.
-    GoalSeeker,
-}
-
-impl Controller {
-    /// Its name in trial files.
-    pub fn name(&self) -> String {
-        match self {
-            Controller::Policy { name, .. } => name.clone(),
-            Controller::GoalSeeker => "scripted:goal-seeker".into(),
-        }
-    }
-}
 
 /// One evaluation episode's outcome.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -78,7 +49,7 @@ pub struct Evaluation {
 
 /// Runs episode `k` of an evaluation and writes its trial file to `file`.
 pub fn run_episode(
-    c: &Controller,
+    c: &dyn Controller,
     e: &Evaluation,
     k: usize,
     file: &Path,
@@ -89,37 +60,31 @@ pub fn run_episode(
     cfg.task.evaluation_episode_actions =
         ((e.minutes * 60.0 / seconds_per_action).ceil() as u32).max(1);
     let mut env = TankEnv::new(cfg.clone(), e.model.build()?)?;
-    if let Controller::Policy { policy, .. } = c {
-        policy.check_obs_dim(env.observation_space().dim())?;
-    }
+    c.check_observation(env.observation_space().dim())
+        .map_err(LearnError::Policy)?;
+    let mut c = c.boxed_clone();
     env.set_start_poses(e.start.clone())?;
     env.set_recording(true);
     let seed = derive_seed(e.seed, "evaluate", k as u64);
     let mut obs = vec![0.0; env.observation_space().dim()];
     env.reset(Some(seed), &mut obs)?;
     let mut rng = stream(seed, "evaluate-actions", 0);
-    let mut ws = MlpWorkspace::default();
     let mut out = [0.0f32];
     loop {
-        let action = match c {
-            Controller::Policy {
-                policy, stochastic, ..
-            } => {
-                let y = policy.pi.forward(&obs, 1, &mut ws);
-                let a = if *stochastic {
-                    let z: f32 = StandardNormal.sample(&mut rng);
-                    y[0] + policy.log_std(y[1]).exp() * z
-                } else {
-                    y[0]
-                };
-                to_env_action(a)
-            }
-            Controller::GoalSeeker => {
-                let r = env.robot().state;
-                let g = env.active_goal();
-                wrap_angle((g[1] - r.y).atan2(g[0] - r.x) - r.heading)
-            }
+        let input = ControlInput {
+            obs: &obs,
+            robot: env.robot().state,
+            fish: env.fish(),
+            goal: env.active_goal(),
         };
+        let action = c.act(&input, &mut rng);
+        if !action.is_finite() {
+            return Err(LearnError::Policy(format!(
+                "{} produced a non-finite turn ({action}) in episode {k} at second {}",
+                c.describe(),
+                env.summary().actions
+            )));
+        }
         out[0] = action;
         if env.step(&out, &mut obs)?.truncated {
             break;
@@ -130,14 +95,14 @@ pub fn run_episode(
         .ok_or_else(|| LearnError::Run("recording was on".into()))?;
     let meta = TrialMeta {
         kind: TrialKind::Sim,
-        policy: c.name(),
+        policy: c.describe(),
         fish_model: e.model.name().to_string(),
         seed,
         goal_radius_cm: cfg.task.goal_radius_cm,
         config_json: serde_json::json!({"env": cfg, "fish": e.model}).to_string(),
         experiment_setup: format!(
             "fishprobe evaluate: {} against {}",
-            c.name(),
+            c.describe(),
             e.model.name()
         ),
     };
@@ -167,7 +132,7 @@ pub fn run_episode(
 }
 
 /// Runs the episodes in parallel; writes the trial files and `summary.csv` into `e.out`.
-pub fn evaluate(c: &Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>, LearnError> {
+pub fn evaluate(c: &dyn Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>, LearnError> {
     let results: Vec<EpisodeResult> = (0..e.episodes)
         .into_par_iter()
         .map(|k| run_episode(c, e, k, &e.out.join(format!("{}_{k:03}.hdf5", e.prefix))))
@@ -204,22 +169,4 @@ pub fn goals_mean_sd(r: &[EpisodeResult]) -> (f64, f64) {
         .sum::<f64>()
         / (n - 1.0).max(1.0);
     (mean, var.sqrt())
-}
-
-/// A controller from a `--policy` argument: a policy directory, or `scripted:goal-seeker`.
-pub fn controller(arg: &str, stochastic: bool) -> Result<Controller, LearnError> {
-    if arg == "scripted:goal-seeker" {
-        return Ok(Controller::GoalSeeker);
-    }
-    let path = Path::new(arg);
-    let (policy, meta) = GaussianPolicy::load(path)?;
-    let name = meta["about"]["model"]
-        .as_str()
-        .map(|m| format!("{m} (seed {})", meta["about"]["seed"]))
-        .unwrap_or_else(|| arg.to_string());
-    Ok(Controller::Policy {
-        policy: Box::new(policy),
-        stochastic,
-        name,
-    })
 }

@@ -25,6 +25,7 @@
 
 pub mod bc;
 pub mod config;
+pub mod controller;
 pub mod error;
 pub mod evaluate;
 pub mod gae;
@@ -34,9 +35,8 @@ pub mod ppo;
 pub mod trainer;
 
 pub use config::PpoConfig;
+pub use controller::{controller, PolicyController};
 pub use error::LearnError;
-pub use evaluate::{
-    controller, evaluate, goals_mean_sd, run_episode, Controller, EpisodeResult, Evaluation,
-};
+pub use evaluate::{evaluate, goals_mean_sd, run_episode, EpisodeResult, Evaluation};
 pub use policy::{to_env_action, GaussianPolicy};
 pub use trainer::{IterationStats, RunSpec, Trainer};

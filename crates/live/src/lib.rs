@@ -10,11 +10,13 @@
 //! as a trial file. [`lab::run_trial`] plays the virtual lab against it.
 //!
 //! ```no_run
-//! use fishprobe_live::{lab, server, session::{LiveConfig, Pilot}};
+//! use fishprobe_live::{lab, server, session::LiveConfig};
+//! use fishprobe_sim::{ControlInput, Controller, SimRng};
+//! #[derive(Clone)]
 //! struct Straight;
-//! impl Pilot for Straight {
+//! impl Controller for Straight {
 //!     fn name(&self) -> String { "Straight".into() }
-//!     fn turn(&mut self, _obs: &[f32]) -> f32 { 0.0 }
+//!     fn act(&mut self, _input: &ControlInput<'_>, _rng: &mut SimRng) -> f32 { 0.0 }
 //! }
 //! let listener = std::net::TcpListener::bind("127.0.0.1:0")?;
 //! let addr = listener.local_addr()?;
@@ -28,7 +30,7 @@
 //!     guard: server::BridgeGuard::default(),
 //! };
 //! let bridge = std::thread::spawn(move || {
-//!     server::serve(&listener, &opts, &mut || Ok(Box::new(Straight) as Box<dyn Pilot>), |_| {})
+//!     server::serve(&listener, &opts, &mut || Ok(Box::new(Straight) as Box<dyn Controller>), |_| {})
 //! });
 //! let trial = lab::run_trial(addr, &lab::LabConfig::default(), &Default::default(), 7)?;
 //! println!("{} goals, written to {}", trial.goals_reached, trial.file);

@@ -16,9 +16,9 @@ use crate::error::LiveError;
 use crate::keep::{Keeper, Kept};
 use crate::lines::{Line, LineReader};
 use crate::protocol::{parse_client, to_line, ClientMsg, ServerMsg, PROTOCOL_VERSION};
-use crate::session::{LiveConfig, Pilot, Session};
+use crate::session::{LiveConfig, Session};
 use fishprobe_sim::params::ConfigError;
-use fishprobe_sim::TaskParams;
+use fishprobe_sim::{Controller, TaskParams};
 use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -191,7 +191,7 @@ struct Shared<'a> {
 pub fn serve(
     listener: &TcpListener,
     opts: &ServeOptions,
-    pilot: &mut dyn FnMut() -> Result<Box<dyn Pilot>, LiveError>,
+    pilot: &mut dyn FnMut() -> Result<Box<dyn Controller>, LiveError>,
     mut on_trial: impl FnMut(&TrialOutcome),
 ) -> Result<Vec<TrialOutcome>, LiveError> {
     opts.validate()?;
@@ -432,7 +432,7 @@ fn check_hello(
 fn run_trial(
     adm: Admitted,
     opts: &ServeOptions,
-    pilot: Box<dyn Pilot>,
+    pilot: Box<dyn Controller>,
     n: &mut usize,
     keeper: &mut Keeper,
     busy: &AtomicBool,

@@ -6,8 +6,8 @@ use crate::protocol::{ClientMsg, FishPose, Phase, Pose, ServerMsg};
 use fishprobe_io::{Attr, Category, Entity, TaskRecord, TrialFile, TrialKind};
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{
-    stream, wrap_angle, AgentState, GoalTracker, ObservationEncoder, ObservationParams, Scene,
-    Tank, TankParams, TaskMode, TaskParams,
+    stream, wrap_angle, AgentState, ControlInput, Controller, GoalTracker, ObservationEncoder,
+    ObservationParams, Scene, SimRng, Tank, TankParams, TaskMode, TaskParams,
 };
 use std::collections::BTreeMap;
 
@@ -81,14 +81,6 @@ impl LiveConfig {
     }
 }
 
-/// What drives the robot during control: observation (180 floats) in, relative turn out.
-pub trait Pilot: Send {
-    /// Its name in trial files ("Zone" for π_Zone, ...).
-    fn name(&self) -> String;
-    /// The turn (rad) for an observation.
-    fn turn(&mut self, obs: &[f32]) -> f32;
-}
-
 /// A stop the bridge ordered.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct StopEvent {
@@ -102,7 +94,9 @@ pub struct StopEvent {
 pub struct Session {
     cfg: LiveConfig,
     task: TaskParams,
-    pilot: Box<dyn Pilot>,
+    pilot: Box<dyn Controller>,
+    /// The controller's action stream (a policy's mean action does not use it).
+    rng: SimRng,
     kind: TrialKind,
     tank: Tank,
     encoder: ObservationEncoder,
@@ -150,7 +144,7 @@ impl Session {
     pub fn new(
         cfg: LiveConfig,
         task: TaskParams,
-        pilot: Box<dyn Pilot>,
+        pilot: Box<dyn Controller>,
         source: &str,
     ) -> Result<Self, ConfigError> {
         cfg.validate()?;
@@ -168,6 +162,7 @@ impl Session {
             cfg,
             task,
             pilot,
+            rng: stream(0, "live-actions", 0),
             tank,
             prev: vec![0.0; 2 * encoder.sectors()],
             obs: vec![0.0; n],
@@ -462,7 +457,13 @@ impl Session {
             .encode(scene, &mut self.prev, self.first_obs, &mut self.obs);
         self.first_obs = false;
         // Non-finite turns are returned as they are: the caller stops the robot.
-        let turn = self.pilot.turn(&self.obs);
+        let input = ControlInput {
+            obs: &self.obs,
+            robot,
+            fish: &fish,
+            goal: self.goals.active,
+        };
+        let turn = self.pilot.act(&input, &mut self.rng);
         if turn.is_finite() {
             turn.clamp(-std::f32::consts::PI, std::f32::consts::PI)
         } else {
@@ -535,13 +536,14 @@ impl Session {
 mod tests {
     use super::*;
 
+    #[derive(Clone)]
     struct Straight;
-    impl Pilot for Straight {
+    impl Controller for Straight {
         fn name(&self) -> String {
             "Straight".into()
         }
-        fn turn(&mut self, obs: &[f32]) -> f32 {
-            assert_eq!(obs.len(), 180);
+        fn act(&mut self, input: &ControlInput<'_>, _rng: &mut SimRng) -> f32 {
+            assert_eq!(input.obs.len(), 180);
             0.25
         }
     }

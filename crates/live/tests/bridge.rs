@@ -6,9 +6,9 @@ use fishprobe_io::{read_trial, TrialKind};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions, TrialOutcome};
-use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_live::session::LiveConfig;
 use fishprobe_models::GuppyParams;
-use fishprobe_sim::TaskParams;
+use fishprobe_sim::{ControlInput, Controller, SimRng, TaskParams};
 use rand::{RngExt, SeedableRng};
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -16,13 +16,14 @@ use std::path::PathBuf;
 use std::thread::JoinHandle;
 
 /// Turns toward the goal sector of the observation (a stand-in for a trained policy).
+#[derive(Clone)]
 struct GoalSeeker;
-impl Pilot for GoalSeeker {
+impl Controller for GoalSeeker {
     fn name(&self) -> String {
         "Seeker".into()
     }
-    fn turn(&mut self, obs: &[f32]) -> f32 {
-        let goal = &obs[72..108];
+    fn act(&mut self, input: &ControlInput<'_>, _rng: &mut SimRng) -> f32 {
+        let goal = &input.obs[72..108];
         let (i, _) = goal
             .iter()
             .enumerate()
@@ -67,7 +68,7 @@ fn bridge(
         serve(
             &listener,
             &opts,
-            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Pilot>),
+            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Controller>),
             |_| {},
         )
         .unwrap()
@@ -299,7 +300,7 @@ fn a_bridge_with_a_token_refuses_a_hello_without_it() {
         let _ = serve(
             &listener,
             &opts,
-            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Pilot>),
+            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Controller>),
             |_| {},
         );
     });

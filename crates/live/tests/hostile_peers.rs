@@ -6,9 +6,9 @@
 use fishprobe_io::read_trial;
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions, TrialOutcome};
-use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_live::session::LiveConfig;
 use fishprobe_live::LiveError;
-use fishprobe_sim::TaskParams;
+use fishprobe_sim::{ControlInput, Controller, SimRng, TaskParams};
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -16,13 +16,14 @@ use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-/// A pilot with a name and a fixed turn (NaN for a broken policy).
+/// A controller with a name and a fixed turn (NaN for a broken policy).
+#[derive(Clone)]
 struct Fixed(&'static str, f32);
-impl Pilot for Fixed {
+impl Controller for Fixed {
     fn name(&self) -> String {
         self.0.into()
     }
-    fn turn(&mut self, _obs: &[f32]) -> f32 {
+    fn act(&mut self, _input: &ControlInput<'_>, _rng: &mut SimRng) -> f32 {
         self.1
     }
 }
@@ -64,7 +65,7 @@ fn start(opts: ServeOptions, name: &'static str, turn: f32) -> (SocketAddr, Brid
         serve(
             &listener,
             &opts,
-            &mut || Ok(Box::new(Fixed(name, turn)) as Box<dyn Pilot>),
+            &mut || Ok(Box::new(Fixed(name, turn)) as Box<dyn Controller>),
             |_| {},
         )
     });

@@ -29,6 +29,7 @@
 
 pub mod agent;
 pub mod checker;
+pub mod controller;
 pub mod env;
 pub mod error;
 pub mod fish;
@@ -44,6 +45,7 @@ pub mod vector;
 
 pub use agent::AgentState;
 pub use checker::{check_env, CheckFailure, CheckReport};
+pub use controller::{ControlInput, Controller, ControllerClone, GoalSeeker};
 pub use env::{
     BoxSpace, Env, EnvConfig, EnvSnapshot, EpisodeSummary, RecordedCommand, StartPoses, StepInfo,
     TankEnv, Trajectory, Transition,

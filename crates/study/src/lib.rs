@@ -30,7 +30,6 @@
 
 pub mod config;
 mod manifest;
-pub mod pilot;
 pub mod slurm;
 mod steps;
 

@@ -1,11 +1,10 @@
 //! What each step does.
 
-use crate::pilot::PolicyPilot;
 use crate::{commit_dir, Step, StepKind, Study};
-use fishprobe_learn::{controller, Evaluation, RunSpec, Trainer};
+use fishprobe_learn::{Evaluation, PolicyController, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
-use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_live::session::LiveConfig;
 use fishprobe_models::{GuppyParams, ModelSpec};
 use fishprobe_sim::{derive_seed, EnvConfig, StartPoses};
 use std::io::Write;
@@ -49,9 +48,9 @@ fn train_dir(study: &Study, m: usize, k: usize) -> PathBuf {
     study.output(&StepKind::Train { m, k })
 }
 
-fn policy_of(study: &Study, m: usize, k: usize) -> Result<fishprobe_learn::Controller, String> {
+fn policy_of(study: &Study, m: usize, k: usize) -> Result<PolicyController, String> {
     let d = train_dir(study, m, k);
-    controller(&d.display().to_string(), false).map_err(|e| e.to_string())
+    PolicyController::load(&d, false).map_err(|e| e.to_string())
 }
 
 fn tmp_of(out: &Path) -> PathBuf {
@@ -277,8 +276,10 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
     };
     let pilot_name = name.clone();
     let bridge = std::thread::spawn(move || {
-        let mut make =
-            || Ok(Box::new(PolicyPilot::new(ctl.clone(), pilot_name.clone())) as Box<dyn Pilot>);
+        let mut make = || {
+            Ok(Box::new(ctl.clone().renamed(pilot_name.clone()))
+                as Box<dyn fishprobe_sim::Controller>)
+        };
         serve(&listener, &opts, &mut make, |_| {})
     });
     for k in 0..c.virtual_trials {

@@ -70,7 +70,7 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         prefix: "trial".into(),
     };
     let _lock = super::lock_out(&a.out, "evaluate")?;
-    let results = super::with_jobs(a.jobs, || evaluate(&c, &e))??;
+    let results = super::with_jobs(a.jobs, || evaluate(c.as_ref(), &e))??;
     let (mean, sd) = goals_mean_sd(&results);
     emit(&format!(
         "{} against {}: {:.1} ± {:.1} goals per {} min over {} episodes (mean ± s.d.); trial files and summary.csv in {}\n",

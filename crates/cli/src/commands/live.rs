@@ -3,13 +3,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use fishprobe_learn::{controller, Controller};
+use fishprobe_learn::controller;
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
 use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions, TrialOutcome};
-use fishprobe_live::session::{LiveConfig, Pilot};
+use fishprobe_live::session::LiveConfig;
 use fishprobe_models::GuppyParams;
-use fishprobe_study::pilot::PolicyPilot;
+use fishprobe_sim::Controller;
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -95,23 +95,13 @@ pub struct LabArgs {
 
 fn pilot_factory(
     policy: &str,
-) -> Result<impl FnMut() -> Result<Box<dyn Pilot>, fishprobe_live::LiveError>> {
+) -> Result<impl FnMut() -> Result<Box<dyn Controller>, fishprobe_live::LiveError>> {
+    // Refuses a policy with non-finite weights (it would only ever stop the robot).
     let c = controller(policy, false).with_context(|| format!("loading policy {policy}"))?;
-    if let Controller::Policy { policy: p, .. } = &c {
-        p.check_obs_dim(180)
-            .context("the policy's observation size")?;
-        // A policy with NaN or infinite weights would only ever stop the robot: refuse it
-        // before the lab sets up (the bridge also stops the robot on any non-finite turn).
-        if p.pi.params().iter().any(|v| !v.is_finite()) {
-            bail!("policy {policy}: its network holds non-finite weights (NaN or infinity); it cannot drive a robot");
-        }
-    }
-    // Directory names of the study layout: the model the policy was trained on.
-    let name = match &c {
-        Controller::GoalSeeker => "GoalSeeker".to_string(),
-        Controller::Policy { name, .. } => name.split(" (seed").next().unwrap_or(name).to_string(),
-    };
-    Ok(move || Ok(Box::new(PolicyPilot::new(c.clone(), name.clone())) as Box<dyn Pilot>))
+    c.check_observation(180)
+        .map_err(anyhow::Error::msg)
+        .context("the policy's observation size")?;
+    Ok(move || Ok(c.boxed_clone()))
 }
 
 fn live_config(path: Option<&Path>) -> Result<LiveConfig> {

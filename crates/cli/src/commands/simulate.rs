@@ -122,7 +122,7 @@ fn simulate_policy(dir: &str, settings: &SimSettings, a: &SimulateArgs) -> Resul
         out: a.out.parent().map(PathBuf::from).unwrap_or_default(),
         prefix: String::new(),
     };
-    let r = fishprobe_learn::run_episode(&c, &e, 0, &a.out)?;
+    let r = fishprobe_learn::run_episode(c.as_ref(), &e, 0, &a.out)?;
     emit(&format!(
         "{}: {:.1} min of {} fish with policy {}; {} goals reached\n",
         a.out.display(),

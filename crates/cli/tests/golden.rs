@@ -1,0 +1,85 @@
+//! The smoke study's outputs, bit for bit: every trial file and `results.json`, digested and
+//! compared with the digest recorded when they were last changed on purpose. Refactoring
+//! (issue 25: one controller trait, one study layout, ...) must leave them as they are.
+//!
+//! If a change alters results on purpose, run this test, take the digest it prints, replace
+//! `GOLDEN` and say in the commit message why the results changed. The digest depends on the
+//! machine's floating-point paths (the ConvNet fish's inference uses AVX2 and FMA where the
+//! CPU has them), so it is checked only on x86-64 with both; elsewhere the test says so and
+//! checks that two runs agree with each other.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir, stderr};
+use std::path::{Path, PathBuf};
+
+/// Digest of the smoke study as of commit 6638720 (unchanged through issues 21 and 25;
+/// fishprobe 0.1.0, x86-64 with AVX2 and FMA).
+const GOLDEN: &str = "28e3bb4d3b02b22f";
+
+/// FNV-1a over the relative paths and contents of every trial file and of `results.json`.
+fn digest(study: &Path) -> (String, usize) {
+    fn walk(d: &Path, out: &mut Vec<PathBuf>) {
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(&p, out);
+            } else if p.extension().is_some_and(|x| x == "hdf5") {
+                out.push(p);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    for top in ["rollouts", "approach_test", "stability"] {
+        walk(&study.join(top), &mut files);
+    }
+    files.sort();
+    files.push(study.join("analysis/results.json"));
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    for f in &files {
+        eat(f.strip_prefix(study).unwrap().to_string_lossy().as_bytes());
+        eat(&std::fs::read(f).unwrap());
+    }
+    (format!("{h:016x}"), files.len())
+}
+
+fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[test]
+fn the_smoke_study_is_bit_identical_to_the_recorded_one() {
+    let d = fresh_dir("golden");
+    let study = d.join("s");
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", study.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (got, n) = digest(&study);
+    println!("smoke study digest: {got} over {n} files");
+    assert!(n > 50, "only {n} files");
+    if has_avx2_fma() {
+        assert_eq!(
+            got, GOLDEN,
+            "the smoke study's trial files or results.json changed (see this file's docs)"
+        );
+    } else {
+        println!("not x86-64 with AVX2 and FMA: checking only that a second run agrees");
+        let again = d.join("t");
+        let o = fishprobe(&["run", "--preset", "smoke", "--out", again.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert_eq!(digest(&again).0, got);
+    }
+}

@@ -1,0 +1,100 @@
+//! A trained policy as a [`Controller`], and the `--policy` argument every command reads.
+
+use crate::error::LearnError;
+use crate::policy::{to_env_action, GaussianPolicy};
+use fishprobe_nn::MlpWorkspace;
+use fishprobe_sim::{ControlInput, Controller, GoalSeeker, SimRng};
+use rand_distr::{Distribution, StandardNormal};
+use std::path::Path;
+
+/// A trained policy driving the robot: its mean action, or samples with `stochastic`.
+#[derive(Debug, Clone)]
+pub struct PolicyController {
+    /// The policy.
+    pub policy: Box<GaussianPolicy>,
+    /// Sample instead of taking the mean.
+    pub stochastic: bool,
+    name: String,
+    description: String,
+    ws: MlpWorkspace,
+}
+
+impl PolicyController {
+    /// A controller for `policy`, named `name` (the model it was trained on) and described in
+    /// trial files as `description`.
+    pub fn new(
+        policy: GaussianPolicy,
+        stochastic: bool,
+        name: String,
+        description: String,
+    ) -> Self {
+        Self {
+            policy: Box::new(policy),
+            stochastic,
+            name,
+            description,
+            ws: MlpWorkspace::default(),
+        }
+    }
+
+    /// Loads a policy directory (`fishprobe train`'s output). Refuses a policy whose weights
+    /// are not all finite: it could never drive a robot.
+    pub fn load(dir: &Path, stochastic: bool) -> Result<Self, LearnError> {
+        let (policy, meta) = GaussianPolicy::load(dir)?;
+        if policy.pi.params().iter().any(|v| !v.is_finite()) {
+            return Err(LearnError::Policy(format!(
+                "{}: its network holds non-finite weights (NaN or infinity); it cannot drive a robot",
+                dir.display()
+            )));
+        }
+        let model = meta["about"]["model"].as_str();
+        let name = model.map_or_else(|| dir.display().to_string(), str::to_string);
+        let description = model.map_or_else(
+            || dir.display().to_string(),
+            |m| format!("{m} (seed {})", meta["about"]["seed"]),
+        );
+        Ok(Self::new(policy, stochastic, name, description))
+    }
+
+    /// The same policy under another short name (a study's name for its model).
+    pub fn renamed(mut self, name: String) -> Self {
+        self.name = name;
+        self
+    }
+}
+
+impl Controller for PolicyController {
+    fn name(&self) -> String {
+        self.name.clone()
+    }
+
+    fn describe(&self) -> String {
+        self.description.clone()
+    }
+
+    fn check_observation(&self, dim: usize) -> Result<(), String> {
+        self.policy.check_obs_dim(dim).map_err(|e| e.to_string())
+    }
+
+    fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
+        let y = self.policy.pi.forward(input.obs, 1, &mut self.ws);
+        let a = if self.stochastic {
+            let z: f32 = StandardNormal.sample(rng);
+            y[0] + self.policy.log_std(y[1]).exp() * z
+        } else {
+            y[0]
+        };
+        to_env_action(a)
+    }
+}
+
+/// A controller from a `--policy` argument: a policy directory, or `scripted:goal-seeker`.
+pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, LearnError> {
+    if arg == "scripted:goal-seeker" {
+        return Ok(Box::new(GoalSeeker));
+    }
+    Ok(Box::new(PolicyController::load(
+        Path::new(arg),
+        stochastic,
+    )?))
+}
