@@ -5,7 +5,7 @@
 
 use crate::config::AnalysisConfig;
 use crate::results::{Approach, Results, Skipped};
-use crate::study::Study;
+use crate::study::StudyFiles;
 use fishprobe_io::read_trial;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -46,7 +46,7 @@ fn episode(path: &Path, cfg: &AnalysisConfig) -> Result<Episode, String> {
 /// Fills `res.approach` from `STUDY/approach_test`.
 pub fn approach(
     res: &mut Results,
-    study: &Study,
+    study: &StudyFiles,
     skipped: &mut Vec<Skipped>,
     cfg: &AnalysisConfig,
 ) {

@@ -4,7 +4,7 @@
 
 use crate::config::AnalysisConfig;
 use crate::results::*;
-use crate::study::{Study, REALITY_ARMS};
+use crate::study::{StudyFiles, REALITY_ARMS};
 use crate::trial::{load_trial, TrialData, METRICS};
 use fishprobe_sim::{stream, SimRng};
 use fishprobe_stats as st;
@@ -87,7 +87,7 @@ fn average_ranks(v: &[f64]) -> Vec<f64> {
 }
 
 /// Runs the whole analysis.
-pub fn analyze(study: &Study, cfg: &AnalysisConfig, seed: u64) -> Results {
+pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
     let mut res = Results {
         seed,
         config: cfg.clone(),
@@ -379,7 +379,7 @@ fn temporal(
 
 fn sim_to_sim(
     res: &mut Results,
-    study: &Study,
+    study: &StudyFiles,
     policies: &[String],
     loaded: &Loaded,
     skipped: &mut Vec<Skipped>,
@@ -462,7 +462,7 @@ fn sim_to_sim(
 
 fn stability(
     res: &mut Results,
-    study: &Study,
+    study: &StudyFiles,
     loaded: &Loaded,
     skipped: &mut Vec<Skipped>,
     cfg: &AnalysisConfig,

@@ -25,7 +25,7 @@ pub use compare::analyze;
 pub use config::AnalysisConfig;
 pub use error::AnalysisError;
 pub use results::Results;
-pub use study::Study;
+pub use study::StudyFiles;
 pub use trial::{load_trial, TrialData, METRICS};
 
 use std::path::Path;
@@ -33,7 +33,7 @@ use std::path::Path;
 /// Discovers the study under `root` and analyses it.
 pub fn analyze_dir(root: &Path, cfg: &AnalysisConfig, seed: u64) -> Result<Results, AnalysisError> {
     cfg.validate()?;
-    let study = Study::discover(root)?;
+    let study = StudyFiles::discover(root)?;
     Ok(analyze(&study, cfg, seed))
 }
 
@@ -47,8 +47,9 @@ pub fn write_results(dir: &Path, r: &Results) -> Result<(), AnalysisError> {
         let p = dir.join(name);
         fishprobe_io::write_atomically(&p, text.as_bytes()).map_err(|e| werr(&p, &e))
     };
-    let json = serde_json::to_string_pretty(r).map_err(|e| werr(&dir.join("results.json"), &e))?;
-    put("results.json", &json)?;
+    let results = fishprobe_io::layout::RESULTS_FILE;
+    let json = serde_json::to_string_pretty(r).map_err(|e| werr(&dir.join(results), &e))?;
+    put(results, &json)?;
     for (name, text) in r.csv_tables() {
         put(name, &text)?;
     }

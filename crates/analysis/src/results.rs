@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 
 /// Every file `write_results` can write, in the order a reader meets them.
 pub const OUTPUT_FILES: [&str; 12] = [
-    "results.json",
+    fishprobe_io::layout::RESULTS_FILE,
     "summary.md",
     "goals.csv",
     "sim_to_real.csv",
@@ -474,7 +474,7 @@ impl Results {
     pub fn summary_markdown(&self) -> String {
         let mut s = String::from("# fishprobe analysis\n\n");
         match self.reality.as_deref() {
-            Some("VirtualLab") => {
+            Some(fishprobe_io::layout::VIRTUAL_LAB) => {
                 s += "**Reality arm: VIRTUAL LAB.** These are not live-fish results.\n\n"
             }
             Some(r) => s += &format!("Reality arm: {r}.\n\n"),

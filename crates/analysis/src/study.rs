@@ -1,4 +1,5 @@
-//! The study directory, laid out like the paper's public archive:
+//! The trial files of a study directory, found through its layout
+//! ([`fishprobe_io::StudyLayout`], the paper's public archive):
 //!
 //! ```text
 //! STUDY/rollouts/<Policy>__<RolloutModel>/*.hdf5   e.g. Zone__Zone, Zone__Force, Zone__Real
@@ -11,16 +12,15 @@
 //! directories itself) is accepted too.
 
 use crate::error::AnalysisError;
-use fishprobe_io::trial_files;
+use fishprobe_io::{trial_files, StudyLayout};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// The rollout model names that mean "not a simulation".
-pub const REALITY_ARMS: [&str; 2] = ["Real", "VirtualLab"];
+pub use fishprobe_io::layout::REALITY_ARMS;
 
-/// The files of a study, by condition.
+/// The trial files of a study, by condition.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct Study {
+pub struct StudyFiles {
     /// (policy, rollout model) → trial files, sorted by name.
     pub rollouts: BTreeMap<(String, String), Vec<PathBuf>>,
     /// Approach-assay files: policy (from the directory; empty when it must come from the
@@ -47,7 +47,7 @@ fn name_of(p: &Path) -> String {
         .unwrap_or_default()
 }
 
-impl Study {
+impl StudyFiles {
     /// Discovers the layout under `root`.
     pub fn discover(root: &Path) -> Result<Self, AnalysisError> {
         if !root.is_dir() {
@@ -56,22 +56,20 @@ impl Study {
                 what: "is not a directory".into(),
             });
         }
-        let rollouts_dir = if root.join("rollouts").is_dir() {
-            root.join("rollouts")
+        let layout = StudyLayout::new(root);
+        let rollouts_dir = if layout.rollouts().is_dir() {
+            layout.rollouts()
         } else {
             root.to_path_buf()
         };
-        let mut s = Study::default();
+        let mut s = StudyFiles::default();
         for d in subdirs(&rollouts_dir) {
-            let name = name_of(&d);
-            if let Some((policy, model)) = name.split_once("__") {
-                if !policy.is_empty() && !model.is_empty() {
-                    s.rollouts
-                        .insert((policy.to_string(), model.to_string()), trial_files(&d));
-                }
+            if let Some((policy, arm)) = StudyLayout::parse_arm(&name_of(&d)) {
+                s.rollouts
+                    .insert((policy, arm.label().to_string()), trial_files(&d));
             }
         }
-        let approach = root.join("approach_test");
+        let approach = layout.approach_root();
         if approach.is_dir() {
             let loose = trial_files(&approach);
             if !loose.is_empty() {
@@ -81,7 +79,7 @@ impl Study {
                 s.approach.insert(name_of(&d), trial_files(&d));
             }
         }
-        let stability = root.join("stability");
+        let stability = layout.stability_root();
         if stability.is_dir() {
             for m in subdirs(&stability) {
                 let seeds: BTreeMap<String, Vec<PathBuf>> = subdirs(&m)

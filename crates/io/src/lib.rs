@@ -25,6 +25,7 @@
 pub mod attr;
 pub mod backend;
 pub mod error;
+pub mod layout;
 pub mod legacy;
 pub mod limits;
 pub mod lock;
@@ -33,6 +34,7 @@ pub mod trial;
 
 pub use attr::Attr;
 pub use error::IoError;
+pub use layout::{Arm, StudyLayout};
 pub use legacy::read_legacy;
 pub use limits::ReadLimits;
 pub use lock::{DirLock, LockError};

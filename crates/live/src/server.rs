@@ -17,6 +17,7 @@ use crate::keep::{Keeper, Kept};
 use crate::lines::{Line, LineReader};
 use crate::protocol::{parse_client, to_line, ClientMsg, ServerMsg, PROTOCOL_VERSION};
 use crate::session::{LiveConfig, Session};
+use fishprobe_io::{Arm, StudyLayout};
 use fishprobe_sim::params::ConfigError;
 use fishprobe_sim::{Controller, TaskParams};
 use std::collections::VecDeque;
@@ -129,31 +130,6 @@ fn refuse(mut stream: TcpStream, reason: String) {
 /// Whether an address is on this machine only.
 pub fn is_loopback(addr: &SocketAddr) -> bool {
     addr.ip().is_loopback()
-}
-
-/// A name from a policy file as one safe path component: letters, digits, `-`, `_` and `.`
-/// kept, anything else (`/`, `\`, `:`, spaces, ...) replaced by `_`, no leading dot (so neither
-/// `..` nor a hidden name), at most 100 characters. A trial path is then always inside
-/// `--out`, whatever a policy's `about.model` says.
-pub fn safe_component(name: &str) -> String {
-    let mut s: String = name
-        .chars()
-        .take(100)
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    while s.starts_with('.') {
-        s.replace_range(0..1, "_");
-    }
-    if s.is_empty() {
-        s.push_str("policy");
-    }
-    s
 }
 
 /// Compares tokens in time independent of where they differ.
@@ -461,13 +437,14 @@ fn run_trial(
     let _ = reader.get_ref().set_read_timeout(Some(poll));
     let _ = stream.set_write_timeout(Some(Duration::from_secs(2)));
     let arm = if source == "virtual_lab" {
-        "VirtualLab"
+        Arm::VirtualLab
     } else {
-        "Real"
+        Arm::Real
     };
-    let dir = opts
-        .out
-        .join(format!("{}__{arm}", safe_component(&session.policy())));
+    let dir = opts.out.join(StudyLayout::arm_dir_name(
+        &StudyLayout::safe_name(&session.policy()),
+        &arm,
+    ));
     let file = next_free(&dir, n);
     let welcome = ServerMsg::Welcome {
         protocol: PROTOCOL_VERSION,
@@ -595,22 +572,6 @@ fn next_free(dir: &Path, n: &mut usize) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn names_from_policy_files_stay_one_path_component() {
-        assert_eq!(safe_component("Zone"), "Zone");
-        assert_eq!(safe_component("Zone-radii_2.v1"), "Zone-radii_2.v1");
-        assert_eq!(safe_component("../../x"), "_._.._x");
-        assert_eq!(safe_component("/etc/passwd"), "_etc_passwd");
-        assert_eq!(safe_component(".."), "_.");
-        assert_eq!(safe_component("C:\\x y"), "C__x_y");
-        assert_eq!(safe_component(""), "policy");
-        assert_eq!(safe_component(&"a".repeat(500)).len(), 100);
-        for hostile in ["../../x", "/abs", "..", ".", "a/../../b"] {
-            let p = Path::new("/out").join(safe_component(hostile));
-            assert_eq!(p.parent(), Some(Path::new("/out")), "{hostile}");
-        }
-    }
 
     #[test]
     fn tokens_compare_whole() {

@@ -6,7 +6,8 @@
 
 use crate::config::ReportConfig;
 use crate::error::ReportError;
-use fishprobe_analysis::{load_trial, AnalysisConfig, Study, METRICS};
+use fishprobe_analysis::{load_trial, AnalysisConfig, StudyFiles, METRICS};
+use fishprobe_io::layout::StudyLayout;
 use fishprobe_io::{read_trial, TrialFile};
 use rayon::prelude::*;
 use serde_json::Value;
@@ -180,7 +181,7 @@ pub fn gather(
         analysis_dir: analysis_dir.to_path_buf(),
         ..StudyData::default()
     };
-    let results_path = analysis_dir.join("results.json");
+    let results_path = StudyLayout::results_in(analysis_dir);
     let mut acfg = AnalysisConfig::default();
     match std::fs::read_to_string(&results_path) {
         Ok(text) => match serde_json::from_str::<Value>(&text) {
@@ -205,7 +206,7 @@ pub fn gather(
         }),
     }
 
-    let study = Study::discover(root).ok();
+    let study = StudyFiles::discover(root).ok();
     let training = training_logs(root, &mut d);
     d.training = training;
     let Some(study) = study else {
@@ -430,7 +431,7 @@ fn approach_episode(
     Ok((t.task.as_ref().map(|k| k.policy.clone()), series, setup))
 }
 
-fn approach(study: &Study, cfg: &ReportConfig, acfg: &AnalysisConfig, d: &mut StudyData) {
+fn approach(study: &StudyFiles, cfg: &ReportConfig, acfg: &AnalysisConfig, d: &mut StudyData) {
     let jobs: Vec<(String, PathBuf)> = study
         .approach
         .iter()
@@ -469,7 +470,7 @@ fn approach(study: &Study, cfg: &ReportConfig, acfg: &AnalysisConfig, d: &mut St
 /// `episode_reward_mean`), as in the paper's archive.
 fn training_logs(root: &Path, d: &mut StudyData) -> BTreeMap<String, TrainingLog> {
     let mut out = BTreeMap::new();
-    let dir = root.join("policies");
+    let dir = StudyLayout::new(root).policies_root();
     let Ok(entries) = std::fs::read_dir(&dir) else {
         d.missing.push(Missing {
             what: "training curves".into(),

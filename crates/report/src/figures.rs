@@ -36,7 +36,7 @@ pub const METRIC_LABELS: [&str; 9] = [
 
 fn arm_label(d: &StudyData) -> &'static str {
     match d.arm.as_deref() {
-        Some("VirtualLab") => "virtual lab",
+        Some(fishprobe_io::layout::VIRTUAL_LAB) => "virtual lab",
         _ => "real",
     }
 }

@@ -5,6 +5,7 @@ use crate::figures::{Figure, METRIC_LABELS};
 use crate::svg::esc;
 use base64::Engine as _;
 use fishprobe_analysis::METRICS;
+use fishprobe_io::layout::{Arm, StudyLayout, VIRTUAL_LAB};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -159,7 +160,7 @@ impl Page<'_> {
             esc(self.version)
         );
         match d.arm.as_deref() {
-            Some("VirtualLab") => o.push_str(
+            Some(VIRTUAL_LAB) => o.push_str(
                 "<p class=\"banner\" id=\"virtual\">VIRTUAL LAB: the reality arm of this study is the \
                  simulated lab (virtual guppies through the live bridge), not live fish. Nothing here \
                  is a result about real fish.</p>\n",
@@ -175,7 +176,7 @@ impl Page<'_> {
                     .iter()
                     .filter(|c| c.model == a)
                     .filter(|c| c.recorded.as_deref().is_some_and(|r| !r.starts_with("real")))
-                    .map(|c| format!("{}__{}", c.policy, c.model))
+                    .map(|c| StudyLayout::arm_dir_name(&c.policy, &Arm::from_label(&c.model)))
                     .collect();
                 if !odd.is_empty() {
                     let _ = writeln!(
@@ -242,15 +243,15 @@ impl Page<'_> {
         }
         if !d.conditions.is_empty() {
             let mut models: Vec<&str> = d.conditions.iter().map(|c| c.model.as_str()).collect();
-            models.sort_by_key(|m| (m.ends_with("Real") || m.ends_with("VirtualLab"), *m));
+            models.sort_by_key(|m| (Arm::from_label(m).is_reality(), *m));
             models.dedup();
             let mut policies: Vec<&str> = d.conditions.iter().map(|c| c.policy.as_str()).collect();
             policies.dedup();
             let mut header = vec!["policy".to_string()];
-            header.extend(models.iter().map(|m| match *m {
-                "Real" => "live fish".to_string(),
-                "VirtualLab" => "VIRTUAL LAB".to_string(),
-                m => format!("M_{m}"),
+            header.extend(models.iter().map(|m| match Arm::from_label(m) {
+                Arm::Real => "live fish".to_string(),
+                Arm::VirtualLab => "VIRTUAL LAB".to_string(),
+                Arm::Sim(m) => format!("M_{m}"),
             }));
             let rows: Vec<Vec<String>> = policies
                 .iter()
@@ -274,11 +275,12 @@ impl Page<'_> {
             let mut notes: Vec<String> = d
                 .conditions
                 .iter()
-                .filter(|c| matches!(c.model.as_str(), "Real" | "VirtualLab"))
+                .filter(|c| Arm::from_label(&c.model).is_reality())
                 .filter_map(|c| {
-                    c.recorded
-                        .as_ref()
-                        .map(|r| format!("{}__{}: {r}", c.policy, c.model))
+                    c.recorded.as_ref().map(|r| {
+                        let dir = StudyLayout::arm_dir_name(&c.policy, &Arm::from_label(&c.model));
+                        format!("{dir}: {r}")
+                    })
                 })
                 .collect();
             notes.dedup();
@@ -358,7 +360,7 @@ impl Page<'_> {
                     ]
                 })
                 .collect();
-            let virtual_arm = d.arm.as_deref() == Some("VirtualLab");
+            let virtual_arm = d.arm.as_deref() == Some(VIRTUAL_LAB);
             let (mean_h, trials_h) = if virtual_arm {
                 ("virtual-lab mean", "trials sim / virtual")
             } else {
@@ -647,7 +649,7 @@ impl Page<'_> {
         let d = self.data;
         let mut s = String::from("# fishprobe report\n\n");
         let _ = writeln!(s, "Study: `{}`\n", d.root.display());
-        if d.arm.as_deref() == Some("VirtualLab") {
+        if d.arm.as_deref() == Some(VIRTUAL_LAB) {
             s += "**VIRTUAL LAB: the reality arm is simulated. These are not live-fish results.**\n\n";
         }
         match std::fs::read_to_string(d.analysis_dir.join("summary.md")) {

@@ -90,8 +90,9 @@ pub fn build_report(
     cfg: &ReportConfig,
 ) -> Result<ReportOutcome, ReportError> {
     cfg.validate()?;
-    let out = out.map_or_else(|| root.join("report"), Path::to_path_buf);
-    let analysis = analysis.map_or_else(|| root.join("analysis"), Path::to_path_buf);
+    let layout = fishprobe_io::StudyLayout::new(root);
+    let out = out.map_or_else(|| layout.report(), Path::to_path_buf);
+    let analysis = analysis.map_or_else(|| layout.analysis(), Path::to_path_buf);
     let data = gather(root, &analysis, cfg)?;
     let figs: Vec<figures::Figure> = [
         figures::goals(&data),

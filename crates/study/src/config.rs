@@ -158,7 +158,7 @@ impl StudyConfig {
                 && m.name
                     .chars()
                     .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-                && !m.name.contains("__");
+                && !m.name.contains(fishprobe_io::layout::ARM_SEPARATOR);
             if !ok {
                 return Err(format!(
                     "model name `{}`: use letters, digits, '-' and '_' (no \"__\"), it names directories",

@@ -35,6 +35,7 @@ mod steps;
 
 pub use config::{NamedModel, StudyConfig, StudyFile};
 
+use fishprobe_io::{Arm, StudyLayout};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 use std::time::Instant;
@@ -186,7 +187,9 @@ impl Study {
                 }
             }
             // Every ConvNet model without weights of its own uses the refitted ones.
-            let weights = root.join("convnet/convnet.safetensors");
+            let weights = StudyLayout::new(&root)
+                .convnet()
+                .join("convnet.safetensors");
             for m in &mut cfg.models {
                 if let fishprobe_models::ModelSpec::ConvNet(p) = &mut m.spec {
                     if p.weights.is_empty() {
@@ -206,12 +209,12 @@ impl Study {
                 .map_err(|e| StudyError::Input(format!("{}: {e}", r.display())))?
                 .filter_map(|e| e.ok())
                 .filter(|e| e.path().is_dir())
-                .filter_map(|e| {
-                    e.file_name()
-                        .to_string_lossy()
-                        .strip_suffix("__Real")
-                        .map(str::to_string)
-                })
+                .filter_map(
+                    |e| match StudyLayout::parse_arm(&e.file_name().to_string_lossy()) {
+                        Some((policy, Arm::Real)) => Some(policy),
+                        _ => None,
+                    },
+                )
                 .collect();
             found.sort();
             let mut want: Vec<String> = cfg.models.iter().map(|m| m.name.clone()).collect();
@@ -237,36 +240,33 @@ impl Study {
         &self.cfg.models[i].name
     }
 
+    /// The study directory's paths.
+    pub fn layout(&self) -> StudyLayout {
+        StudyLayout::new(&self.root)
+    }
+
+    /// The reality arm this study collects: live trials with `--real`, else the virtual lab.
+    pub fn reality_arm(&self) -> Arm {
+        if self.real.is_some() {
+            Arm::Real
+        } else {
+            Arm::VirtualLab
+        }
+    }
+
     /// Where a step writes.
     pub fn output(&self, kind: &StepKind) -> PathBuf {
-        let r = &self.root;
+        let l = self.layout();
+        let sim = |m: usize| Arm::Sim(self.name(m).to_string());
         match kind {
-            StepKind::FitConvnet => r.join("convnet"),
-            StepKind::Train { m, k: 0 } => r.join("policies").join(self.name(*m)),
-            StepKind::Train { m, k } => r
-                .join("policies_stability")
-                .join(self.name(*m))
-                .join(format!("seed{k}")),
-            StepKind::Eval { p, m } => {
-                r.join("rollouts")
-                    .join(format!("{}__{}", self.name(*p), self.name(*m)))
-            }
-            StepKind::Approach { p } => r.join("approach_test").join(self.name(*p)),
-            StepKind::Stability { m, k } => r
-                .join("stability")
-                .join(self.name(*m))
-                .join(format!("seed{k}")),
-            StepKind::Reality { p } => r.join("rollouts").join(format!(
-                "{}__{}",
-                self.name(*p),
-                if self.real.is_some() {
-                    "Real"
-                } else {
-                    "VirtualLab"
-                }
-            )),
-            StepKind::Analyze => r.join("analysis"),
-            StepKind::Report => r.join("report"),
+            StepKind::FitConvnet => l.convnet(),
+            StepKind::Train { m, k } => l.policy(self.name(*m), *k),
+            StepKind::Eval { p, m } => l.arm(self.name(*p), &sim(*m)),
+            StepKind::Approach { p } => l.approach(self.name(*p)),
+            StepKind::Stability { m, k } => l.stability(self.name(*m), *k),
+            StepKind::Reality { p } => l.arm(self.name(*p), &self.reality_arm()),
+            StepKind::Analyze => l.analysis(),
+            StepKind::Report => l.report(),
         }
     }
 
@@ -297,7 +297,9 @@ impl Study {
                 "episodes": c.stability_episodes, "minutes": c.episode_minutes})
             }
             StepKind::Reality { p } => match &self.real {
-                Some(r) => serde_json::json!({"real": r.join(format!("{}__Real", self.name(*p)))}),
+                Some(r) => {
+                    serde_json::json!({"real": r.join(StudyLayout::arm_dir_name(self.name(*p), &Arm::Real))})
+                }
                 None => serde_json::json!({"virtual": self.name(*p), "seed": c.seed,
                     "trials": c.virtual_trials, "minutes": c.virtual_minutes}),
             },
@@ -386,9 +388,7 @@ impl Study {
     }
 
     fn marker(&self, s: &Step) -> PathBuf {
-        self.root
-            .join(".fishprobe/done")
-            .join(format!("{}.json", s.id))
+        self.layout().markers().join(format!("{}.json", s.id))
     }
 
     /// Whether a step is complete and valid: its marker's hash matches the step's inputs, its
@@ -430,16 +430,18 @@ impl Study {
     /// does before its first step.
     pub fn prepare(&self) -> Result<Vec<Step>, StudyError> {
         let steps = self.plan();
-        std::fs::create_dir_all(self.root.join("logs")).map_err(|e| StudyError::Io {
-            path: self.root.join("logs"),
+        let l = self.layout();
+        std::fs::create_dir_all(l.logs()).map_err(|e| StudyError::Io {
+            path: l.logs(),
             what: e.to_string(),
         })?;
         let cfg_text = serde_json::to_string_pretty(&self.cfg).unwrap_or_default();
-        fishprobe_io::write_atomically(&self.root.join("study.json"), cfg_text.as_bytes())
-            .map_err(|e| StudyError::Io {
-                path: self.root.join("study.json"),
+        fishprobe_io::write_atomically(&l.config(), cfg_text.as_bytes()).map_err(|e| {
+            StudyError::Io {
+                path: l.config(),
                 what: e.to_string(),
-            })?;
+            }
+        })?;
         self.sweep_stale(&steps)?;
         Ok(steps)
     }
@@ -542,19 +544,13 @@ impl Study {
     fn sweep_stale(&self, steps: &[Step]) -> Result<(), StudyError> {
         let wanted: std::collections::BTreeSet<PathBuf> =
             steps.iter().map(|s| self.output(&s.kind)).collect();
-        let stale_root = self.root.join(".fishprobe/stale");
+        let stale_root = self.layout().stale();
         let io = |path: &Path, e: std::io::Error| StudyError::Io {
             path: path.to_path_buf(),
             what: e.to_string(),
         };
         let mut candidates = Vec::new();
-        for top in [
-            "rollouts",
-            "approach_test",
-            "policies",
-            "policies_stability",
-            "stability",
-        ] {
+        for top in fishprobe_io::layout::STEP_OUTPUT_DIRS {
             let d = self.root.join(top);
             let Ok(rd) = std::fs::read_dir(&d) else {
                 continue;
@@ -564,7 +560,7 @@ impl Study {
                 if !p.is_dir() {
                     continue;
                 }
-                if matches!(top, "policies_stability" | "stability") {
+                if fishprobe_io::layout::SEEDED_DIRS.contains(&top) {
                     // Two levels: <Model>/seed<k>.
                     let Ok(inner) = std::fs::read_dir(&p) else {
                         continue;
@@ -580,8 +576,9 @@ impl Study {
                 }
             }
         }
-        for p in ["analysis.partial", "report.partial"] {
-            candidates.push(self.root.join(p));
+        let l = self.layout();
+        for p in [l.analysis(), l.report()] {
+            candidates.push(steps::tmp_of(&p));
         }
         for p in candidates
             .into_iter()
@@ -607,7 +604,7 @@ impl Study {
 
     /// A step's log file.
     pub fn log_path(&self, s: &Step) -> PathBuf {
-        self.root.join("logs").join(format!("{}.log", s.id))
+        self.layout().logs().join(format!("{}.log", s.id))
     }
 }
 

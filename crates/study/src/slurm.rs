@@ -44,7 +44,7 @@ fn submit(
     ids: &[String],
     after: Option<&str>,
 ) -> Result<String, StudyError> {
-    let dir = study.root.join(".fishprobe/slurm");
+    let dir = study.layout().slurm();
     std::fs::create_dir_all(&dir).map_err(|e| io(&dir, e))?;
     let list = dir.join(format!("{name}.txt"));
     std::fs::write(&list, ids.join("\n") + "\n").map_err(|e| io(&list, e))?;

@@ -1,6 +1,7 @@
 //! What each step does.
 
 use crate::{commit_dir, Step, StepKind, Study};
+use fishprobe_io::{Arm, StudyLayout};
 use fishprobe_learn::{Evaluation, PolicyController, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
@@ -39,7 +40,7 @@ pub(crate) fn output_valid(study: &Study, s: &Step) -> bool {
         StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
         StepKind::Stability { .. } => files_in(&out) == c.stability_episodes,
         StepKind::Reality { .. } => files_in(&out) > 0,
-        StepKind::Analyze => out.join("results.json").is_file(),
+        StepKind::Analyze => StudyLayout::results_in(&out).is_file(),
         StepKind::Report => out.join("index.html").is_file(),
     }
 }
@@ -53,7 +54,7 @@ fn policy_of(study: &Study, m: usize, k: usize) -> Result<PolicyController, Stri
     PolicyController::load(&d, false).map_err(|e| e.to_string())
 }
 
-fn tmp_of(out: &Path) -> PathBuf {
+pub(crate) fn tmp_of(out: &Path) -> PathBuf {
     let mut s = out.as_os_str().to_owned();
     s.push(".partial");
     PathBuf::from(s)
@@ -241,7 +242,7 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
     let tmp = tmp_of(out);
     fresh(&tmp)?;
     if let Some(real) = &study.real {
-        let src = real.join(format!("{name}__Real"));
+        let src = real.join(StudyLayout::arm_dir_name(&name, &Arm::Real));
         let mut n = 0;
         for e in std::fs::read_dir(&src).map_err(|e| format!("{}: {e}", src.display()))? {
             let f = e.map_err(|e| e.to_string())?.path();
@@ -295,7 +296,7 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
         .join()
         .map_err(|_| "the bridge thread panicked".to_string())?
         .map_err(|e| e.to_string())?;
-    let made = tmp.join(format!("{name}__VirtualLab"));
+    let made = tmp.join(StudyLayout::arm_dir_name(&name, &Arm::VirtualLab));
     commit_dir(&made, out)?;
     std::fs::remove_dir_all(&tmp).map_err(|e| e.to_string())
 }

@@ -42,7 +42,10 @@ pub fn run(a: AnalyzeArgs) -> Result<()> {
     if !a.study.is_dir() {
         anyhow::bail!("{}: no such study directory", a.study.display());
     }
-    let out = a.out.clone().unwrap_or_else(|| a.study.join("analysis"));
+    let out = a
+        .out
+        .clone()
+        .unwrap_or_else(|| fishprobe_io::StudyLayout::new(&a.study).analysis());
     let _lock = super::lock_out(&out, "analyze")?;
     let started = Instant::now();
     let results = super::with_jobs(a.jobs, || analyze_dir(&a.study, &cfg, a.seed))?

@@ -163,7 +163,8 @@ fn bench_stats(
         std::env::temp_dir().join(format!("fishprobe-bench-stats-{}", std::process::id()))
     });
     let t0 = Instant::now();
-    let generated = if dir.join("rollouts").is_dir() {
+    let layout = fishprobe_io::StudyLayout::new(&dir);
+    let generated = if layout.rollouts().is_dir() {
         0
     } else {
         generate(&dir, size, seed)
@@ -173,7 +174,7 @@ fn bench_stats(
     let t1 = Instant::now();
     let cfg = fishprobe_analysis::AnalysisConfig::default();
     let results = fishprobe_analysis::analyze_dir(&dir, &cfg, seed)?;
-    fishprobe_analysis::write_results(&dir.join("analysis"), &results)?;
+    fishprobe_analysis::write_results(&layout.analysis(), &results)?;
     let analysis_s = t1.elapsed().as_secs_f64();
     let files = walk_count(&dir);
     if temporary {

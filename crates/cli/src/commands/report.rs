@@ -39,7 +39,10 @@ pub fn run(a: ReportArgs) -> Result<()> {
     if !a.study.is_dir() {
         anyhow::bail!("{}: no such study directory", a.study.display());
     }
-    let out_dir = a.out.clone().unwrap_or_else(|| a.study.join("report"));
+    let out_dir = a
+        .out
+        .clone()
+        .unwrap_or_else(|| fishprobe_io::StudyLayout::new(&a.study).report());
     let _lock = super::lock_out(&out_dir, "report")?;
     let started = Instant::now();
     let out = super::with_jobs(a.jobs, || {

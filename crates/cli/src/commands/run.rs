@@ -81,7 +81,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     if let Some(id) = &a.step {
         // A SLURM array task: steps run concurrently in one study, so each locks only itself
         // (the submitting `run` holds the study's lock meanwhile).
-        let lock = a.out.join(".fishprobe/locks").join(format!("{id}.lock"));
+        let lock = study.layout().step_locks().join(format!("{id}.lock"));
         let _lock =
             fishprobe_io::DirLock::acquire_file(&a.out, &lock, &format!("run --step {id}"))?;
         study.run_one(id)?;

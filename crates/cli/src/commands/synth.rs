@@ -136,7 +136,10 @@ pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
     let all = models();
     let used = &all[..size.policies.clamp(1, all.len())];
     let mut jobs = Vec::new();
-    // Seeds come from the path inside the study, so a study is the same wherever it is made.
+    // Seeds come from the path inside the study, so a study is the same wherever it is made:
+    // these relative paths stay literal (a change would change every synthetic trial). They
+    // follow the paper's public archive, whose stability seeds are plain numbers
+    // (`stability/<Model>/<seed>/`), which `analyze` reads like `fishprobe run`'s `seed<k>`.
     let mut add = |rel: String, policy: &str, model: ModelSpec, kind, minutes, approach| {
         let s = derive_seed(seed, &rel, 0);
         jobs.push(Job {
