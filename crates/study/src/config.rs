@@ -1,8 +1,13 @@
 //! What a study runs: the models, the presets' budgets, and a study file (TOML) that can add
 //! parameter variants of any model under new names.
 
+use crate::StudyError;
 use fishprobe_models::ModelSpec;
 use serde::{Deserialize, Serialize};
+
+/// Most episodes, trials or trials per comparison a study may ask for in one setting (the paper's
+/// largest is 50 episodes per cell); checked before any work, since every one is simulated.
+pub const MAX_COUNT: usize = 100_000;
 
 /// A candidate model under the name its policy and directories carry.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -148,9 +153,10 @@ impl StudyConfig {
     }
 
     /// Checks the settings before any work starts.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), StudyError> {
+        let bad = |what: String| Err(StudyError::Input(what));
         if self.models.is_empty() {
-            return Err("no models".into());
+            return bad("no models".into());
         }
         let mut seen = std::collections::BTreeSet::new();
         for m in &self.models {
@@ -160,19 +166,19 @@ impl StudyConfig {
                     .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
                 && !m.name.contains(fishprobe_io::layout::ARM_SEPARATOR);
             if !ok {
-                return Err(format!(
+                return bad(format!(
                     "model name `{}`: use letters, digits, '-' and '_' (no \"__\"), it names directories",
                     m.name
                 ));
             }
             if !seen.insert(m.name.clone()) {
-                return Err(format!("model name `{}` twice", m.name));
+                return bad(format!("model name `{}` twice", m.name));
             }
             m.spec
                 .build()
-                .map_err(|e| format!("model `{}`: {e}", m.name))?;
+                .map_err(|e| StudyError::Input(format!("model `{}`: {e}", m.name)))?;
             if matches!(m.spec, ModelSpec::Stationary(_) | ModelSpec::Guppy(_)) {
-                return Err(format!(
+                return bad(format!(
                     "model `{}`: {} is not a candidate model (it serves the approach assay or the virtual lab)",
                     m.name,
                     m.spec.name()
@@ -180,7 +186,7 @@ impl StudyConfig {
             }
         }
         if fishprobe_learn::PpoConfig::preset(&self.ppo_preset).is_none() {
-            return Err(format!(
+            return bad(format!(
                 "ppo_preset `{}`: use paper, published, quick or smoke",
                 self.ppo_preset
             ));
@@ -194,16 +200,22 @@ impl StudyConfig {
             ("virtual_trials", self.virtual_trials),
         ] {
             if v == 0 {
-                return Err(format!("{f} must be at least 1"));
+                return bad(format!("{f} must be at least 1"));
             }
+            if v > MAX_COUNT {
+                return bad(format!("{f} = {v}: at most {MAX_COUNT}"));
+            }
+        }
+        if self.extra_seeds > 100 {
+            return bad(format!("extra_seeds = {}: at most 100", self.extra_seeds));
         }
         for (f, v) in [
             ("episode_minutes", f64::from(self.episode_minutes)),
             ("approach_minutes", f64::from(self.approach_minutes)),
             ("virtual_minutes", self.virtual_minutes),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{f} must be greater than 0"));
+            if !(v.is_finite() && v > 0.0 && v <= 1440.0) {
+                return bad(format!("{f} must lie in (0, 1440] minutes, got {v}"));
             }
         }
         Ok(())
@@ -241,10 +253,12 @@ pub struct StudyFile {
 
 impl StudyFile {
     /// Applies the file on top of a preset.
-    pub fn apply(self, preset: &str) -> Result<StudyConfig, String> {
+    pub fn apply(self, preset: &str) -> Result<StudyConfig, StudyError> {
         let name = self.preset.as_deref().unwrap_or(preset);
         let mut c = StudyConfig::preset(name).ok_or_else(|| {
-            format!("unknown preset `{name}`: use smoke, quick, paper or published")
+            StudyError::Input(format!(
+                "unknown preset `{name}`: use smoke, quick, paper or published"
+            ))
         })?;
         if let Some(s) = self.seed {
             c.seed = s;
@@ -300,7 +314,7 @@ mod tests {
         assert!(bad.is_err());
         let mut c2 = c.clone();
         c2.models.push(c.models[0].clone());
-        assert!(c2.validate().unwrap_err().contains("twice"));
+        assert!(c2.validate().unwrap_err().to_string().contains("twice"));
         c2.models.pop();
         c2.models[0].name = "a__b".into();
         assert!(c2.validate().is_err());

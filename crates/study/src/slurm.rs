@@ -5,7 +5,7 @@
 //! `fishprobe run --step ID` with the same study arguments, so steps are exactly the local
 //! executor's (markers, atomic outputs, resumable).
 
-use crate::{Event, Step, StepKind, Study, StudyError};
+use crate::{Event, Step, StepError, StepKind, Study, StudyError};
 use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -174,10 +174,10 @@ impl Study {
         if let Some(s) = missing.first() {
             return Err(StudyError::Step {
                 step: s.id.clone(),
-                what: format!(
+                source: Box::new(StepError::Missing(format!(
                     "{} step(s) did not complete on the cluster (see logs/slurm-*.out)",
                     missing.len()
-                ),
+                ))),
                 log: self.log_path(s),
             });
         }

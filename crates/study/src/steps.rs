@@ -1,6 +1,8 @@
 //! What each step does.
 
-use crate::{commit_dir, Step, StepKind, Study};
+use crate::error::StepError;
+use crate::store::{commit_dir, fresh, staged, tmp_of};
+use crate::{Step, StepKind, Study};
 use fishprobe_io::{Arm, StudyLayout};
 use fishprobe_learn::{Evaluation, PolicyController, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
@@ -49,26 +51,12 @@ fn train_dir(study: &Study, m: usize, k: usize) -> PathBuf {
     study.output(&StepKind::Train { m, k })
 }
 
-fn policy_of(study: &Study, m: usize, k: usize) -> Result<PolicyController, String> {
-    let d = train_dir(study, m, k);
-    PolicyController::load(&d, false).map_err(|e| e.to_string())
-}
-
-pub(crate) fn tmp_of(out: &Path) -> PathBuf {
-    let mut s = out.as_os_str().to_owned();
-    s.push(".partial");
-    PathBuf::from(s)
-}
-
-fn fresh(dir: &Path) -> Result<(), String> {
-    if dir.exists() {
-        std::fs::remove_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    }
-    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))
+fn policy_of(study: &Study, m: usize, k: usize) -> Result<PolicyController, StepError> {
+    Ok(PolicyController::load(&train_dir(study, m, k), false)?)
 }
 
 /// Runs one step.
-pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
+pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
     let mut say = log(study, s);
     say(&format!("step {} (inputs hash {:016x})", s.id, s.hash));
     let c = &study.cfg;
@@ -76,37 +64,41 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
     let out = study.output(&s.kind);
     let r = match &s.kind {
         StepKind::FitConvnet => {
-            let data = study.convnet_data.as_ref().ok_or("no --convnet-data")?;
-            let tmp = tmp_of(&out);
-            fresh(&tmp)?;
+            let data = study
+                .convnet_data
+                .as_ref()
+                .ok_or_else(|| StepError::Missing("no --convnet-data".into()))?;
             let command = format!(
                 "fishprobe fit-convnet --data {} --validation {} --seed {}",
                 data.join("train").display(),
                 data.join("validation").display(),
                 c.seed
             );
-            let r = fishprobe_learn::bc::fit_convnet(
-                &[data.join("train")],
-                &[data.join("validation")],
-                &tmp.join("convnet.safetensors"),
-                &fishprobe_learn::bc::CloneConfig {
-                    max_epochs: c.convnet_max_epochs,
-                    ..fishprobe_learn::bc::CloneConfig::default()
-                },
-                c.seed,
-                false,
-                &command,
-                &|_| {},
-            )
-            .map_err(|e| e.to_string())?;
-            say(&format!(
-                "refitted M_ConvNet: validation NLL {:.4} (marginal {:.4})",
-                r.val_nll, r.marginal_nll
-            ));
-            commit_dir(&tmp, &out)
+            staged(&out, |tmp| {
+                let r = fishprobe_learn::bc::fit_convnet(
+                    &[data.join("train")],
+                    &[data.join("validation")],
+                    &tmp.join("convnet.safetensors"),
+                    &fishprobe_learn::bc::CloneConfig {
+                        max_epochs: c.convnet_max_epochs,
+                        ..fishprobe_learn::bc::CloneConfig::default()
+                    },
+                    c.seed,
+                    false,
+                    &command,
+                    &|_| {},
+                )?;
+                say(&format!(
+                    "refitted M_ConvNet: validation NLL {:.4} (marginal {:.4})",
+                    r.val_nll, r.marginal_nll
+                ));
+                Ok(())
+            })
         }
         StepKind::Train { m, k } => {
-            let ppo = c.ppo().ok_or("unknown PPO preset")?;
+            let ppo = c.ppo().ok_or_else(|| {
+                StepError::Missing(format!("unknown PPO preset `{}`", c.ppo_preset))
+            })?;
             let spec = RunSpec {
                 ppo,
                 env: EnvConfig::default(),
@@ -127,25 +119,25 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
                 });
             let mut t = if same {
                 say("resuming from the last checkpoint");
-                Trainer::resume(&out).map_err(|e| e.to_string())?
+                Trainer::resume(&out)?
             } else {
                 if out.exists() {
-                    std::fs::remove_dir_all(&out).map_err(|e| e.to_string())?;
+                    std::fs::remove_dir_all(&out)
+                        .map_err(|e| StepError::io("removing", &out, e))?;
                 }
-                Trainer::create(&out, spec).map_err(|e| e.to_string())?
+                Trainer::create(&out, spec)?
             };
             while !t.done() {
-                let i = t.iterate().map_err(|e| e.to_string())?;
+                let i = t.iterate()?;
                 say(&format!(
                     "iteration {} steps {} return {:.3} goals/episode {:.3}",
                     i.iteration, i.timesteps, i.episode_return_mean, i.goals_per_episode
                 ));
             }
-            t.finish().map(|_| ()).map_err(|e| e.to_string())
+            t.finish()?;
+            Ok(())
         }
-        StepKind::Eval { p, m } => {
-            let tmp = tmp_of(&out);
-            fresh(&tmp)?;
+        StepKind::Eval { p, m } => staged(&out, |tmp| {
             let e = Evaluation {
                 model: c.models[*m].spec.clone(),
                 env: EnvConfig::default(),
@@ -153,20 +145,18 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
                 minutes: c.episode_minutes,
                 seed: seed(&format!("eval/{}/{}", c.models[*p].name, c.models[*m].name)),
                 start: None,
-                out: tmp.clone(),
+                out: tmp.to_path_buf(),
                 prefix: "trial".into(),
             };
-            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e).map_err(|e| e.to_string())?;
-            commit_dir(&tmp, &out)
-        }
-        StepKind::Approach { p } => {
-            // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
-            let tmp = tmp_of(&out);
-            fresh(&tmp)?;
+            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e)?;
+            Ok(())
+        }),
+        // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
+        StepKind::Approach { p } => staged(&out, |tmp| {
             let mut env = EnvConfig::default();
             env.task.evaluation_goals = [[20.0, -20.0], [20.0, -20.0]];
             let e = Evaluation {
-                model: ModelSpec::by_name("Stationary").map_err(|e| e.to_string())?,
+                model: ModelSpec::by_name("Stationary")?,
                 env,
                 episodes: c.approach_episodes,
                 minutes: c.approach_minutes,
@@ -175,15 +165,13 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
                     robot: [-45.0, -45.0, std::f32::consts::FRAC_PI_4],
                     fish: vec![[-20.0, 20.0, 0.0]],
                 }),
-                out: tmp.clone(),
+                out: tmp.to_path_buf(),
                 prefix: "approach".into(),
             };
-            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e).map_err(|e| e.to_string())?;
-            commit_dir(&tmp, &out)
-        }
-        StepKind::Stability { m, k } => {
-            let tmp = tmp_of(&out);
-            fresh(&tmp)?;
+            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e)?;
+            Ok(())
+        }),
+        StepKind::Stability { m, k } => staged(&out, |tmp| {
             let e = Evaluation {
                 model: c.models[*m].spec.clone(),
                 env: EnvConfig::default(),
@@ -191,16 +179,14 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
                 minutes: c.episode_minutes,
                 seed: seed(&format!("stability/{}/{k}", c.models[*m].name)),
                 start: None,
-                out: tmp.clone(),
+                out: tmp.to_path_buf(),
                 prefix: "episode".into(),
             };
-            fishprobe_learn::evaluate(&policy_of(study, *m, *k)?, &e).map_err(|e| e.to_string())?;
-            commit_dir(&tmp, &out)
-        }
+            fishprobe_learn::evaluate(&policy_of(study, *m, *k)?, &e)?;
+            Ok(())
+        }),
         StepKind::Reality { p } => reality(study, *p, &out, &mut say),
-        StepKind::Analyze => {
-            let tmp = tmp_of(&out);
-            fresh(&tmp)?;
+        StepKind::Analyze => staged(&out, |tmp| {
             let cfg = if c.analysis_quick {
                 fishprobe_analysis::AnalysisConfig::quick()
             } else {
@@ -210,23 +196,19 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
                 sim_trials: c.sim_trials,
                 ..cfg
             };
-            let r = fishprobe_analysis::analyze_dir(&study.root, &cfg, c.seed)
-                .map_err(|e| e.to_string())?;
-            fishprobe_analysis::write_results(&tmp, &r).map_err(|e| e.to_string())?;
-            commit_dir(&tmp, &out)
-        }
-        StepKind::Report => {
-            let tmp = tmp_of(&out);
-            fresh(&tmp)?;
+            let r = fishprobe_analysis::analyze_dir(&study.root, &cfg, c.seed)?;
+            fishprobe_analysis::write_results(tmp, &r)?;
+            Ok(())
+        }),
+        StepKind::Report => staged(&out, |tmp| {
             fishprobe_report::build_report(
                 &study.root,
-                Some(&tmp),
+                Some(tmp),
                 Some(&study.output(&StepKind::Analyze)),
                 &fishprobe_report::ReportConfig::default(),
-            )
-            .map_err(|e| e.to_string())?;
-            commit_dir(&tmp, &out)
-        }
+            )?;
+            Ok(())
+        }),
     };
     say(match &r {
         Ok(()) => "done".to_string(),
@@ -236,7 +218,12 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), String> {
     r
 }
 
-fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> Result<(), String> {
+fn reality(
+    study: &Study,
+    p: usize,
+    out: &Path,
+    say: &mut impl FnMut(&str),
+) -> Result<(), StepError> {
     let c = &study.cfg;
     let name = c.models[p].name.clone();
     let tmp = tmp_of(out);
@@ -244,23 +231,27 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
     if let Some(real) = &study.real {
         let src = real.join(StudyLayout::arm_dir_name(&name, &Arm::Real));
         let mut n = 0;
-        for e in std::fs::read_dir(&src).map_err(|e| format!("{}: {e}", src.display()))? {
-            let f = e.map_err(|e| e.to_string())?.path();
-            if f.extension().is_some_and(|x| x == "hdf5" || x == "h5") {
-                let to = tmp.join(f.file_name().unwrap_or_default());
-                std::fs::copy(&f, &to).map_err(|e| format!("copying {}: {e}", f.display()))?;
-                n += 1;
-            }
+        for f in fishprobe_io::trial_files(&src) {
+            let to = tmp.join(f.file_name().unwrap_or_default());
+            std::fs::copy(&f, &to).map_err(|e| StepError::io("copying", &f, e))?;
+            n += 1;
         }
         if n == 0 {
-            return Err(format!("no trial files in {}", src.display()));
+            return Err(StepError::Missing(format!(
+                "no trial files in {}",
+                src.display()
+            )));
         }
         say(&format!("{n} live trials copied from {}", src.display()));
         return commit_dir(&tmp, out);
     }
     // The virtual lab against an in-process bridge on a loopback port.
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
-    let addr = listener.local_addr().map_err(|e| e.to_string())?;
+    let loopback = Path::new("127.0.0.1:0");
+    let listener = std::net::TcpListener::bind("127.0.0.1:0")
+        .map_err(|e| StepError::io("listening on", loopback, e))?;
+    let addr = listener
+        .local_addr()
+        .map_err(|e| StepError::io("listening on", loopback, e))?;
     let ctl = policy_of(study, p, 0)?;
     let live = LiveConfig {
         control_s: c.virtual_minutes * 60.0,
@@ -285,8 +276,7 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
     });
     for k in 0..c.virtual_trials {
         let s = derive_seed(c.seed, &format!("virtual/{name}"), k as u64);
-        let t = run_trial(addr, &LabConfig::default(), &GuppyParams::default(), s)
-            .map_err(|e| e.to_string())?;
+        let t = run_trial(addr, &LabConfig::default(), &GuppyParams::default(), s)?;
         say(&format!("virtual trial {k}: {} goals", t.goals_reached));
         for w in &t.warnings {
             say(&format!("warning: the bridge says: {w}"));
@@ -294,9 +284,8 @@ fn reality(study: &Study, p: usize, out: &Path, say: &mut impl FnMut(&str)) -> R
     }
     bridge
         .join()
-        .map_err(|_| "the bridge thread panicked".to_string())?
-        .map_err(|e| e.to_string())?;
+        .map_err(|_| StepError::Panicked("the bridge thread"))??;
     let made = tmp.join(StudyLayout::arm_dir_name(&name, &Arm::VirtualLab));
     commit_dir(&made, out)?;
-    std::fs::remove_dir_all(&tmp).map_err(|e| e.to_string())
+    std::fs::remove_dir_all(&tmp).map_err(|e| StepError::io("removing", &tmp, e))
 }

@@ -1,0 +1,274 @@
+//! The plan: the steps of a study, what each does, needs, writes and depends on.
+
+use crate::Study;
+use fishprobe_io::{Arm, StudyLayout};
+use std::path::PathBuf;
+
+/// One unit of work.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StepKind {
+    /// M_ConvNet refitted on `--convnet-data`.
+    FitConvnet,
+    /// Training run `k` (0: the policy; more: stability seeds) of model `m`.
+    Train {
+        /// Model index.
+        m: usize,
+        /// Seed index.
+        k: usize,
+    },
+    /// Policy `p` on model `m`.
+    Eval {
+        /// Policy (model) index.
+        p: usize,
+        /// Rollout model index.
+        m: usize,
+    },
+    /// The approach assay of policy `p`.
+    Approach {
+        /// Policy index.
+        p: usize,
+    },
+    /// Stability episodes of training run `k` of model `m`.
+    Stability {
+        /// Model index.
+        m: usize,
+        /// Seed index.
+        k: usize,
+    },
+    /// The reality arm of policy `p`.
+    Reality {
+        /// Policy index.
+        p: usize,
+    },
+    /// The analysis.
+    Analyze,
+    /// The report.
+    Report,
+}
+
+/// A step of the plan.
+#[derive(Debug, Clone)]
+pub struct Step {
+    /// Unique, file-name-safe id ("train-Zone-0").
+    pub id: String,
+    /// What it does.
+    pub kind: StepKind,
+    /// Steps it needs (indices).
+    pub deps: Vec<usize>,
+    /// Hash of its inputs (settings and the dependencies' hashes).
+    pub hash: u64,
+}
+
+impl StepKind {
+    /// Its unique, file-name-safe id ("train-Zone-0").
+    pub fn id(&self, study: &Study) -> String {
+        match self {
+            StepKind::FitConvnet => "fit-convnet".into(),
+            StepKind::Train { m, k } => format!("train-{}-{k}", study.name(*m)),
+            StepKind::Eval { p, m } => format!("eval-{}__{}", study.name(*p), study.name(*m)),
+            StepKind::Approach { p } => format!("approach-{}", study.name(*p)),
+            StepKind::Stability { m, k } => format!("stability-{}-{k}", study.name(*m)),
+            StepKind::Reality { p } => format!("reality-{}", study.name(*p)),
+            StepKind::Analyze => "analyze".into(),
+            StepKind::Report => "report".into(),
+        }
+    }
+
+    /// The settings this step depends on, as JSON (hashed into its marker).
+    pub fn inputs(&self, study: &Study) -> serde_json::Value {
+        let c = &study.cfg;
+        let model = |i: usize| serde_json::json!({"name": study.name(i), "spec": c.models[i].spec});
+        match self {
+            StepKind::FitConvnet => {
+                serde_json::json!({"fit_convnet": study.convnet_data, "seed": c.seed,
+                    "epochs": c.convnet_max_epochs})
+            }
+            // The resolved PPO settings, not the preset's name: a preset whose values change
+            // (the `paper` preset's epochs went from 100 to 10) must not pass for the old one.
+            StepKind::Train { m, k } => {
+                serde_json::json!({"train": model(*m), "k": k, "seed": c.seed, "ppo": c.ppo()})
+            }
+            StepKind::Eval { p, m } => {
+                serde_json::json!({"eval": [study.name(*p), model(*m)], "seed": c.seed,
+                "episodes": study.eval_episodes(*p, *m), "minutes": c.episode_minutes})
+            }
+            StepKind::Approach { p } => {
+                serde_json::json!({"approach": study.name(*p), "seed": c.seed,
+                "episodes": c.approach_episodes, "minutes": c.approach_minutes})
+            }
+            StepKind::Stability { m, k } => {
+                serde_json::json!({"stability": model(*m), "k": k, "seed": c.seed,
+                "episodes": c.stability_episodes, "minutes": c.episode_minutes})
+            }
+            StepKind::Reality { p } => match &study.real {
+                Some(r) => {
+                    serde_json::json!({"real": r.join(StudyLayout::arm_dir_name(study.name(*p), &Arm::Real))})
+                }
+                None => serde_json::json!({"virtual": study.name(*p), "seed": c.seed,
+                    "trials": c.virtual_trials, "minutes": c.virtual_minutes}),
+            },
+            StepKind::Analyze => {
+                serde_json::json!({"analyze": c.analysis_quick, "seed": c.seed, "sim_trials": c.sim_trials})
+            }
+            StepKind::Report => serde_json::json!({"report": 1}),
+        }
+    }
+
+    /// Where this step writes.
+    pub fn output(&self, study: &Study) -> PathBuf {
+        let l = study.layout();
+        let sim = |m: usize| Arm::Sim(study.name(m).to_string());
+        match self {
+            StepKind::FitConvnet => l.convnet(),
+            StepKind::Train { m, k } => l.policy(study.name(*m), *k),
+            StepKind::Eval { p, m } => l.arm(study.name(*p), &sim(*m)),
+            StepKind::Approach { p } => l.approach(study.name(*p)),
+            StepKind::Stability { m, k } => l.stability(study.name(*m), *k),
+            StepKind::Reality { p } => l.arm(study.name(*p), &study.reality_arm()),
+            StepKind::Analyze => l.analysis(),
+            StepKind::Report => l.report(),
+        }
+    }
+}
+
+/// FNV-1a: a hash that is the same on every build, for completion markers.
+fn fnv(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+impl Study {
+    /// Where a step writes.
+    pub fn output(&self, kind: &StepKind) -> PathBuf {
+        kind.output(self)
+    }
+
+    /// The plan, in an order where every step comes after its dependencies.
+    pub fn plan(&self) -> Vec<Step> {
+        let n = self.cfg.models.len();
+        let seeds = self.cfg.extra_seeds + 1;
+        let mut steps: Vec<Step> = Vec::new();
+        let add = |kind: StepKind, deps: Vec<usize>, steps: &mut Vec<Step>| -> usize {
+            let mut bytes = serde_json::to_vec(&kind.inputs(self)).unwrap_or_default();
+            for d in &deps {
+                bytes.extend_from_slice(&steps[*d].hash.to_le_bytes());
+            }
+            let id = kind.id(self);
+            steps.push(Step {
+                id,
+                kind,
+                deps,
+                hash: fnv(&bytes),
+            });
+            steps.len() - 1
+        };
+        let fit = self
+            .convnet_data
+            .is_some()
+            .then(|| add(StepKind::FitConvnet, vec![], &mut steps));
+        // Steps that simulate a refitted ConvNet need its weights.
+        let needs_fit = |m: usize| -> Vec<usize> {
+            match (&self.cfg.models[m].spec, fit) {
+                (fishprobe_models::ModelSpec::ConvNet(_), Some(f)) => vec![f],
+                _ => vec![],
+            }
+        };
+        let mut train = vec![vec![0usize; seeds]; n];
+        for (m, row) in train.iter_mut().enumerate() {
+            for (k, slot) in row.iter_mut().enumerate() {
+                *slot = add(StepKind::Train { m, k }, needs_fit(m), &mut steps);
+            }
+        }
+        let mut for_analysis = Vec::new();
+        for (p, row) in train.iter().enumerate() {
+            let policy = row[0];
+            for m in 0..n {
+                let mut deps = vec![policy];
+                deps.extend(needs_fit(m));
+                for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps));
+            }
+            for_analysis.push(add(StepKind::Approach { p }, vec![policy], &mut steps));
+            for_analysis.push(add(StepKind::Reality { p }, vec![policy], &mut steps));
+        }
+        for (m, row) in train.iter().enumerate() {
+            for (k, &t) in row.iter().enumerate() {
+                for_analysis.push(add(StepKind::Stability { m, k }, vec![t], &mut steps));
+            }
+        }
+        let analyze = add(StepKind::Analyze, for_analysis, &mut steps);
+        let mut report_deps = vec![analyze];
+        report_deps.extend(train.iter().map(|row| row[0]));
+        add(StepKind::Report, report_deps, &mut steps);
+        steps
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::StudyConfig;
+
+    #[test]
+    fn the_plan_orders_dependencies_and_a_changed_setting_changes_only_its_downstream() {
+        let cfg = StudyConfig::preset("smoke").unwrap();
+        let s = Study::new("/tmp/x".into(), cfg.clone(), None).unwrap();
+        let plan = s.plan();
+        // 4 models x 2 seeds trainings, 16 evals, 4 approach, 4 reality, 8 stability, analyze, report.
+        assert_eq!(plan.len(), 8 + 16 + 4 + 4 + 8 + 2);
+        for (i, st) in plan.iter().enumerate() {
+            assert!(st.deps.iter().all(|&d| d < i), "{} before its deps", st.id);
+        }
+        let mut cfg2 = cfg;
+        cfg2.stability_episodes += 1;
+        let plan2 = Study::new("/tmp/x".into(), cfg2, None).unwrap().plan();
+        let changed: Vec<&str> = plan
+            .iter()
+            .zip(&plan2)
+            .filter(|(a, b)| a.hash != b.hash)
+            .map(|(a, _)| a.id.as_str())
+            .collect();
+        assert!(
+            changed
+                .iter()
+                .all(|id| id.starts_with("stability") || *id == "analyze" || *id == "report"),
+            "{changed:?}"
+        );
+        assert!(changed.len() == 8 + 2, "{changed:?}");
+        assert_eq!(fnv(b"fishprobe"), fnv(b"fishprobe"));
+    }
+
+    #[test]
+    fn training_hashes_follow_the_resolved_ppo_settings_not_the_preset_name() {
+        let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
+        let paper = StudyConfig::preset("paper").unwrap();
+        let base = plan(paper.clone());
+        // Setting the epochs the preset already has changes nothing.
+        let mut same = paper.clone();
+        same.ppo_epochs = Some(10);
+        for (a, b) in base.iter().zip(&plan(same)) {
+            assert_eq!(a.hash, b.hash, "{}", a.id);
+        }
+        // The published epochs, by override or by preset, change the training and all that
+        // follows it, and nothing else; the override keeps the `paper` preset's log-s.d. bound
+        // and the preset does not, so the two trainings differ.
+        let mut hundred = paper.clone();
+        hundred.ppo_epochs = Some(100);
+        let published = StudyConfig::preset("published").unwrap();
+        for (a, (b, c)) in base.iter().zip(plan(hundred).iter().zip(&plan(published))) {
+            let downstream = !a.id.starts_with("fit-convnet");
+            assert_eq!(a.hash != b.hash, downstream, "{}", a.id);
+            assert_eq!(a.hash != c.hash, downstream, "{}", a.id);
+            if a.id.starts_with("train-") {
+                assert_ne!(b.hash, c.hash, "{}", a.id);
+            }
+        }
+        // A marker written by fishprobe 0.1.0, when the `paper` preset meant 100 epochs and the
+        // hash held only the preset's name, no longer passes for a `paper` training.
+        let follow = base.iter().find(|s| s.id == "train-Follow-0").unwrap();
+        assert_ne!(format!("{:016x}", follow.hash), "7b2a1ef96103b6b1");
+    }
+}
