@@ -211,7 +211,7 @@ fn goals_and_gaps(
                     ci: st::percentile_ci(&mut boot, cfg.ci_level),
                     p: perm.map_or(f64::NAN, |t| t.p),
                     cliffs_delta: delta,
-                    magnitude: st::magnitude(delta),
+                    magnitude: st::magnitude(delta).to_string(),
                     n_sim: gs.len(),
                     n_real: gr.len(),
                 }

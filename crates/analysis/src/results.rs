@@ -2,8 +2,44 @@
 //! section, and a Markdown summary.
 
 use crate::config::AnalysisConfig;
-use serde::Serialize;
+use serde::{Deserialize, Deserializer, Serialize};
 use std::collections::BTreeMap;
+
+/// Reading `results.json` back: serde_json writes NaN as `null`, so numbers read `null` (and
+/// an absent field, from an older or partial analysis) as NaN. With these, the report reads the
+/// same structs the analysis writes.
+mod nan {
+    use super::*;
+
+    /// NaN: the default of numbers an older `results.json` lacks.
+    pub fn nan() -> f64 {
+        f64::NAN
+    }
+
+    /// A pair of NaNs.
+    pub fn nan2() -> [f64; 2] {
+        [f64::NAN; 2]
+    }
+
+    /// A number, `null` read as NaN.
+    pub fn f64<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
+
+    /// An interval, `null` ends read as NaN.
+    pub fn pair<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 2], D::Error> {
+        let v = <[Option<f64>; 2]>::deserialize(d)?;
+        Ok(v.map(|x| x.unwrap_or(f64::NAN)))
+    }
+
+    /// A map of numbers, `null` values read as NaN.
+    pub fn map<'de, D: Deserializer<'de>>(d: D) -> Result<BTreeMap<String, f64>, D::Error> {
+        let m = BTreeMap::<String, Option<f64>>::deserialize(d)?;
+        Ok(m.into_iter()
+            .map(|(k, v)| (k, v.unwrap_or(f64::NAN)))
+            .collect())
+    }
+}
 
 /// Every file `write_results` can write, in the order a reader meets them.
 pub const OUTPUT_FILES: [&str; 12] = [
@@ -22,95 +58,120 @@ pub const OUTPUT_FILES: [&str; 12] = [
 ];
 
 /// Per-trial goals of one policy.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GoalsPair {
     /// Sim trials (the first `sim_trials` files of `<P>__<P>`).
+    #[serde(default)]
     pub sim: Vec<u32>,
     /// Reality-arm trials.
+    #[serde(default)]
     pub real: Vec<u32>,
 }
 
 /// The sim-to-real gap in goals reached.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct GoalGap {
     /// 1-Wasserstein distance between sim and real goals.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub w: f64,
     /// Percentile-bootstrap interval.
+    #[serde(default = "nan::nan2", deserialize_with = "nan::pair")]
     pub ci: [f64; 2],
     /// One-sided permutation p.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub p: f64,
     /// Cliff's δ = P(sim > real) - P(sim < real).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub cliffs_delta: f64,
     /// Its magnitude label.
-    pub magnitude: &'static str,
+    #[serde(default)]
+    pub magnitude: String,
     /// Sim trials.
+    #[serde(default)]
     pub n_sim: usize,
     /// Real trials.
+    #[serde(default)]
     pub n_real: usize,
 }
 
 /// The sim-to-real gap in one per-frame metric.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MetricGap {
     /// Median of the sim x real matrix of per-trial W1.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub median: f64,
     /// Two-way cluster-bootstrap interval.
+    #[serde(default = "nan::nan2", deserialize_with = "nan::pair")]
     pub ci: [f64; 2],
     /// Min-max normalised across policies within the metric.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub normalized: f64,
     /// Rank within the metric (1 = smallest gap; ties share the average rank).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub rank: f64,
 }
 
 /// One sim-to-sim cell.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SimToSimCell {
     /// Median of the bootstrap distribution of W1.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub median: f64,
     /// Its percentile interval.
+    #[serde(default = "nan::nan2", deserialize_with = "nan::pair")]
     pub ci: [f64; 2],
     /// Holm-adjusted permutation p against the diagonal (`null` on the diagonal).
     pub p_holm: Option<f64>,
 }
 
 /// Kruskal-Wallis across rollout models.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct KruskalOut {
     /// Tie-corrected H.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub h: f64,
     /// χ² p-value.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub p: f64,
 }
 
 /// A negative-binomial trend of goals per minute.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Trend {
     /// exp(β) per minute.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub rate_ratio: f64,
     /// Wald interval of exp(β).
+    #[serde(default = "nan::nan2", deserialize_with = "nan::pair")]
     pub ci: [f64; 2],
     /// Wald p of β.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub p: f64,
     /// NB2 dispersion α.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub alpha: f64,
     /// exp(intercept): the fitted goals in the first minute (with `rate_ratio`, the dashed
     /// trend line of the report's figure).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub first_minute: f64,
 }
 
 /// Mean and sample s.d.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MeanSd {
     /// Mean.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub mean: f64,
     /// Sample standard deviation (n - 1); null below two values.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub sd: f64,
     /// Trials with a value.
+    #[serde(default)]
     pub n: usize,
 }
 
 /// Time to goal, sim and real.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TimeToGoal {
     /// Sim trials.
     pub sim: Option<MeanSd>,
@@ -119,40 +180,51 @@ pub struct TimeToGoal {
 }
 
 /// The approach assay of one policy.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Approach {
     /// Minimum robot-fish distance over all frames of all episodes (cm).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub min_iid: f64,
     /// Mean robot-fish distance over all frames (cm).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub mean_iid: f64,
     /// Fraction of frames in which the robot is closer to the fish than to the goal.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub frac_closer_to_fish: f64,
     /// Episodes.
+    #[serde(default)]
     pub episodes: usize,
 }
 
 /// Retraining stability.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StabilityOut {
     /// σ²_between / σ²_within.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub r: f64,
     /// Bootstrap interval.
+    #[serde(default = "nan::nan2", deserialize_with = "nan::pair")]
     pub ci: [f64; 2],
     /// Permutation p.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub p: f64,
 }
 
 /// Something left out, and why.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Skipped {
     /// A file or a condition.
+    #[serde(default)]
     pub what: String,
     /// Why.
+    #[serde(default)]
     pub reason: String,
 }
 
-/// Everything `fishprobe analyze` computes. Sections whose inputs are absent are left out.
-#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+/// Everything `fishprobe analyze` computes. Sections whose inputs are absent are left out;
+/// read back, an absent section is empty (so an older or partial `results.json` still reads).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default)]
 pub struct Results {
     /// "Real" or "VirtualLab" (virtual-lab results are never real).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -167,7 +239,10 @@ pub struct Results {
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub metric_gaps: BTreeMap<String, BTreeMap<String, MetricGap>>,
     /// Mean rank over the nine metrics.
-    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    #[serde(
+        skip_serializing_if = "BTreeMap::is_empty",
+        deserialize_with = "nan::map"
+    )]
     pub mean_ranks: BTreeMap<String, f64>,
     /// Policy → rollout model → cell.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
@@ -259,7 +334,7 @@ impl Results {
                         f(g.ci[1]),
                         f(g.p),
                         f(g.cliffs_delta),
-                        g.magnitude.into(),
+                        g.magnitude.clone(),
                         g.n_sim.to_string(),
                         g.n_real.to_string(),
                     ]
@@ -528,5 +603,45 @@ impl Results {
             }
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    #[test]
+    fn results_read_back_as_written_with_nan_and_from_older_partial_files() {
+        let mut r = Results {
+            reality: Some("VirtualLab".into()),
+            ..Results::default()
+        };
+        r.sim_to_real.insert(
+            "Zone".into(),
+            GoalGap {
+                w: 1.5,
+                ci: [f64::NAN, 2.0],
+                p: f64::NAN,
+                cliffs_delta: -0.25,
+                magnitude: "small".into(),
+                n_sim: 18,
+                n_real: 17,
+            },
+        );
+        r.mean_ranks.insert("Zone".into(), f64::NAN);
+        let text = serde_json::to_string(&r).unwrap();
+        let back: Results = serde_json::from_str(&text).unwrap();
+        assert_eq!(serde_json::to_string(&back).unwrap(), text);
+        assert!(back.sim_to_real["Zone"].p.is_nan() && back.mean_ranks["Zone"].is_nan());
+        // An older analysis without `first_minute` in its trends, and without most sections.
+        let old: Results = serde_json::from_str(
+            r#"{"temporal": {"sim": {"Zone": {"rate_ratio": 0.98, "ci": [0.9, 1.1], "p": 0.5, "alpha": 0.1}}}}"#,
+        )
+        .unwrap();
+        let t = &old.temporal["sim"]["Zone"];
+        assert_eq!(t.rate_ratio, 0.98);
+        assert!(t.first_minute.is_nan());
+        assert!(old.goals.is_empty() && old.stability.is_none());
     }
 }

@@ -1,5 +1,6 @@
-//! The smoke study's outputs, bit for bit: every trial file and `results.json`, digested and
-//! compared with the digest recorded when they were last changed on purpose. Refactoring
+//! The smoke study's outputs, bit for bit: every trial file and `results.json`, and the report
+//! (figures, HTML, summary), digested and compared with the digests recorded when they were
+//! last changed on purpose. Refactoring
 //! (issue 25: one controller trait, one study layout, ...) must leave them as they are.
 //!
 //! If a change alters results on purpose, run this test, take the digest it prints, replace
@@ -18,6 +19,42 @@ use std::path::{Path, PathBuf};
 /// Digest of the smoke study as of commit 6638720 (unchanged through issues 21 and 25;
 /// fishprobe 0.1.0, x86-64 with AVX2 and FMA).
 const GOLDEN: &str = "28e3bb4d3b02b22f";
+
+/// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
+/// study's path replaced by `STUDY`), as of the same commit.
+const GOLDEN_REPORT: &str = "535e3f1dc2e7652d";
+
+/// FNV-1a over byte strings.
+fn fnv(parts: &[Vec<u8>]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for p in parts {
+        for &b in p {
+            h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    format!("{h:016x}")
+}
+
+/// The report's digest: figures by name, then the two documents with the study path replaced.
+fn report_digest(study: &Path) -> String {
+    let report = study.join("report");
+    let mut figs: Vec<PathBuf> = std::fs::read_dir(report.join("figures"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    figs.sort();
+    let mut parts = Vec::new();
+    for f in &figs {
+        parts.push(f.file_name().unwrap().to_string_lossy().as_bytes().to_vec());
+        parts.push(std::fs::read(f).unwrap());
+    }
+    let root = study.to_str().unwrap();
+    for doc in ["index.html", "summary.md"] {
+        let text = std::fs::read_to_string(report.join(doc)).unwrap();
+        parts.push(text.replace(root, "STUDY").into_bytes());
+    }
+    fnv(&parts)
+}
 
 /// FNV-1a over the relative paths and contents of every trial file and of `results.json`.
 fn digest(study: &Path) -> (String, usize) {
@@ -68,12 +105,17 @@ fn the_smoke_study_is_bit_identical_to_the_recorded_one() {
     let o = fishprobe(&["run", "--preset", "smoke", "--out", study.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let (got, n) = digest(&study);
-    println!("smoke study digest: {got} over {n} files");
+    let report = report_digest(&study);
+    println!("smoke study digest: {got} over {n} files; report digest: {report}");
     assert!(n > 50, "only {n} files");
     if has_avx2_fma() {
         assert_eq!(
             got, GOLDEN,
             "the smoke study's trial files or results.json changed (see this file's docs)"
+        );
+        assert_eq!(
+            report, GOLDEN_REPORT,
+            "the smoke study's report changed (see this file's docs)"
         );
     } else {
         println!("not x86-64 with AVX2 and FMA: checking only that a second run agrees");
@@ -81,5 +123,6 @@ fn the_smoke_study_is_bit_identical_to_the_recorded_one() {
         let o = fishprobe(&["run", "--preset", "smoke", "--out", again.to_str().unwrap()]);
         assert!(o.status.success(), "{}", stderr(&o));
         assert_eq!(digest(&again).0, got);
+        assert_eq!(report_digest(&again), report);
     }
 }

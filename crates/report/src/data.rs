@@ -6,7 +6,7 @@
 
 use crate::config::ReportConfig;
 use crate::error::ReportError;
-use fishprobe_analysis::{load_trial, AnalysisConfig, StudyFiles, METRICS};
+use fishprobe_analysis::{load_trial, AnalysisConfig, Results, StudyFiles, METRICS};
 use fishprobe_io::layout::StudyLayout;
 use fishprobe_io::{read_trial, TrialFile};
 use rayon::prelude::*;
@@ -110,8 +110,8 @@ pub struct StudyData {
     pub root: PathBuf,
     /// The analysis directory.
     pub analysis_dir: PathBuf,
-    /// `results.json`, when present and readable.
-    pub results: Option<Value>,
+    /// `results.json`, when present and readable: the structs `fishprobe analyze` wrote.
+    pub results: Option<Results>,
     /// Reality arm ("Real", "VirtualLab") found in the rollouts.
     pub arm: Option<String>,
     /// Policies with sim trials on their own model.
@@ -130,36 +130,6 @@ pub struct StudyData {
     pub unreadable: Vec<(PathBuf, String)>,
     /// What is missing.
     pub missing: Vec<Missing>,
-}
-
-impl StudyData {
-    /// A number of `results.json` at a path of keys (`null`, absent or non-numeric: NaN).
-    pub fn num(&self, path: &[&str]) -> f64 {
-        let mut v = match &self.results {
-            Some(v) => v,
-            None => return f64::NAN,
-        };
-        for k in path {
-            let next = match (v, k.parse::<usize>()) {
-                (Value::Array(a), Ok(i)) => a.get(i),
-                _ => v.get(k),
-            };
-            match next {
-                Some(x) => v = x,
-                None => return f64::NAN,
-            }
-        }
-        v.as_f64().unwrap_or(f64::NAN)
-    }
-
-    /// An object of `results.json` at a path of keys.
-    pub fn section(&self, path: &[&str]) -> Option<&serde_json::Map<String, Value>> {
-        let mut v = self.results.as_ref()?;
-        for k in path {
-            v = v.get(k)?;
-        }
-        v.as_object()
-    }
 }
 
 /// Loads the report's inputs. `analysis_dir`: where `fishprobe analyze` wrote (default
@@ -185,14 +155,20 @@ pub fn gather(
     let mut acfg = AnalysisConfig::default();
     match std::fs::read_to_string(&results_path) {
         Ok(text) => match serde_json::from_str::<Value>(&text) {
-            Ok(v) if v.is_object() => {
-                if let Some(c) = v.get("config") {
-                    if let Ok(c) = serde_json::from_value::<AnalysisConfig>(c.clone()) {
-                        acfg = c;
-                    }
+            Ok(v) if v.is_object() => match serde_json::from_value::<Results>(v) {
+                Ok(r) => {
+                    acfg = r.config.clone();
+                    d.results = Some(r);
                 }
-                d.results = Some(v);
-            }
+                Err(e) => d.missing.push(Missing {
+                    what: "analysis results".into(),
+                    why: format!(
+                        "{} does not hold what fishprobe analyze writes: {e}",
+                        results_path.display()
+                    ),
+                    remedy: format!("fishprobe analyze {root_s}"),
+                }),
+            },
             Ok(_) | Err(_) => d.missing.push(Missing {
                 what: "analysis results".into(),
                 why: format!("{} is not a JSON object", results_path.display()),

@@ -4,8 +4,10 @@ use crate::data::StudyData;
 use crate::figures::{Figure, METRIC_LABELS};
 use crate::svg::esc;
 use base64::Engine as _;
+use fishprobe_analysis::results::MeanSd;
 use fishprobe_analysis::METRICS;
 use fishprobe_io::layout::{Arm, StudyLayout, VIRTUAL_LAB};
+use fishprobe_stats::sample::mean;
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -39,10 +41,6 @@ window.addEventListener('load', function () {
 });
 "#;
 
-fn num(v: Option<&Value>) -> f64 {
-    v.and_then(Value::as_f64).unwrap_or(f64::NAN)
-}
-
 fn f(v: f64, digits: usize) -> String {
     if v.is_finite() {
         format!("{v:.digits$}")
@@ -61,10 +59,8 @@ fn p_fmt(p: f64) -> String {
     }
 }
 
-fn ci(v: Option<&Value>, digits: usize) -> String {
-    let a = v.and_then(Value::as_array);
-    let at = |i: usize| num(a.and_then(|a| a.get(i)));
-    format!("[{}, {}]", f(at(0), digits), f(at(1), digits))
+fn ci(v: &[f64; 2], digits: usize) -> String {
+    format!("[{}, {}]", f(v[0], digits), f(v[1], digits))
 }
 
 fn table(out: &mut String, header: &[&str], rows: &[Vec<String>]) {
@@ -81,18 +77,6 @@ fn table(out: &mut String, header: &[&str], rows: &[Vec<String>]) {
         out.push_str("</tr>");
     }
     out.push_str("</tbody></table>\n");
-}
-
-fn mean_of(v: Option<&Value>) -> f64 {
-    let a: Vec<f64> = v
-        .and_then(Value::as_array)
-        .map(|a| a.iter().filter_map(Value::as_f64).collect())
-        .unwrap_or_default();
-    if a.is_empty() {
-        f64::NAN
-    } else {
-        a.iter().sum::<f64>() / a.len() as f64
-    }
 }
 
 fn figure(out: &mut String, fig: &Figure, portable_svg: &str) {
@@ -142,12 +126,27 @@ impl Page<'_> {
         }
     }
 
-    /// The HTML document.
+    /// The HTML document, section by section.
     pub fn html(&self) -> String {
-        let d = self.data;
-        let r = d.results.as_ref();
-        let get = |k: &str| r.and_then(|v| v.get(k));
         let mut o = String::with_capacity(1 << 20);
+        self.head(&mut o);
+        self.what_was_run(&mut o);
+        self.missing(&mut o);
+        self.sim_to_real(&mut o);
+        self.metric_gaps(&mut o);
+        self.sim_to_sim(&mut o);
+        self.temporal(&mut o);
+        self.time_to_goal(&mut o);
+        self.approach(&mut o);
+        self.stability(&mut o);
+        self.drawings(&mut o);
+        self.data_files(&mut o);
+        o
+    }
+
+    /// The title, the reality-arm banner and the contents.
+    fn head(&self, o: &mut String) {
+        let d = self.data;
         let _ = write!(
             o,
             "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
@@ -199,7 +198,12 @@ impl Page<'_> {
              <li><a href=\"#iid\">Robot-fish distance</a></li><li><a href=\"#trajectories\">Trajectories</a></li>\
              <li><a href=\"#training\">Training</a></li><li><a href=\"#files\">Data files</a></li></ul></nav>\n",
         );
+    }
 
+    /// What was run: policies, trial files per condition, the analysis settings.
+    fn what_was_run(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // What was run.
         o.push_str("<h2 id=\"run\">What was run</h2>\n");
         if !d.training.is_empty() {
@@ -230,7 +234,7 @@ impl Page<'_> {
                 .collect();
             o.push_str("<p>Policies (from <code>policies/&lt;Model&gt;/params.json</code>):</p>");
             table(
-                &mut o,
+                o,
                 &[
                     "policy",
                     "training seed",
@@ -271,7 +275,7 @@ impl Page<'_> {
                  rows: the policy, columns: the fish it was run with):</p>",
             );
             let h: Vec<&str> = header.iter().map(String::as_str).collect();
-            table(&mut o, &h, &rows);
+            table(o, &h, &rows);
             let mut notes: Vec<String> = d
                 .conditions
                 .iter()
@@ -290,19 +294,24 @@ impl Page<'_> {
                 o.push_str("</p>\n");
             }
         }
-        if let Some(c) = get("config") {
+        if let Some(res) = r {
+            let c = &res.config;
             let _ = writeln!(
                 o,
                 "<p>Analysis: master seed {}, {} sim trials per policy, {} bootstrap replicates, {} \
                  permutations, {} % intervals.</p>",
-                get("seed").map_or("–".into(), Value::to_string),
-                num(c.get("sim_trials")),
-                num(c.get("bootstrap_reps")),
-                num(c.get("permutations")),
-                num(c.get("ci_level")) * 100.0
+                res.seed,
+                c.sim_trials,
+                c.bootstrap_reps,
+                c.permutations,
+                c.ci_level * 100.0
             );
         }
+    }
 
+    /// What is missing, unreadable or left out, and how to produce it.
+    fn missing(&self, o: &mut String) {
+        let d = self.data;
         // Missing.
         o.push_str("<h2 id=\"missing\">Missing parts</h2>\n");
         if d.missing.is_empty() && d.unreadable.is_empty() && self.skipped().is_empty() {
@@ -336,27 +345,40 @@ impl Page<'_> {
             }
             o.push_str("</ul></div>\n");
         }
+    }
 
+    /// The sim-to-real gap in goals reached (table and figure).
+    fn sim_to_real(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Sim-to-real, goals.
         o.push_str("<h2 id=\"sim-to-real\">Sim-to-real gap in goals reached</h2>\n");
-        if let Some(s2r) = get("sim_to_real").and_then(Value::as_object) {
-            let rows: Vec<Vec<String>> = s2r
+        if let Some(res) = r.filter(|x| !x.sim_to_real.is_empty()) {
+            let rows: Vec<Vec<String>> = res
+                .sim_to_real
                 .iter()
                 .map(|(p, g)| {
-                    let pair = get("goals").and_then(|x| x.get(p));
+                    let pair = res.goals.get(p);
+                    let goals = |v: &[u32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
+                    let sim = pair.map_or_else(Vec::new, |x| goals(&x.sim));
+                    let real = pair.map_or_else(Vec::new, |x| goals(&x.real));
                     vec![
                         format!("π_{p}"),
-                        f(mean_of(pair.and_then(|x| x.get("sim"))), 1),
-                        f(mean_of(pair.and_then(|x| x.get("real"))), 1),
-                        f(num(g.get("w")), 2),
-                        ci(g.get("ci"), 2),
-                        p_fmt(num(g.get("p"))),
+                        f(mean(&sim), 1),
+                        f(mean(&real), 1),
+                        f(g.w, 2),
+                        ci(&g.ci, 2),
+                        p_fmt(g.p),
                         format!(
                             "{} ({})",
-                            f(num(g.get("cliffs_delta")), 2),
-                            g.get("magnitude").and_then(Value::as_str).unwrap_or("–")
+                            f(g.cliffs_delta, 2),
+                            if g.magnitude.is_empty() {
+                                "–"
+                            } else {
+                                &g.magnitude
+                            }
                         ),
-                        format!("{} / {}", num(g.get("n_sim")), num(g.get("n_real"))),
+                        format!("{} / {}", g.n_sim, g.n_real),
                     ]
                 })
                 .collect();
@@ -367,7 +389,7 @@ impl Page<'_> {
                 ("real mean", "trials sim / real")
             };
             table(
-                &mut o,
+                o,
                 &[
                     "policy",
                     "sim mean",
@@ -384,16 +406,18 @@ impl Page<'_> {
         } else {
             o.push_str("<p class=\"missing\">Needs simulation and reality-arm trials and <code>fishprobe analyze</code>.</p>\n");
         }
-        self.fig(&mut o, "goals");
+        self.fig(o, "goals");
+    }
 
+    /// The per-metric gaps and ranks (table and heatmap).
+    fn metric_gaps(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Per-metric gaps.
         o.push_str("<h2 id=\"metrics\">Per-metric sim-to-real gaps and ranks</h2>\n");
-        if let Some(mg) = get("metric_gaps").and_then(Value::as_object) {
-            let mut policies: Vec<String> = mg
-                .values()
-                .filter_map(Value::as_object)
-                .flat_map(|m| m.keys().cloned())
-                .collect();
+        if let Some(res) = r.filter(|x| !x.metric_gaps.is_empty()) {
+            let mg = &res.metric_gaps;
+            let mut policies: Vec<String> = mg.values().flat_map(|m| m.keys().cloned()).collect();
             policies.sort();
             policies.dedup();
             let mut header = vec!["metric".to_string()];
@@ -408,9 +432,9 @@ impl Page<'_> {
                         row.push(match per.get(p) {
                             Some(c) => format!(
                                 "{} {} (rank {})",
-                                f(num(c.get("median")), 2),
-                                ci(c.get("ci"), 2),
-                                f(num(c.get("rank")), 1)
+                                f(c.median, 2),
+                                ci(&c.ci, 2),
+                                f(c.rank, 1)
                             ),
                             None => "–".into(),
                         });
@@ -420,70 +444,75 @@ impl Page<'_> {
                 .chain(std::iter::once({
                     let mut row = vec!["mean rank".to_string()];
                     for p in &policies {
-                        row.push(f(num(get("mean_ranks").and_then(|m| m.get(p))), 2));
+                        row.push(f(res.mean_ranks.get(p).copied().unwrap_or(f64::NAN), 2));
                     }
                     row
                 }))
                 .collect();
             let h: Vec<&str> = header.iter().map(String::as_str).collect();
-            table(&mut o, &h, &rows);
+            table(o, &h, &rows);
         } else {
             o.push_str("<p class=\"missing\">Needs reality-arm trials and <code>fishprobe analyze</code>.</p>\n");
         }
-        self.fig(&mut o, "gap_heatmap");
+        self.fig(o, "gap_heatmap");
+    }
 
+    /// Sim-to-sim: each policy on each model, and Kruskal-Wallis.
+    fn sim_to_sim(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Sim-to-sim.
         o.push_str(
             "<h2 id=\"sim-to-sim\">Sim-to-sim: do the models teach different strategies?</h2>\n",
         );
-        if let Some(s2s) = get("sim_to_sim").and_then(Value::as_object) {
-            let rows: Vec<Vec<String>> = s2s
+        if let Some(res) = r.filter(|x| !x.sim_to_sim.is_empty()) {
+            let rows: Vec<Vec<String>> = res
+                .sim_to_sim
                 .iter()
                 .flat_map(|(p, per)| {
-                    per.as_object().into_iter().flatten().map(move |(m, c)| {
+                    per.iter().map(move |(m, c)| {
                         vec![
                             format!("π_{p}"),
                             format!("M_{m}"),
-                            f(num(c.get("median")), 2),
-                            ci(c.get("ci"), 2),
-                            c.get("p_holm")
-                                .and_then(Value::as_f64)
-                                .map_or("(diagonal)".into(), p_fmt),
+                            f(c.median, 2),
+                            ci(&c.ci, 2),
+                            c.p_holm.map_or("(diagonal)".into(), p_fmt),
                         ]
                     })
                 })
                 .collect();
             table(
-                &mut o,
+                o,
                 &["policy", "rollout model", "median W", "95 % CI", "p (Holm)"],
                 &rows,
             );
-            if let Some(k) = get("kruskal").and_then(Value::as_object) {
-                let rows: Vec<Vec<String>> = k
+            if !res.kruskal.is_empty() {
+                let rows: Vec<Vec<String>> = res
+                    .kruskal
                     .iter()
-                    .map(|(p, v)| {
-                        vec![
-                            format!("π_{p}"),
-                            f(num(v.get("h")), 2),
-                            p_fmt(num(v.get("p"))),
-                        ]
-                    })
+                    .map(|(p, v)| vec![format!("π_{p}"), f(v.h, 2), p_fmt(v.p)])
                     .collect();
                 o.push_str("<p>Kruskal-Wallis across rollout models (goals per episode):</p>");
-                table(&mut o, &["policy", "H", "p"], &rows);
+                table(o, &["policy", "H", "p"], &rows);
             }
         } else {
             o.push_str("<p class=\"missing\">Needs rollouts of each policy on the other models (<code>rollouts/&lt;P&gt;__&lt;M&gt;/</code>) and <code>fishprobe analyze</code>.</p>\n");
         }
-        self.fig(&mut o, "sim_to_sim");
+        self.fig(o, "sim_to_sim");
+    }
 
+    /// Goals per minute over time (negative-binomial trends).
+    fn temporal(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Temporal.
         o.push_str("<h2 id=\"temporal\">Goals per minute over time</h2>\n");
-        if let Some(t) = get("temporal").and_then(Value::as_object) {
+        let temporal = r.map(|x| &x.temporal).filter(|t| !t.is_empty());
+        if let Some(t) = temporal {
             let rows: Vec<Vec<String>> = t
                 .iter()
                 .flat_map(|(arm, per)| {
-                    per.as_object().into_iter().flatten().map(move |(p, v)| {
+                    per.iter().map(move |(p, v)| {
                         vec![
                             arm.clone(),
                             if p == "total" {
@@ -491,16 +520,16 @@ impl Page<'_> {
                             } else {
                                 format!("π_{p}")
                             },
-                            f(num(v.get("rate_ratio")), 3),
-                            ci(v.get("ci"), 3),
-                            p_fmt(num(v.get("p"))),
-                            f(num(v.get("alpha")), 3),
+                            f(v.rate_ratio, 3),
+                            ci(&v.ci, 3),
+                            p_fmt(v.p),
+                            f(v.alpha, 3),
                         ]
                     })
                 })
                 .collect();
             table(
-                &mut o,
+                o,
                 &[
                     "arm",
                     "policy",
@@ -513,52 +542,58 @@ impl Page<'_> {
             );
             o.push_str("<p class=\"small\">Negative-binomial (NB2) regression of goals per minute on the minute of control, standard errors clustered by trial. A rate ratio below 1 means goals become rarer as the trial goes on.</p>\n");
         }
-        if !self.fig(&mut o, "goals_over_time") && get("temporal").is_none() {
+        if !self.fig(o, "goals_over_time") && temporal.is_none() {
             o.push_str("<p class=\"missing\">Needs trials with at least one complete minute of control.</p>\n");
         }
+    }
 
+    /// Time to goal.
+    fn time_to_goal(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Time to goal.
         o.push_str("<h2 id=\"time-to-goal\">Time to goal</h2>\n");
-        if let Some(t) = get("time_to_goal").and_then(Value::as_object) {
-            let cell = |v: Option<&Value>| match v {
-                Some(m) if !m.is_null() => format!(
-                    "{} ± {} (n = {})",
-                    f(num(m.get("mean")), 1),
-                    f(num(m.get("sd")), 1),
-                    num(m.get("n"))
-                ),
-                _ => "–".into(),
+        if let Some(t) = r.map(|x| &x.time_to_goal).filter(|t| !t.is_empty()) {
+            let cell = |v: &Option<MeanSd>| match v {
+                Some(m) => format!("{} ± {} (n = {})", f(m.mean, 1), f(m.sd, 1), m.n),
+                None => "–".into(),
             };
             let rows: Vec<Vec<String>> = t
                 .iter()
-                .map(|(p, v)| vec![format!("π_{p}"), cell(v.get("sim")), cell(v.get("real"))])
+                .map(|(p, v)| vec![format!("π_{p}"), cell(&v.sim), cell(&v.real)])
                 .collect();
             table(
-                &mut o,
+                o,
                 &["policy", "sim (s, mean ± s.d. of trial means)", "real (s)"],
                 &rows,
             );
         } else {
             o.push_str("<p class=\"missing\">Needs <code>fishprobe analyze</code>.</p>\n");
         }
+    }
 
+    /// The approach assay.
+    fn approach(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Approach.
         o.push_str("<h2 id=\"approach\">Approach assay</h2>\n");
-        if let Some(a) = get("approach").and_then(Value::as_object) {
+        let approach = r.map(|x| &x.approach).filter(|a| !a.is_empty());
+        if let Some(a) = approach {
             let rows: Vec<Vec<String>> = a
                 .iter()
                 .map(|(p, v)| {
                     vec![
                         format!("π_{p}"),
-                        f(num(v.get("min_iid")), 1),
-                        f(num(v.get("mean_iid")), 1),
-                        f(num(v.get("frac_closer_to_fish")), 3),
-                        num(v.get("episodes")).to_string(),
+                        f(v.min_iid, 1),
+                        f(v.mean_iid, 1),
+                        f(v.frac_closer_to_fish, 3),
+                        v.episodes.to_string(),
                     ]
                 })
                 .collect();
             table(
-                &mut o,
+                o,
                 &[
                     "policy",
                     "min distance to fish (cm)",
@@ -569,39 +604,51 @@ impl Page<'_> {
                 &rows,
             );
         }
-        if !self.fig(&mut o, "approach") && get("approach").is_none() {
+        if !self.fig(o, "approach") && approach.is_none() {
             o.push_str("<p class=\"missing\">No approach-assay episodes (<code>approach_test/&lt;Policy&gt;/</code>).</p>\n");
         }
+    }
 
+    /// Retraining stability.
+    fn stability(&self, o: &mut String) {
+        let d = self.data;
+        let r = d.results.as_ref();
         // Stability.
         o.push_str("<h2 id=\"stability\">Retraining stability</h2>\n");
-        match get("stability") {
+        match r.and_then(|x| x.stability.as_ref()) {
             Some(s) => {
                 let _ = writeln!(
                     o,
                     "<p>R = σ²<sub>between models</sub> / σ²<sub>within model (seeds)</sub> = <b>{}</b> {}, permutation p = {}. \
                      R well above 1 means that which model a policy was trained on matters more than the training seed.</p>",
-                    f(num(s.get("r")), 2),
-                    ci(s.get("ci"), 2),
-                    p_fmt(num(s.get("p")))
+                    f(s.r, 2),
+                    ci(&s.ci, 2),
+                    p_fmt(s.p)
                 );
             }
             None => o.push_str("<p class=\"missing\">Needs <code>stability/&lt;Model&gt;/&lt;seed&gt;/</code> episodes and <code>fishprobe analyze</code>.</p>\n"),
         }
+    }
 
+    /// The figures without a table: robot-fish distance, trajectories, training.
+    fn drawings(&self, o: &mut String) {
         o.push_str("<h2 id=\"iid\">Robot-fish distance</h2>\n");
-        if !self.fig(&mut o, "iid_density") {
+        if !self.fig(o, "iid_density") {
             o.push_str("<p class=\"missing\">No sim or reality-arm trials to draw.</p>\n");
         }
         o.push_str("<h2 id=\"trajectories\">Trajectories</h2>\n");
-        if !self.fig(&mut o, "trajectories") {
+        if !self.fig(o, "trajectories") {
             o.push_str("<p class=\"missing\">No readable trials to draw.</p>\n");
         }
         o.push_str("<h2 id=\"training\">Training</h2>\n");
-        if !self.fig(&mut o, "training") {
+        if !self.fig(o, "training") {
             o.push_str("<p class=\"missing\">No training logs (<code>policies/&lt;Model&gt;/progress.csv</code>).</p>\n");
         }
+    }
 
+    /// The data files of the analysis, and the document's end.
+    fn data_files(&self, o: &mut String) {
+        let d = self.data;
         // Files.
         o.push_str("<h2 id=\"files\">Data files</h2><ul>\n");
         let mut any = false;
@@ -621,26 +668,16 @@ impl Page<'_> {
         }
         o.push_str("<li>Figures: <code>figures/*.svg</code> (text as outlines, for papers) and <code>figures/*.png</code> (for slides).</li></ul>\n");
         let _ = write!(o, "<script>{CHECK_SCRIPT}</script>\n</body></html>\n");
-        o
     }
 
     /// What `results.json` says it left out.
     fn skipped(&self) -> Vec<(String, String)> {
-        self.data
-            .results
-            .as_ref()
-            .and_then(|r| r.get("skipped"))
-            .and_then(Value::as_array)
-            .map(|a| {
-                a.iter()
-                    .map(|s| {
-                        let t =
-                            |k: &str| s.get(k).and_then(Value::as_str).unwrap_or("").to_string();
-                        (t("what"), t("reason"))
-                    })
-                    .collect()
-            })
-            .unwrap_or_default()
+        self.data.results.as_ref().map_or_else(Vec::new, |r| {
+            r.skipped
+                .iter()
+                .map(|s| (s.what.clone(), s.reason.clone()))
+                .collect()
+        })
     }
 
     /// `report/summary.md`: the analysis summary (when present), the figures and what is

@@ -1,0 +1,128 @@
+//! The figures of the paper, drawn from a [`StudyData`], one file each. Each returns `None`
+//! when its inputs are absent (the report then says what is missing).
+
+mod approach;
+mod gap_heatmap;
+mod goals;
+mod goals_over_time;
+mod iid_density;
+mod sim_to_sim;
+mod training;
+mod trajectories;
+
+pub use approach::approach;
+pub use gap_heatmap::gap_heatmap;
+pub use goals::goals;
+pub use goals_over_time::goals_over_time;
+pub use iid_density::iid_density;
+pub use sim_to_sim::sim_to_sim;
+pub use training::training;
+pub use trajectories::trajectories;
+
+use crate::data::StudyData;
+use crate::svg::{viridis, Anchor, Axes, Svg, TextStyle};
+
+/// What every figure file uses.
+mod prelude {
+    pub(super) use super::{
+        arm_label, colour_bar, fmt, jitter, range, tank, Figure, METRIC_LABELS,
+    };
+    pub(super) use crate::config::ReportConfig;
+    pub(super) use crate::data::{StudyData, Track};
+    pub(super) use crate::svg::{
+        ink_on, legend, series, viridis, Anchor, Axes, Key, Series, Svg, TextStyle, REAL, SIM,
+    };
+    pub(super) use fishprobe_analysis::METRICS;
+    pub(super) use fishprobe_stats::sample::{mean, sd};
+}
+
+/// One finished figure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Figure {
+    /// File stem (`goals` → `goals.svg`, `goals.png`).
+    pub name: &'static str,
+    /// Heading.
+    pub title: String,
+    /// What it shows and how to read it (plain text).
+    pub caption: String,
+    /// The SVG (text as `<text>`, see [`crate::render`]).
+    pub svg: String,
+}
+
+/// Metric labels with units, in [`METRICS`] order.
+pub const METRIC_LABELS: [&str; 9] = [
+    "IID (cm)",
+    "IID change (cm/s)",
+    "alignment (cos)",
+    "fish speed (cm/s)",
+    "fish turn (rad/s)",
+    "fish-goal dist. (cm)",
+    "fish faces robot (cos)",
+    "wall distance (cm)",
+    "wall alignment (|cos|)",
+];
+
+pub(crate) fn arm_label(d: &StudyData) -> &'static str {
+    match d.arm.as_deref() {
+        Some(fishprobe_io::layout::VIRTUAL_LAB) => "virtual lab",
+        _ => "real",
+    }
+}
+
+pub(crate) fn fmt(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "–".into()
+    }
+}
+
+pub(crate) fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        })
+}
+
+/// A deterministic jitter in [-1, 1] for the i-th point (low-discrepancy, no RNG needed).
+pub(crate) fn jitter(i: usize) -> f64 {
+    ((i as f64 * 0.618_033_988_75).fract() - 0.5) * 2.0
+}
+
+/// A 200 px viridis bar at `at` with labels under its two ends.
+pub(crate) fn colour_bar(svg: &mut Svg, at: (f64, f64), low: &str, high: &str) {
+    let (x, y) = at;
+    for k in 0..100 {
+        let t = f64::from(k) / 99.0;
+        svg.rect(x + 2.0 * f64::from(k), y, 2.2, 10.0, &viridis(t), None);
+    }
+    svg.text(x, y + 24.0, low, TextStyle::new(10.0, Anchor::Start));
+    svg.text(
+        x + 200.0,
+        y + 24.0,
+        high,
+        TextStyle::new(10.0, Anchor::Start),
+    );
+}
+
+pub(crate) fn tank(svg: &mut Svg, ax: &Axes) {
+    svg.rect(
+        ax.px(-50.0),
+        ax.py(50.0),
+        ax.w,
+        ax.h,
+        "#f7fbff",
+        Some(("#000000", 1.5)),
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jitter_stays_within_one() {
+        assert!((0..1000).map(jitter).all(|j| (-1.0..=1.0).contains(&j)));
+    }
+}
