@@ -18,13 +18,11 @@ fishprobe_sim::documented_params! {
         pub sgd_minibatch_size: usize = 512; "steps",
         /// Passes over each batch. **Decision: 10, where the paper publishes 100** (the
         /// `published` preset keeps 100). In this simulator 100 epochs overfit the value
-        /// network to each batch (explained variance 0.55 on the batch it was fitted to, -0.15
-        /// on the next one), the advantages become noise, and π_Zone and π_Force do not learn
-        /// (about 3 goals per 15 min against the paper's 41 and 51, seeds 0 and 1); with 10
-        /// epochs all three rule-based policies learn (Zone 36-49, Force 96-110, Follow 83-84).
-        /// A study whose policies did not learn would rank nothing, so the `paper` preset takes
-        /// the value that reproduces the paper's trained policies and keeps every other
-        /// published number. Evidence: README, "Does it learn?".
+        /// network to each batch, the advantages become noise, and π_Zone and π_Force do not
+        /// learn; with 10 they do. A study whose policies did not learn would rank nothing, so
+        /// the `paper` preset takes the value under which its policies learn and keeps every
+        /// other published number. The measurements: the validation record (README, "Does it
+        /// learn?").
         pub num_sgd_iter: usize = 10; "epochs",
         /// Adam learning rate (paper: 0.00026).
         pub lr: f32 = 0.000_26; "1",
@@ -50,14 +48,11 @@ fishprobe_sim::documented_params! {
         /// in RLlib 2.0.1). **Decision: 0, i.e. the Gaussian is never wider than half the
         /// action range (σ ≤ 1, π rad)**; the `published` preset keeps RLlib's unbounded
         /// log-s.d. Without a bound, wherever the best turn is about ±π (the goal behind the
-        /// robot) the policy widens its Gaussian to 5-10 times the action range, so that its
-        /// samples clip to ±π whatever the mean, and the mean itself (the action used in
-        /// evaluation) is left untrained there: π_Follow turned the wrong way or drove on
-        /// away from a goal behind it and stayed at 95 % of the goal-seeker (84.3 vs 88.1 goals
-        /// per 15 min); with the bound the mean carries the turn and π_Follow beats it (seeds
-        /// 0 and 1: 88.7 and 89.6), π_Zone and π_Force unchanged within their seed spread. Above
-        /// the bound the log-s.d. gets no gradient (a clamp). In a `--ppo` file, `null` (JSON)
-        /// or `inf` (TOML) means no bound. Evidence: README, "Does it learn?".
+        /// robot) the policy widens its Gaussian until its samples clip to ±π whatever the
+        /// mean, and the mean itself (the action used in evaluation) is left untrained there;
+        /// with the bound the mean carries the turn. Above the bound the log-s.d. gets no
+        /// gradient (a clamp). In a `--ppo` file, `null` (JSON) or `inf` (TOML) means no bound.
+        /// The measurements: the validation record (README, "Does it learn?").
         pub log_std_max: Option<f32> = Some(0.0); "ln(normalised action units)",
         /// Hidden layers of the policy and the (separate) value network (RLlib default
         /// [256, 256], `vf_share_layers` false).
