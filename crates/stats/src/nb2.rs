@@ -8,8 +8,12 @@
 //!
 //! When the dispersion's maximum-likelihood estimate lies on its boundary α = 0 (counts no
 //! more variable than Poisson), NB2 reduces to the Poisson model: that is fitted instead and
-//! α is reported as 0 with an undefined standard error (statsmodels ends at α ≈ 1e-8 with the
-//! same coefficients).
+//! α is reported as 0 with an undefined standard error. statsmodels' `NegativeBinomial` ends
+//! there at a tiny α (1e-8 to 1e-5) with the same coefficients and keeps α among the
+//! parameters, so its small-sample factor has K = k + 1; fishprobe follows that convention
+//! (the Poisson sandwich over β, with K = k + 1 in (N-1)/(N-K)), which matches its standard
+//! errors to about 1e-5 (known-answer test on an under-dispersed sample). statsmodels'
+//! `Poisson` would use K = k.
 //!
 //! Per observation, with μ = exp(xβ) and r = 1/α:
 //! ℓ = lnΓ(y+r) - lnΓ(r) - lnΓ(y+1) + r ln(r/(r+μ)) + y ln(μ/(r+μ)).
@@ -209,11 +213,14 @@ fn maximize(
     Ok((theta, cur, iterations))
 }
 
-/// The cluster-robust sandwich H⁻¹ (Σ_g s_g s_gᵀ) H⁻¹ · G/(G-1) · (N-1)/(N-K), with
-/// `score(i, out)` writing observation i's score (K values).
+/// The cluster-robust sandwich H⁻¹ (Σ_g s_g s_gᵀ) H⁻¹ · G/(G-1) · (N-1)/(N-K) over `p`
+/// parameters, with `score(i, out)` writing observation i's score (p values) and K =
+/// `k_factor` the parameter count of the small-sample factor (p, or p + 1 for a Poisson fit
+/// standing in for NB2 at α = 0).
 fn clustered_cov(
     h_inv: &[f64],
     p: usize,
+    k_factor: usize,
     n: usize,
     clusters: &[usize],
     score: impl Fn(usize, &mut [f64]),
@@ -250,17 +257,19 @@ fn clustered_cov(
             }
         }
     }
-    let factor = g / (g - 1.0) * ((n as f64 - 1.0) / (n as f64 - p as f64));
+    let factor = g / (g - 1.0) * ((n as f64 - 1.0) / (n as f64 - k_factor as f64));
     Ok(matmul(&matmul(h_inv, &meat, p), h_inv, p)
         .into_iter()
         .map(|v| v * factor)
         .collect())
 }
 
-/// Covariance of an optimum: -H⁻¹, or the clustered sandwich.
+/// Covariance of an optimum: -H⁻¹, or the clustered sandwich (small-sample factor with K =
+/// `k_factor` parameters).
 fn covariance(
     h: &[f64],
     p: usize,
+    k_factor: usize,
     n: usize,
     clusters: Option<&[usize]>,
     score: impl Fn(usize, &mut [f64]),
@@ -269,7 +278,7 @@ fn covariance(
         .ok_or_else(|| StatsError::NoConvergence("singular Hessian at the optimum".into()))?;
     match clusters {
         None => Ok(h_inv.iter().map(|v| -v).collect()),
-        Some(c) => clustered_cov(&h_inv, p, n, c, score),
+        Some(c) => clustered_cov(&h_inv, p, k_factor, n, c, score),
     }
 }
 
@@ -298,7 +307,8 @@ fn fit_poisson(
         |b| poisson_totals(y, x, b),
         |_| false,
     )?;
-    let cov_b = covariance(&h, k, y.len(), clusters, |i, out| {
+    // K = k + 1: α stays a parameter, as in statsmodels' NegativeBinomial (module docs).
+    let cov_b = covariance(&h, k, k + 1, y.len(), clusters, |i, out| {
         let row = &x[i * k..(i + 1) * k];
         let mu = row.iter().zip(&beta).map(|(a, b)| a * b).sum::<f64>().exp();
         out.iter_mut()
@@ -374,7 +384,7 @@ pub fn fit_nb2(
             "nb2: no convergence (gradient {gmax:e}); the maximum-likelihood estimate may not exist, e.g. when one covariate value has only zero counts"
         )));
     }
-    let cov = covariance(&h, p, n, clusters, |i, out| {
+    let cov = covariance(&h, p, p, n, clusters, |i, out| {
         obs_terms(
             y[i],
             &x[i * k..(i + 1) * k],

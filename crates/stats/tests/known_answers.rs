@@ -117,11 +117,13 @@ fn nb2_rejects_bad_input() {
     assert!(fit_nb2(&[1.0, 2.0, 3.0], &[1.0, 1.0], 1, None).is_err());
 }
 
-/// Under-dispersed counts: the dispersion MLE is at α = 0 and the fit is Poisson, as
-/// statsmodels `Poisson(y, X).fit(cov_type="cluster", cov_kwds={"groups": g})` gives
-/// (statsmodels' NegativeBinomial ends at α = 2.3e-8 with the same coefficients).
+/// Under-dispersed counts: the dispersion MLE is at α = 0 and the fit is Poisson. statsmodels'
+/// `NegativeBinomial(...).fit(cov_type="cluster")` ends at α = 2.3e-8 with the same
+/// coefficients and counts α among the parameters in the small-sample factor (K = 3), which
+/// fishprobe follows; statsmodels' `Poisson` would give standard errors smaller by
+/// sqrt((N-3)/(N-2)) (here 0.0254 and 0.0372).
 #[test]
-fn nb2_at_the_dispersion_boundary_is_poisson() {
+fn nb2_at_the_dispersion_boundary_is_poisson_with_statsmodels_nb_errors() {
     let y = [
         7.0, 7.0, 6.0, 7.0, 8.0, 7.0, 7.0, 6.0, 7.0, 7.0, 8.0, 6.0, 7.0, 7.0, 7.0, 6.0, 7.0, 8.0,
         7.0, 7.0, 6.0, 6.0, 7.0, 7.0,
@@ -129,16 +131,66 @@ fn nb2_at_the_dispersion_boundary_is_poisson() {
     let x: Vec<f64> = (0..24).flat_map(|i| [1.0, f64::from(i % 2)]).collect();
     let clusters: Vec<usize> = (0..24).map(|i| i / 2).collect();
     let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
-    let params = [1.945_910_149_055_313_2, -0.036_367_644_170_874_88];
-    let bse = [0.025_427_143_126_560_03, 0.037_219_824_264_710_315];
+    // statsmodels 0.15.0 NegativeBinomial, cluster covariance.
+    let params = [1.9459097714449969, -0.036366941360814337];
+    let bse = [0.026025520534903923, 0.038095704754343734];
     for j in 0..2 {
         assert!(
-            rel(fit.params[j], params[j]) < 1e-6,
+            rel(fit.params[j], params[j]) < 1e-4,
             "param {j}: {}",
             fit.params[j]
         );
-        assert!(rel(fit.se[j], bse[j]) < 1e-6, "se {j}: {}", fit.se[j]);
+        assert!(rel(fit.se[j], bse[j]) < 1e-4, "se {j}: {}", fit.se[j]);
     }
+    assert!(
+        rel(fit.wald(1).p, 0.3397696378840317) < 1e-3,
+        "p {}",
+        fit.wald(1).p
+    );
     assert_eq!(fit.params[2], 0.0);
     assert!(fit.se[2].is_nan());
+}
+
+/// Goals per minute as under-dispersed as a good policy's (variance 0.61 at mean 4.28), with a
+/// decline: 6 trials x 15 minutes. Known answers from statsmodels 0.15.0:
+///
+/// ```python
+/// m = NegativeBinomial(y, sm.add_constant(minute), loglike_method="nb2")
+/// r = m.fit(cov_type="cluster", cov_kwds={"groups": trial}, disp=0, maxiter=200)
+/// ```
+///
+/// Before fishprobe counted α in K at the boundary, its standard errors were 0.57 % smaller
+/// and the slope's p-value was off by a factor of three (z = -19).
+#[test]
+fn nb2_temporal_fit_of_an_under_dispersed_policy_matches_statsmodels() {
+    let y: [f64; 90] = [
+        5., 5., 4., 5., 5., 4., 4., 5., 4., 4., 4., 4., 3., 4., 4., 6., 5., 5., 5., 6., 5., 5., 4.,
+        5., 5., 4., 5., 4., 4., 4., 4., 4., 4., 4., 3., 4., 4., 4., 3., 4., 3., 3., 4., 3., 3., 5.,
+        5., 5., 4., 5., 5., 4., 4., 5., 4., 4., 4., 4., 4., 3., 6., 6., 5., 6., 5., 5., 5., 5., 5.,
+        4., 5., 4., 5., 4., 4., 4., 5., 4., 4., 4., 4., 4., 3., 4., 4., 3., 4., 3., 3., 3.,
+    ];
+    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
+    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
+    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let params = [1.6104470699667255, -0.023144160586165027];
+    let bse = [0.056619728930776485, 0.0012064484798776584];
+    let ci_slope = [-0.025508756155928333, -0.020779565016401720];
+    for j in 0..2 {
+        assert!(
+            rel(fit.params[j], params[j]) < 1e-4,
+            "param {j}: {}",
+            fit.params[j]
+        );
+        assert!(
+            rel(fit.se[j], bse[j]) < 1e-4,
+            "se {j}: {} vs {}",
+            fit.se[j],
+            bse[j]
+        );
+    }
+    let w = fit.wald(1);
+    assert!(rel(w.ci[0], ci_slope[0]) < 1e-4 && rel(w.ci[1], ci_slope[1]) < 1e-4);
+    // z = -19.2: p is 5.06e-82; a relative error of 1e-5 in the s.e. moves it by about 0.4 %.
+    assert!(rel(w.p, 5.063288174501792e-82) < 2e-2, "p {}", w.p);
+    assert_eq!(fit.params[2], 0.0);
 }
