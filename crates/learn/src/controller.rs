@@ -88,10 +88,15 @@ impl Controller for PolicyController {
     }
 }
 
-/// A controller from a `--policy` argument: a policy directory, or `scripted:goal-seeker`.
+/// A controller from a `--policy` argument: a policy directory (`fishprobe train`'s output),
+/// `onnx:PATH` (an ONNX file of the policy contract, `docs/onnx-models.md`; always its
+/// deterministic output, so `stochastic` does not apply), or `scripted:goal-seeker`.
 pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, LearnError> {
     if arg == "scripted:goal-seeker" {
         return Ok(Box::new(GoalSeeker));
+    }
+    if let Some(path) = arg.strip_prefix("onnx:") {
+        return Ok(Box::new(fishprobe_onnx::OnnxPolicy::load(Path::new(path))?));
     }
     Ok(Box::new(PolicyController::load(
         Path::new(arg),

@@ -18,6 +18,9 @@ pub enum LearnError {
     /// Trial files.
     #[error(transparent)]
     Io(#[from] fishprobe_io::IoError),
+    /// An ONNX model or policy that cannot be used.
+    #[error(transparent)]
+    Onnx(#[from] fishprobe_onnx::OnnxError),
     /// A policy directory or file that cannot be used.
     #[error("{0}")]
     Policy(String),

@@ -15,7 +15,8 @@ const MAX_EPISODES: usize = 100_000;
 
 #[derive(Debug, Args)]
 pub struct EvaluateArgs {
-    /// A policy directory from `fishprobe train`, or `scripted:goal-seeker` (turns toward the
+    /// A policy directory from `fishprobe train`, `onnx:FILE` (a policy trained elsewhere, e.g.
+    /// Stable-Baselines3; docs/onnx-models.md), or `scripted:goal-seeker` (turns toward the
     /// active goal every second, ignoring the fish: the baseline a policy must beat).
     #[arg(long)]
     policy: String,
@@ -57,6 +58,12 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         Some(p) => SimSettings::load(p)?.env,
         None => SimSettings::default().env,
     };
+    if a.stochastic && !std::path::Path::new(&a.policy).is_dir() {
+        bail!(
+            "--stochastic samples from a policy directory's Gaussian; `{}` gives one action per observation",
+            a.policy
+        );
+    }
     let c = controller(&a.policy, a.stochastic)
         .with_context(|| format!("loading --policy {}", a.policy))?;
     let e = Evaluation {

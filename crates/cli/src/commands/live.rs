@@ -36,7 +36,8 @@ enum LiveWhat {
 
 #[derive(Debug, Args)]
 struct ServeArgs {
-    /// The policy directory (or `scripted:goal-seeker`).
+    /// The policy: a directory from `fishprobe train`, `onnx:FILE` (docs/onnx-models.md) or
+    /// `scripted:goal-seeker`.
     #[arg(long)]
     policy: String,
     /// Address to listen on (loopback by default).
@@ -73,7 +74,8 @@ struct ReplayArgs {
 
 #[derive(Debug, Args)]
 pub struct LabArgs {
-    /// The policy directory (or `scripted:goal-seeker`).
+    /// The policy: a directory from `fishprobe train`, `onnx:FILE` (docs/onnx-models.md) or
+    /// `scripted:goal-seeker`.
     #[arg(long)]
     policy: String,
     /// Trials to run.

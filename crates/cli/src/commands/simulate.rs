@@ -19,7 +19,8 @@ pub struct SimulateArgs {
     model: Option<String>,
     /// Scripted robot: `still` (stands where it starts), `circle` (drives a 30 cm circle
     /// around the centre) or `goals` (drives to the active goal and waits until the fish
-    /// reaches it); or `policy:DIR`, a trained policy's mean action.
+    /// reaches it); or `policy:DIR` (a trained policy's mean action) or `policy:onnx:FILE`
+    /// (an ONNX policy, docs/onnx-models.md).
     #[arg(long, default_value = "goals")]
     robot: String,
     /// Trial length in minutes (paper: 15).
@@ -50,7 +51,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     }
     let Some(script) = RobotScript::parse(&a.robot) else {
         bail!(
-            "unknown --robot `{}`: use still, circle, goals or policy:DIR",
+            "unknown --robot `{}`: use still, circle, goals, policy:DIR or policy:onnx:FILE",
             a.robot
         );
     };

@@ -1,0 +1,278 @@
+//! One ONNX network checked against a contract and planned for a fixed batch size.
+
+use crate::{OnnxError, ENGINE};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use tract_onnx::prelude::*;
+use tract_onnx::tract_hir::infer::Factoid;
+use tract_onnx::tract_hir::internal::DimLike;
+
+/// What a file must look like: one float32 input and one float32 output, each `[batch, ...]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Contract {
+    /// What the file is, for messages ("a policy", "a fish model").
+    pub what: &'static str,
+    /// The input's name.
+    pub input: &'static str,
+    /// The input's shape after the batch dimension.
+    pub input_dims: &'static [usize],
+    /// The output's name (`None`: any).
+    pub output: Option<&'static str>,
+    /// The output's shape after the batch dimension.
+    pub output_dims: &'static [usize],
+}
+
+impl Contract {
+    /// fishprobe's policy contract: `obs` float32 `[batch, 180]` (SPEC §5) in, the turn angle
+    /// in radians float32 `[batch, 1]` out.
+    pub const POLICY: Contract = Contract {
+        what: "a policy",
+        input: "obs",
+        input_dims: &[180],
+        output: None,
+        output_dims: &[1],
+    };
+
+    fn describe(&self) -> String {
+        let dims = |d: &[usize]| {
+            std::iter::once("batch".to_string())
+                .chain(d.iter().map(usize::to_string))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        format!(
+            "{} with input `{}` float32 [{}] and {} float32 [{}]",
+            self.what,
+            self.input,
+            dims(self.input_dims),
+            self.output
+                .map_or_else(|| "one output".to_string(), |o| format!("output `{o}`")),
+            dims(self.output_dims)
+        )
+    }
+}
+
+type Plan = TypedRunnableModel;
+
+/// A network that passed its contract, planned for `batch` rows at a time.
+#[derive(Clone)]
+pub struct OnnxNet {
+    path: PathBuf,
+    sha256: String,
+    plan: Arc<Plan>,
+    batch: usize,
+    input_len: usize,
+    output_len: usize,
+    input_dims: Vec<usize>,
+}
+
+impl std::fmt::Debug for OnnxNet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("OnnxNet")
+            .field("path", &self.path)
+            .field("sha256", &self.sha256)
+            .field("batch", &self.batch)
+            .finish()
+    }
+}
+
+/// Largest ONNX file accepted (a policy of 2 x 256 units is 0.3 MB, the ConvNet fish 1 MB).
+const MAX_BYTES: u64 = 512 << 20;
+
+fn read(path: &Path) -> Result<Vec<u8>, OnnxError> {
+    let read_err = |reason| OnnxError::Read {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let meta = std::fs::metadata(path).map_err(read_err)?;
+    if !meta.is_file() {
+        return Err(OnnxError::NotOnnx {
+            path: path.to_path_buf(),
+            what: "not a regular file".into(),
+        });
+    }
+    if meta.len() > MAX_BYTES {
+        return Err(OnnxError::NotOnnx {
+            path: path.to_path_buf(),
+            what: format!("{} bytes, more than the {MAX_BYTES} accepted", meta.len()),
+        });
+    }
+    std::fs::read(path).map_err(read_err)
+}
+
+/// The SHA-256 of `bytes`, lower-case hex (what trial files record for a model file).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+impl OnnxNet {
+    /// Loads `path`, checks it against `contract` and plans it for `batch` rows per run.
+    pub fn load(path: &Path, contract: &Contract, batch: usize) -> Result<Self, OnnxError> {
+        let bytes = read(path)?;
+        let sha256 = sha256_hex(&bytes);
+        let expected = contract.describe();
+        let contract_err = |found: String| OnnxError::Contract {
+            path: path.to_path_buf(),
+            expected: expected.clone(),
+            found,
+        };
+        let mut model = tract_onnx::onnx()
+            .model_for_read(&mut bytes.as_slice())
+            .map_err(|e| OnnxError::NotOnnx {
+                path: path.to_path_buf(),
+                what: first_line(&e),
+            })?;
+        // Names, counts and types, as declared.
+        let inputs: Vec<String> = model
+            .input_outlets()
+            .map_err(|e| contract_err(first_line(&e)))?
+            .iter()
+            .map(|o| model.node(o.node).name.clone())
+            .collect();
+        let outputs: Vec<String> = model
+            .output_outlets()
+            .map_err(|e| contract_err(first_line(&e)))?
+            .iter()
+            .map(|o| {
+                model
+                    .outlet_label(*o)
+                    .map_or_else(|| model.node(o.node).name.clone(), str::to_string)
+            })
+            .collect();
+        if inputs != [contract.input] {
+            return Err(contract_err(format!("inputs {inputs:?}")));
+        }
+        if outputs.len() != 1 || contract.output.is_some_and(|o| outputs[0] != o) {
+            return Err(contract_err(format!("outputs {outputs:?}")));
+        }
+        let declared = model
+            .input_fact(0)
+            .map_err(|e| contract_err(first_line(&e)))?
+            .clone();
+        if let Some(dt) = declared.datum_type.concretize() {
+            if dt != f32::datum_type() {
+                return Err(contract_err(format!(
+                    "input `{}` of type {dt:?}",
+                    inputs[0]
+                )));
+            }
+        }
+        let shape: Vec<usize> = std::iter::once(batch)
+            .chain(contract.input_dims.iter().copied())
+            .collect();
+        model
+            .set_input_fact(0, InferenceFact::dt_shape(f32::datum_type(), &shape))
+            .map_err(|e| contract_err(first_line(&e)))?;
+        let typed = model.into_optimized().map_err(|e| {
+            let msg = first_line(&e);
+            if msg.contains("nimplemented") || msg.contains("not supported") {
+                OnnxError::Unsupported {
+                    path: path.to_path_buf(),
+                    what: msg,
+                }
+            } else {
+                contract_err(format!(
+                    "input `{}` declared as {declared:?} ({msg})",
+                    inputs[0]
+                ))
+            }
+        })?;
+        let out_fact = typed
+            .output_fact(0)
+            .map_err(|e| contract_err(first_line(&e)))?
+            .clone();
+        if out_fact.datum_type != f32::datum_type() {
+            return Err(contract_err(format!(
+                "output `{}` of type {:?}",
+                outputs[0], out_fact.datum_type
+            )));
+        }
+        let out_shape: Option<Vec<usize>> =
+            out_fact.shape.iter().map(|d| d.to_usize().ok()).collect();
+        let want_out: Vec<usize> = std::iter::once(batch)
+            .chain(contract.output_dims.iter().copied())
+            .collect();
+        if out_shape.as_deref() != Some(&want_out[..]) {
+            return Err(contract_err(format!(
+                "output `{}` of shape {:?} for a batch of {batch}",
+                outputs[0], out_fact.shape
+            )));
+        }
+        let plan = typed.into_runnable().map_err(|e| OnnxError::Unsupported {
+            path: path.to_path_buf(),
+            what: first_line(&e),
+        })?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            sha256,
+            plan,
+            batch,
+            input_len: contract.input_dims.iter().product(),
+            output_len: contract.output_dims.iter().product(),
+            input_dims: shape,
+        })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The file's SHA-256 (hex).
+    pub fn sha256(&self) -> &str {
+        &self.sha256
+    }
+
+    /// Rows per run.
+    pub fn batch(&self) -> usize {
+        self.batch
+    }
+
+    /// Runs `input` (`batch` rows of the contract's input) and writes `batch` rows of output.
+    pub fn run(&self, input: &[f32], output: &mut [f32]) -> Result<(), OnnxError> {
+        let run_err = |what: String| OnnxError::Run {
+            path: self.path.clone(),
+            what,
+        };
+        if input.len() != self.batch * self.input_len
+            || output.len() != self.batch * self.output_len
+        {
+            return Err(run_err(format!(
+                "{} input and {} output values for {} rows",
+                input.len(),
+                output.len(),
+                self.batch
+            )));
+        }
+        let t = Tensor::from_shape(&self.input_dims, input).map_err(|e| run_err(first_line(&e)))?;
+        let out = self
+            .plan
+            .run(tvec!(t.into()))
+            .map_err(|e| run_err(first_line(&e)))?;
+        let view = out[0]
+            .to_plain_array_view::<f32>()
+            .map_err(|e| run_err(first_line(&e)))?;
+        if view.len() != output.len() {
+            return Err(run_err(format!("{} output values", view.len())));
+        }
+        for (o, v) in output.iter_mut().zip(view.iter()) {
+            *o = *v;
+        }
+        Ok(())
+    }
+}
+
+/// An error's first line, with the engine's context chain flattened.
+fn first_line(e: &impl std::fmt::Display) -> String {
+    let s = format!("{e:#}");
+    let line = s.lines().next().unwrap_or("").trim().to_string();
+    if line.is_empty() {
+        format!("({ENGINE} gave no reason)")
+    } else {
+        line
+    }
+}
