@@ -217,3 +217,115 @@ fn convnet_can_be_refitted_for_the_study() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("train/"), "{}", stderr(&o));
 }
+
+/// A study file naming a policy trained elsewhere (here: exported to ONNX): its model's first
+/// training run is skipped and the ONNX file is evaluated, assayed and analysed in its place.
+#[test]
+fn a_study_evaluates_a_policy_trained_elsewhere_without_training_it() {
+    let base = dir("run-external");
+    let p = base.join("trained_elsewhere");
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "Zone",
+        "--preset",
+        "smoke",
+        "--seed",
+        "9",
+        "--out",
+        p.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let onnx = base.join("zone.onnx");
+    let o = fishprobe(&[
+        "export",
+        "--policy",
+        p.to_str().unwrap(),
+        "--onnx",
+        onnx.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The path is relative to the study file.
+    let cfg = base.join("study.toml");
+    std::fs::write(
+        &cfg,
+        "[[policies]]\nmodel = \"Zone\"\npolicy = \"onnx:zone.onnx\"\n",
+    )
+    .unwrap();
+    let s = base.join("s");
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        s.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!s.join("policies/Zone").exists(), "π_Zone was trained");
+    assert!(s.join("policies/Follow/policy.safetensors").is_file());
+    let files = fishprobe_io::trial_files(&s.join("rollouts/Zone__Force"));
+    assert!(!files.is_empty());
+    let t = fishprobe_io::read_trial(&files[0]).unwrap();
+    let policy = &t.task.unwrap().policy;
+    assert!(
+        policy.starts_with("onnx:") && policy.contains("zone.onnx"),
+        "{policy}"
+    );
+    let virt = fishprobe_io::trial_files(&s.join("rollouts/Zone__VirtualLab"));
+    assert!(
+        !virt.is_empty(),
+        "no virtual-lab trials for the ONNX policy"
+    );
+    let r: serde_json::Value = serde_json::from_str(&results(&s)).unwrap();
+    assert!(
+        r["sim_to_real"]["Zone"]["w"].is_number(),
+        "{}",
+        r["sim_to_real"]
+    );
+    // A policy for a model the study does not have, or a file that does not load: refused
+    // before any work.
+    std::fs::write(
+        &cfg,
+        "[[policies]]\nmodel = \"Nope\"\npolicy = \"onnx:zone.onnx\"\n",
+    )
+    .unwrap();
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        base.join("t").to_str().unwrap(),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("not one of the study's models"),
+        "{}",
+        stderr(&o)
+    );
+    std::fs::write(
+        &cfg,
+        "[[policies]]\nmodel = \"Zone\"\npolicy = \"onnx:missing.onnx\"\n",
+    )
+    .unwrap();
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        base.join("u").to_str().unwrap(),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("missing.onnx"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(
+        !base.join("u/policies").exists(),
+        "work started before the check"
+    );
+}

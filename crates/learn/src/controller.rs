@@ -103,3 +103,41 @@ pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, Le
         stochastic,
     )?))
 }
+
+/// `c` under another short name (a study's name for its model; the directory name of the
+/// study layout), describing itself as before.
+pub fn named(c: Box<dyn Controller>, name: String) -> Box<dyn Controller> {
+    Box::new(Named { inner: c, name })
+}
+
+struct Named {
+    inner: Box<dyn Controller>,
+    name: String,
+}
+
+impl Clone for Named {
+    fn clone(&self) -> Self {
+        Self {
+            inner: self.inner.boxed_clone(),
+            name: self.name.clone(),
+        }
+    }
+}
+
+impl Controller for Named {
+    fn name(&self) -> String {
+        self.name.clone()
+    }
+
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn check_observation(&self, dim: usize) -> Result<(), String> {
+        self.inner.check_observation(dim)
+    }
+
+    fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
+        self.inner.act(input, rng)
+    }
+}

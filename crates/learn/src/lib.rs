@@ -35,7 +35,7 @@ pub mod ppo;
 pub mod trainer;
 
 pub use config::PpoConfig;
-pub use controller::{controller, PolicyController};
+pub use controller::{controller, named, PolicyController};
 pub use error::LearnError;
 pub use evaluate::{evaluate, goals_mean_sd, run_episode, EpisodeResult, Evaluation};
 pub use policy::{to_env_action, GaussianPolicy};

@@ -60,6 +60,24 @@ pub struct StudyConfig {
     /// Most epochs when M_ConvNet is refitted (`--convnet-data`; early stopping decides
     /// before that).
     pub convnet_max_epochs: usize,
+    /// Policies trained elsewhere, by the name of the model they were trained on: `onnx:PATH`
+    /// (docs/onnx-models.md) or a `fishprobe train` directory, absolute paths. Such a model's
+    /// first training run is skipped and this policy is evaluated, assayed and analysed in
+    /// its place (the extra stability seeds are still trained by fishprobe).
+    #[serde(default)]
+    pub policies: std::collections::BTreeMap<String, String>,
+}
+
+/// A policy trained elsewhere, named in a study file:
+/// `[[policies]] model = "Zone", policy = "onnx:sb3_zone.onnx"`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalPolicy {
+    /// The study's model the policy was trained on (a name in `models`).
+    pub model: String,
+    /// `onnx:PATH` or a `fishprobe train` directory; relative paths are relative to the study
+    /// file.
+    pub policy: String,
 }
 
 fn paper_models() -> Vec<NamedModel> {
@@ -99,6 +117,7 @@ impl StudyConfig {
             virtual_minutes: 15.0,
             analysis_quick: false,
             convnet_max_epochs: 30,
+            policies: std::collections::BTreeMap::new(),
         };
         match name {
             "published" => Some(Self {
@@ -157,6 +176,13 @@ impl StudyConfig {
         let bad = |what: String| Err(StudyError::Input(what));
         if self.models.is_empty() {
             return bad("no models".into());
+        }
+        for model in self.policies.keys() {
+            if !self.models.iter().any(|m| &m.name == model) {
+                return bad(format!(
+                    "a policy for `{model}`, which is not one of the study's models"
+                ));
+            }
         }
         let mut seen = std::collections::BTreeSet::new();
         for m in &self.models {
@@ -249,9 +275,32 @@ pub struct StudyFile {
     pub cross_episodes: Option<usize>,
     /// See [`StudyConfig::virtual_trials`].
     pub virtual_trials: Option<usize>,
+    /// Policies trained elsewhere ([`ExternalPolicy`]).
+    #[serde(default)]
+    pub policies: Vec<ExternalPolicy>,
 }
 
 impl StudyFile {
+    /// Applies the file, read from the directory `dir`, on top of a preset: relative policy
+    /// paths are taken relative to `dir`.
+    pub fn apply_in(
+        mut self,
+        preset: &str,
+        dir: &std::path::Path,
+    ) -> Result<StudyConfig, StudyError> {
+        for p in &mut self.policies {
+            let (prefix, path) = match p.policy.strip_prefix("onnx:") {
+                Some(rest) => ("onnx:", rest),
+                None => ("", p.policy.as_str()),
+            };
+            let path = std::path::Path::new(path);
+            if path.is_relative() {
+                p.policy = format!("{prefix}{}", dir.join(path).display());
+            }
+        }
+        self.apply(preset)
+    }
+
     /// Applies the file on top of a preset.
     pub fn apply(self, preset: &str) -> Result<StudyConfig, StudyError> {
         let name = self.preset.as_deref().unwrap_or(preset);
@@ -287,6 +336,14 @@ impl StudyFile {
         }
         if let Some(v) = self.virtual_trials {
             c.virtual_trials = v;
+        }
+        for p in self.policies {
+            if c.policies.insert(p.model.clone(), p.policy).is_some() {
+                return Err(StudyError::Input(format!(
+                    "two policies for model `{}`",
+                    p.model
+                )));
+            }
         }
         Ok(c)
     }

@@ -102,6 +102,14 @@ impl Study {
                 }
             }
         }
+        // Policies trained elsewhere must load (and read the study's observations) now, not
+        // hours into the study.
+        for (model, arg) in &cfg.policies {
+            let c = fishprobe_learn::controller(arg, false)
+                .map_err(|e| StudyError::Input(format!("the policy for `{model}` ({arg}): {e}")))?;
+            c.check_observation(fishprobe_sim::EnvConfig::default().observation.size())
+                .map_err(|e| StudyError::Input(format!("the policy for `{model}`: {e}")))?;
+        }
         if let Some(r) = &real {
             if !r.is_dir() {
                 return Err(StudyError::Input(format!(
@@ -144,6 +152,11 @@ impl Study {
         &self.cfg.models[i].name
     }
 
+    /// The policy trained elsewhere for model `m`, if the study file names one.
+    pub fn external_policy(&self, m: usize) -> Option<&str> {
+        self.cfg.policies.get(self.name(m)).map(String::as_str)
+    }
+
     /// The study directory's paths.
     pub fn layout(&self) -> StudyLayout {
         StudyLayout::new(&self.root)
@@ -166,6 +179,19 @@ impl Study {
             self.cfg.cross_episodes
         }
     }
+}
+
+/// The SHA-256 of a policy trained elsewhere (`onnx:PATH`: the file; a directory: its
+/// `policy.safetensors`), so that a changed file invalidates every step that ran it.
+pub(crate) fn external_policy_sha256(arg: &str) -> String {
+    let file = match arg.strip_prefix("onnx:") {
+        Some(p) => PathBuf::from(p),
+        None => PathBuf::from(arg).join("policy.safetensors"),
+    };
+    std::fs::read(&file).map_or_else(
+        |e| format!("unreadable: {e}"),
+        |b| fishprobe_onnx::sha256_hex(&b),
+    )
 }
 
 #[cfg(test)]

@@ -74,8 +74,29 @@ impl StepKind {
         }
     }
 
-    /// The settings this step depends on, as JSON (hashed into its marker).
+    /// The settings this step depends on, as JSON (hashed into its marker). A step that runs
+    /// a policy trained elsewhere also depends on that file's identity (its path and SHA-256);
+    /// for fishprobe's own policies the inputs are as they always were, so existing studies
+    /// resume.
     pub fn inputs(&self, study: &Study) -> serde_json::Value {
+        let mut v = self.own_inputs(study);
+        let runs = match self {
+            StepKind::Eval { p, .. } | StepKind::Approach { p } | StepKind::Reality { p } => {
+                Some(*p)
+            }
+            StepKind::Stability { m, k: 0 } => Some(*m),
+            _ => None,
+        };
+        if let Some(ext) = runs.and_then(|p| study.external_policy(p)) {
+            v["external_policy"] = serde_json::json!({
+                "policy": ext,
+                "sha256": crate::external_policy_sha256(ext),
+            });
+        }
+        v
+    }
+
+    fn own_inputs(&self, study: &Study) -> serde_json::Value {
         let c = &study.cfg;
         let model = |i: usize| serde_json::json!({"name": study.name(i), "spec": c.models[i].spec});
         match self {
@@ -177,31 +198,36 @@ impl Study {
                 _ => vec![],
             }
         };
-        let mut train = vec![vec![0usize; seeds]; n];
+        // A policy trained elsewhere replaces its model's first training run (no step).
+        let mut train: Vec<Vec<Option<usize>>> = vec![vec![None; seeds]; n];
         for (m, row) in train.iter_mut().enumerate() {
             for (k, slot) in row.iter_mut().enumerate() {
-                *slot = add(StepKind::Train { m, k }, needs_fit(m), &mut steps);
+                if k == 0 && self.external_policy(m).is_some() {
+                    continue;
+                }
+                *slot = Some(add(StepKind::Train { m, k }, needs_fit(m), &mut steps));
             }
         }
         let mut for_analysis = Vec::new();
         for (p, row) in train.iter().enumerate() {
-            let policy = row[0];
+            let policy: Vec<usize> = row[0].into_iter().collect();
             for m in 0..n {
-                let mut deps = vec![policy];
+                let mut deps = policy.clone();
                 deps.extend(needs_fit(m));
                 for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps));
             }
-            for_analysis.push(add(StepKind::Approach { p }, vec![policy], &mut steps));
-            for_analysis.push(add(StepKind::Reality { p }, vec![policy], &mut steps));
+            for_analysis.push(add(StepKind::Approach { p }, policy.clone(), &mut steps));
+            for_analysis.push(add(StepKind::Reality { p }, policy, &mut steps));
         }
         for (m, row) in train.iter().enumerate() {
-            for (k, &t) in row.iter().enumerate() {
-                for_analysis.push(add(StepKind::Stability { m, k }, vec![t], &mut steps));
+            for (k, t) in row.iter().enumerate() {
+                let deps = t.iter().copied().collect();
+                for_analysis.push(add(StepKind::Stability { m, k }, deps, &mut steps));
             }
         }
         let analyze = add(StepKind::Analyze, for_analysis, &mut steps);
         let mut report_deps = vec![analyze];
-        report_deps.extend(train.iter().map(|row| row[0]));
+        report_deps.extend(train.iter().filter_map(|row| row[0]));
         add(StepKind::Report, report_deps, &mut steps);
         steps
     }

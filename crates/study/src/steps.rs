@@ -9,7 +9,7 @@ use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
 use fishprobe_models::{GuppyParams, ModelSpec};
-use fishprobe_sim::{derive_seed, EnvConfig, StartPoses};
+use fishprobe_sim::{derive_seed, Controller, EnvConfig, StartPoses};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -51,8 +51,19 @@ fn train_dir(study: &Study, m: usize, k: usize) -> PathBuf {
     study.output(&StepKind::Train { m, k })
 }
 
-fn policy_of(study: &Study, m: usize, k: usize) -> Result<PolicyController, StepError> {
-    Ok(PolicyController::load(&train_dir(study, m, k), false)?)
+/// The policy of model `m`'s training run `k`: fishprobe's own, or for `k` = 0 the one the
+/// study file names, under the study's name for the model.
+fn policy_of(study: &Study, m: usize, k: usize) -> Result<Box<dyn Controller>, StepError> {
+    match study.external_policy(m).filter(|_| k == 0) {
+        Some(arg) => Ok(fishprobe_learn::named(
+            fishprobe_learn::controller(arg, false)?,
+            study.cfg.models[m].name.clone(),
+        )),
+        None => Ok(Box::new(PolicyController::load(
+            &train_dir(study, m, k),
+            false,
+        )?)),
+    }
 }
 
 /// Runs one step.
@@ -148,7 +159,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
                 out: tmp.to_path_buf(),
                 prefix: "trial".into(),
             };
-            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e)?;
+            fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
             Ok(())
         }),
         // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
@@ -168,7 +179,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
                 out: tmp.to_path_buf(),
                 prefix: "approach".into(),
             };
-            fishprobe_learn::evaluate(&policy_of(study, *p, 0)?, &e)?;
+            fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
             Ok(())
         }),
         StepKind::Stability { m, k } => staged(&out, |tmp| {
@@ -182,7 +193,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
                 out: tmp.to_path_buf(),
                 prefix: "episode".into(),
             };
-            fishprobe_learn::evaluate(&policy_of(study, *m, *k)?, &e)?;
+            fishprobe_learn::evaluate(policy_of(study, *m, *k)?.as_ref(), &e)?;
             Ok(())
         }),
         StepKind::Reality { p } => reality(study, *p, &out, &mut say),
@@ -269,8 +280,10 @@ fn reality(
     let pilot_name = name.clone();
     let bridge = std::thread::spawn(move || {
         let mut make = || {
-            Ok(Box::new(ctl.clone().renamed(pilot_name.clone()))
-                as Box<dyn fishprobe_sim::Controller>)
+            Ok(fishprobe_learn::named(
+                ctl.boxed_clone(),
+                pilot_name.clone(),
+            ))
         };
         serve(&listener, &opts, &mut make, |_| {})
     });

@@ -19,7 +19,8 @@ pub struct RunArgs {
     #[arg(long, default_value = "quick")]
     preset: String,
     /// Study file (TOML): overrides of the preset and extra models, e.g.
-    /// `[[extra_models]] name = "Zone-radii"` with `spec = { model = "Zone", zone_convention = "radii" }`.
+    /// `[[extra_models]] name = "Zone-radii"` with `spec = { model = "Zone", zone_convention = "radii" }`,
+    /// and policies trained elsewhere: `[[policies]] model = "Zone"`, `policy = "onnx:zone.onnx"`.
     #[arg(long)]
     config: Option<PathBuf>,
     /// The study directory (rerunning the same command resumes it).
@@ -60,7 +61,8 @@ pub fn run(a: RunArgs) -> Result<()> {
                 std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
             let f: StudyFile =
                 toml::from_str(&text).with_context(|| format!("study file {}", p.display()))?;
-            f.apply(&a.preset)
+            let dir = p.parent().unwrap_or_else(|| std::path::Path::new("."));
+            f.apply_in(&a.preset, dir)
                 .map_err(anyhow::Error::msg)
                 .with_context(|| format!("study file {}", p.display()))?
         }
