@@ -1,8 +1,12 @@
-//! ONNX export of a policy's deterministic action, so the lab can run it from Python (e.g.
-//! onnxruntime) on the robot PC: input `obs` (float32, batch x obs_dim), output `turn`
-//! (float32, batch x 1) = clip(mean, -1, 1) · π in radians: exactly the action fishprobe
-//! sends. The protobuf is written directly (ONNX IR 8, opset 13); only the policy network's
-//! mean is exported.
+//! ONNX export, the protobuf written directly (ONNX IR 8, opset 13):
+//!
+//! - a policy's deterministic action, so the lab can run it from Python (e.g. onnxruntime) on
+//!   the robot PC: input `obs` (float32, batch x obs_dim), output `turn` (float32, batch x 1)
+//!   = clip(mean, -1, 1) · π in radians: exactly the action fishprobe sends;
+//! - M_ConvNet in fishprobe's fish-model contract (`docs/onnx-models.md`): input `view`
+//!   (float32, batch x 3 x bins), output `logits` (float32, batch x cells), the grid in the
+//!   file's `metadata_props`. The circular padding of the convolution is written as two
+//!   `Slice`s and a `Concat` (ONNX's `Pad` has no wrap mode before opset 19).
 
 use crate::error::LearnError;
 use crate::policy::GaussianPolicy;
@@ -49,6 +53,45 @@ impl Msg {
 }
 
 const FLOAT: i64 = 1;
+const INT64: i64 = 7;
+
+fn int_tensor(name: &str, data: &[i64]) -> Msg {
+    let mut t = Msg::default();
+    t.int(1, data.len() as i64);
+    t.int(2, INT64).string(8, name);
+    let raw: Vec<u8> = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    t.bytes(9, &raw);
+    t
+}
+
+/// A value's type: float32 of shape `[batch, dims...]`.
+fn value_info_dims(name: &str, dims: &[usize]) -> Msg {
+    let mut shape = Msg::default();
+    let mut batch = Msg::default();
+    batch.string(2, "batch");
+    shape.msg(1, &batch);
+    for &d in dims {
+        let mut dim = Msg::default();
+        dim.int(1, d as i64);
+        shape.msg(1, &dim);
+    }
+    let mut tensor_type = Msg::default();
+    tensor_type.int(1, FLOAT).msg(2, &shape);
+    let mut ty = Msg::default();
+    ty.msg(1, &tensor_type);
+    let mut vi = Msg::default();
+    vi.string(1, name).msg(2, &ty);
+    vi
+}
+
+/// A node with one integer attribute.
+fn node_int(op: &str, inputs: &[&str], output: &str, attr: (&str, i64)) -> Msg {
+    let mut n = node(op, inputs, output, None);
+    let mut a = Msg::default();
+    a.string(1, attr.0).int(3, attr.1).int(20, 2);
+    n.msg(5, &a);
+    n
+}
 
 fn tensor(name: &str, dims: &[usize], data: &[f32]) -> Msg {
     let mut t = Msg::default();
@@ -157,6 +200,127 @@ pub fn policy_to_onnx(policy: &GaussianPolicy) -> Result<Vec<u8>, LearnError> {
         .string(3, env!("CARGO_PKG_VERSION"))
         .msg(7, &graph)
         .msg(8, &opset);
+    Ok(model.0)
+}
+
+/// The ONNX model bytes of M_ConvNet in fishprobe's fish-model contract.
+pub fn convnet_to_onnx(net: &fishprobe_models::ConvNet) -> Result<Vec<u8>, LearnError> {
+    let a = &net.arch;
+    let (bins, half) = (a.bins, a.kernel / 2);
+    let alpha = Some(("alpha", a.leaky_slope));
+    let mut graph = Msg::default();
+    let mut inits = vec![
+        int_tensor("wrap_lo_start", &[(bins - half) as i64]),
+        int_tensor("wrap_lo_end", &[bins as i64]),
+        int_tensor("wrap_hi_start", &[0]),
+        int_tensor("wrap_hi_end", &[half as i64]),
+        int_tensor("bin_axis", &[2]),
+    ];
+    // Circular padding: the last `half` bins before the first, the first `half` after the last.
+    graph.msg(
+        1,
+        &node(
+            "Slice",
+            &["view", "wrap_lo_start", "wrap_lo_end", "bin_axis"],
+            "wrap_lo",
+            None,
+        ),
+    );
+    graph.msg(
+        1,
+        &node(
+            "Slice",
+            &["view", "wrap_hi_start", "wrap_hi_end", "bin_axis"],
+            "wrap_hi",
+            None,
+        ),
+    );
+    graph.msg(
+        1,
+        &node_int(
+            "Concat",
+            &["wrap_lo", "view", "wrap_hi"],
+            "padded",
+            ("axis", 2),
+        ),
+    );
+    let conv = &net.conv;
+    let nw = conv.c_out * conv.c_in * conv.k;
+    inits.push(tensor(
+        "conv_w",
+        &[conv.c_out, conv.c_in, conv.k],
+        &conv.params[..nw],
+    ));
+    inits.push(tensor(
+        "conv_b",
+        &[conv.c_out],
+        &conv.params[nw..nw + conv.c_out],
+    ));
+    graph.msg(
+        1,
+        &node("Conv", &["padded", "conv_w", "conv_b"], "conv", None),
+    );
+    graph.msg(1, &node("LeakyRelu", &["conv"], "conv_act", alpha));
+    // batch x c_out x bins, flattened channel-major as fishprobe's dense layers read it.
+    graph.msg(
+        1,
+        &node_int("Flatten", &["conv_act"], "features", ("axis", 1)),
+    );
+    let sizes = &net.mlp.spec().sizes;
+    let layers = sizes.len() - 1;
+    let mut x = "features".to_string();
+    for l in 0..layers {
+        let (w, b) = net.mlp.layer(l);
+        inits.push(tensor(&format!("W{l}"), &[sizes[l], sizes[l + 1]], w));
+        inits.push(tensor(&format!("b{l}"), &[sizes[l + 1]], b));
+        graph.msg(
+            1,
+            &node("MatMul", &[&x, &format!("W{l}")], &format!("mm{l}"), None),
+        );
+        let z = if l + 1 == layers {
+            "logits".to_string()
+        } else {
+            format!("z{l}")
+        };
+        graph.msg(
+            1,
+            &node("Add", &[&format!("mm{l}"), &format!("b{l}")], &z, None),
+        );
+        x = z;
+        if l + 1 < layers {
+            graph.msg(1, &node("LeakyRelu", &[&x], &format!("h{l}"), alpha));
+            x = format!("h{l}");
+        }
+    }
+    graph.string(2, "fishprobe_convnet");
+    for t in &inits {
+        graph.msg(5, t);
+    }
+    graph.msg(
+        11,
+        &value_info_dims("view", &[fishprobe_models::convnet::CHANNELS, bins]),
+    );
+    graph.msg(12, &value_info_dims("logits", &[a.cells()]));
+    let mut opset = Msg::default();
+    opset.string(1, "").int(2, 13);
+    let mut model = Msg::default();
+    model
+        .int(1, 8)
+        .string(2, "fishprobe")
+        .string(3, env!("CARGO_PKG_VERSION"))
+        .msg(7, &graph)
+        .msg(8, &opset);
+    // The grid, so the file says what its logits mean.
+    for (k, v) in [
+        ("v_max_cm_s", a.v_max_cm_s.to_string()),
+        ("v_bins", a.v_bins.to_string()),
+        ("omega_max_rad_s", a.w_max_rad_s.to_string()),
+        ("omega_bins", a.w_bins.to_string()),
+    ] {
+        let mut e = Msg::default();
+        e.string(1, k).string(2, &v);
+        model.msg(14, &e);
+    }
     Ok(model.0)
 }
 

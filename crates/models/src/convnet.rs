@@ -454,25 +454,37 @@ impl FishModel for ConvNetFish {
         mind: &mut FishMind,
         rng: &mut SimRng,
     ) -> FishMotion {
-        let u: f32 = rng.random();
-        let mut acc = 0.0;
-        let mut cell = inferred.len().saturating_sub(1);
-        for (i, p) in inferred.iter().enumerate() {
-            acc += p;
-            if u < acc {
-                cell = i;
-                break;
-            }
+        sample_motion(&self.net.arch, view, inferred, mind, rng)
+    }
+}
+
+/// SPEC §6: a cell of the (v, ω) grid drawn from the probabilities `inferred`, then a value
+/// uniformly inside it. Shared by every model of the grid contract (M_ConvNet, ONNX models).
+pub fn sample_motion(
+    arch: &ConvNetArch,
+    view: &FishView,
+    inferred: &[f32],
+    mind: &mut FishMind,
+    rng: &mut SimRng,
+) -> FishMotion {
+    let u: f32 = rng.random();
+    let mut acc = 0.0;
+    let mut cell = inferred.len().saturating_sub(1);
+    for (i, p) in inferred.iter().enumerate() {
+        acc += p;
+        if u < acc {
+            cell = i;
+            break;
         }
-        let ((v0, dv), (w0, dw)) = self.net.arch.cell_bounds(cell);
-        let v = v0 + dv * rng.random::<f32>();
-        let w = w0 + dw * rng.random::<f32>();
-        mind.speed = v;
-        mind.turn_rate = w;
-        FishMotion {
-            heading: view.me.heading + w * view.dt,
-            speed: v,
-        }
+    }
+    let ((v0, dv), (w0, dw)) = arch.cell_bounds(cell);
+    let v = v0 + dv * rng.random::<f32>();
+    let w = w0 + dw * rng.random::<f32>();
+    mind.speed = v;
+    mind.turn_rate = w;
+    FishMotion {
+        heading: view.me.heading + w * view.dt,
+        speed: v,
     }
 }
 

@@ -27,6 +27,7 @@ pub mod follow;
 pub mod force;
 pub mod guppy;
 pub mod measure;
+pub mod onnx;
 pub mod stationary;
 pub mod zone;
 
@@ -34,6 +35,7 @@ pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError
 pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
 pub use guppy::{Guppy, GuppyParams};
+pub use onnx::{OnnxFish, OnnxParams};
 pub use stationary::{Stationary, StationaryParams};
 pub use zone::{Zone, ZoneConvention, ZoneParams};
 
@@ -62,6 +64,16 @@ pub enum ModelError {
     /// ConvNet weights that cannot be used.
     #[error(transparent)]
     Weights(#[from] WeightsError),
+    /// An ONNX model that cannot be used (the engine's error, as text: it holds OS errors,
+    /// which cannot be cloned).
+    #[error("{0}")]
+    Onnx(String),
+}
+
+impl From<fishprobe_onnx::OnnxError> for ModelError {
+    fn from(e: fishprobe_onnx::OnnxError) -> Self {
+        ModelError::Onnx(e.to_string())
+    }
 }
 
 /// What a model's parameter struct says about its model: the one place a model is described.
@@ -82,14 +94,20 @@ pub trait ModelParams: DocumentedParams + Clone {
 }
 
 /// Declares [`ModelSpec`] from one line per model: `Variant(Params)`, with `Params:
-/// ModelParams` and `Params::NAME` = the variant's name.
+/// ModelParams` and `Params::NAME` = the variant's name. Built-in models come first (they have
+/// defaults and are listed in `NAMES`); models read from a file follow a `;`.
 macro_rules! model_registry {
-    ($( $(#[$doc:meta])* $variant:ident($params:ty), )*) => {
+    (
+        $( $(#[$doc:meta])* $variant:ident($params:ty), )*
+        ;
+        $( $(#[$fdoc:meta])* $fvariant:ident($fparams:ty), )*
+    ) => {
         /// A fish model and its parameters, as written in config files: `{"model": "Zone", ...}`.
         #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
         #[serde(tag = "model")]
         pub enum ModelSpec {
             $( $(#[$doc])* $variant($params), )*
+            $( $(#[$fdoc])* $fvariant($fparams), )*
         }
 
         impl ModelSpec {
@@ -97,8 +115,11 @@ macro_rules! model_registry {
             pub const NAMES: &'static [&'static str] = &[$(<$params as ModelParams>::NAME),*];
 
             /// A model with its default (published) parameters, by name or alias
-            /// (case-insensitive).
+            /// (case-insensitive), or `onnx:PATH` for a model brought as an ONNX file.
             pub fn by_name(name: &str) -> Result<Self, ModelError> {
+                if let Some(path) = name.strip_prefix("onnx:") {
+                    return Ok(Self::Onnx(OnnxParams::for_file(path)));
+                }
                 let lower = name.to_ascii_lowercase();
                 $(
                     if lower == <$params as ModelParams>::NAME.to_ascii_lowercase()
@@ -115,29 +136,44 @@ macro_rules! model_registry {
 
             /// The model's name.
             pub fn name(&self) -> &'static str {
-                match self { $( Self::$variant(_) => <$params as ModelParams>::NAME, )* }
+                match self {
+                    $( Self::$variant(_) => <$params as ModelParams>::NAME, )*
+                    $( Self::$fvariant(_) => <$fparams as ModelParams>::NAME, )*
+                }
             }
 
             /// One line on what the model is.
             pub fn summary(&self) -> &'static str {
-                match self { $( Self::$variant(_) => <$params as ModelParams>::SUMMARY, )* }
+                match self {
+                    $( Self::$variant(_) => <$params as ModelParams>::SUMMARY, )*
+                    $( Self::$fvariant(_) => <$fparams as ModelParams>::SUMMARY, )*
+                }
             }
 
             /// The documented fields of this model's parameters.
             pub fn field_docs(&self) -> &'static [FieldDoc] {
-                match self { $( Self::$variant(_) => <$params as DocumentedParams>::field_docs(), )* }
+                match self {
+                    $( Self::$variant(_) => <$params as DocumentedParams>::field_docs(), )*
+                    $( Self::$fvariant(_) => <$fparams as DocumentedParams>::field_docs(), )*
+                }
             }
 
             /// Checks the parameters; errors name the field.
             pub fn validate(&self) -> Result<(), ConfigError> {
                 let prefix = self.name();
-                match self { $( Self::$variant(p) => p.check(prefix), )* }
+                match self {
+                    $( Self::$variant(p) => p.check(prefix), )*
+                    $( Self::$fvariant(p) => p.check(prefix), )*
+                }
             }
 
             /// The model, ready to drive fish.
             pub fn build(&self) -> Result<Arc<dyn FishModel>, ModelError> {
                 self.validate()?;
-                match self { $( Self::$variant(p) => p.build_model(), )* }
+                match self {
+                    $( Self::$variant(p) => p.build_model(), )*
+                    $( Self::$fvariant(p) => p.build_model(), )*
+                }
             }
         }
     };
@@ -156,6 +192,9 @@ model_registry! {
     ConvNet(ConvNetParams),
     /// The virtual guppy of the virtual lab (not a candidate model).
     Guppy(GuppyParams),
+    ; // Models read from a file (no defaults; not in NAMES):
+    /// A candidate model brought as an ONNX file (`onnx:PATH`).
+    Onnx(OnnxParams),
 }
 
 impl ModelSpec {

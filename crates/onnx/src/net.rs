@@ -8,30 +8,44 @@ use tract_onnx::tract_hir::infer::Factoid;
 use tract_onnx::tract_hir::internal::DimLike;
 
 /// What a file must look like: one float32 input and one float32 output, each `[batch, ...]`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Contract {
     /// What the file is, for messages ("a policy", "a fish model").
     pub what: &'static str,
     /// The input's name.
     pub input: &'static str,
     /// The input's shape after the batch dimension.
-    pub input_dims: &'static [usize],
+    pub input_dims: Vec<usize>,
     /// The output's name (`None`: any).
     pub output: Option<&'static str>,
     /// The output's shape after the batch dimension.
-    pub output_dims: &'static [usize],
+    pub output_dims: Vec<usize>,
 }
 
 impl Contract {
     /// fishprobe's policy contract: `obs` float32 `[batch, 180]` (SPEC §5) in, the turn angle
     /// in radians float32 `[batch, 1]` out.
-    pub const POLICY: Contract = Contract {
-        what: "a policy",
-        input: "obs",
-        input_dims: &[180],
-        output: None,
-        output_dims: &[1],
-    };
+    pub fn policy() -> Self {
+        Self {
+            what: "a policy",
+            input: "obs",
+            input_dims: vec![180],
+            output: None,
+            output_dims: vec![1],
+        }
+    }
+
+    /// fishprobe's fish-model contract: `view` float32 `[batch, 3, bins]` (M_ConvNet's view)
+    /// in, `logits` float32 `[batch, cells]` over the (v, ω) grid out.
+    pub fn fish(bins: usize, cells: usize) -> Self {
+        Self {
+            what: "a fish model",
+            input: "view",
+            input_dims: vec![3, bins],
+            output: Some("logits"),
+            output_dims: vec![cells],
+        }
+    }
 
     fn describe(&self) -> String {
         let dims = |d: &[usize]| {
@@ -44,10 +58,10 @@ impl Contract {
             "{} with input `{}` float32 [{}] and {} float32 [{}]",
             self.what,
             self.input,
-            dims(self.input_dims),
+            dims(&self.input_dims),
             self.output
                 .map_or_else(|| "one output".to_string(), |o| format!("output `{o}`")),
-            dims(self.output_dims)
+            dims(&self.output_dims)
         )
     }
 }
@@ -59,6 +73,10 @@ type Plan = TypedRunnableModel;
 pub struct OnnxNet {
     path: PathBuf,
     sha256: String,
+    /// The file as read (re-planning for another batch never reads it again).
+    bytes: Arc<Vec<u8>>,
+    contract: Contract,
+    metadata: std::collections::BTreeMap<String, String>,
     plan: Arc<Plan>,
     batch: usize,
     input_len: usize,
@@ -112,7 +130,68 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 impl OnnxNet {
     /// Loads `path`, checks it against `contract` and plans it for `batch` rows per run.
     pub fn load(path: &Path, contract: &Contract, batch: usize) -> Result<Self, OnnxError> {
-        let bytes = read(path)?;
+        Self::load_with(path, batch, |_| Ok(contract.clone()))
+    }
+
+    /// Like [`OnnxNet::load`], with the contract decided from the file's `metadata_props`
+    /// (a fish model's grid may be set there).
+    pub fn load_with(
+        path: &Path,
+        batch: usize,
+        contract_of: impl FnOnce(
+            &std::collections::BTreeMap<String, String>,
+        ) -> Result<Contract, String>,
+    ) -> Result<Self, OnnxError> {
+        let bytes = Arc::new(read(path)?);
+        let metadata = Self::metadata_of(path, &bytes)?;
+        let contract = contract_of(&metadata).map_err(|what| OnnxError::Contract {
+            path: path.to_path_buf(),
+            expected: "metadata_props fishprobe can use".into(),
+            found: what,
+        })?;
+        Self::plan(path, bytes, contract, metadata, batch)
+    }
+
+    /// The same network planned for another batch size.
+    pub fn with_batch(&self, batch: usize) -> Result<Self, OnnxError> {
+        Self::plan(
+            &self.path,
+            self.bytes.clone(),
+            self.contract.clone(),
+            self.metadata.clone(),
+            batch,
+        )
+    }
+
+    /// The file's `metadata_props`.
+    pub fn metadata(&self) -> &std::collections::BTreeMap<String, String> {
+        &self.metadata
+    }
+
+    fn metadata_of(
+        path: &Path,
+        bytes: &[u8],
+    ) -> Result<std::collections::BTreeMap<String, String>, OnnxError> {
+        let proto = tract_onnx::onnx()
+            .proto_model_for_read(&mut &bytes[..])
+            .map_err(|e| OnnxError::NotOnnx {
+                path: path.to_path_buf(),
+                what: first_line(&e),
+            })?;
+        Ok(proto
+            .metadata_props
+            .iter()
+            .map(|p| (p.key.clone(), p.value.clone()))
+            .collect())
+    }
+
+    fn plan(
+        path: &Path,
+        bytes: Arc<Vec<u8>>,
+        contract: Contract,
+        metadata: std::collections::BTreeMap<String, String>,
+        batch: usize,
+    ) -> Result<Self, OnnxError> {
         let sha256 = sha256_hex(&bytes);
         let expected = contract.describe();
         let contract_err = |found: String| OnnxError::Contract {
@@ -209,10 +288,13 @@ impl OnnxNet {
         Ok(Self {
             path: path.to_path_buf(),
             sha256,
-            plan,
-            batch,
+            bytes: bytes.clone(),
             input_len: contract.input_dims.iter().product(),
             output_len: contract.output_dims.iter().product(),
+            contract,
+            metadata,
+            plan,
+            batch,
             input_dims: shape,
         })
     }

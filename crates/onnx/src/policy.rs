@@ -7,7 +7,7 @@ use crate::OnnxError;
 use fishprobe_sim::{ControlInput, Controller, SimRng};
 use std::path::Path;
 
-/// An ONNX policy of [`Contract::POLICY`], run one observation at a time.
+/// An ONNX policy of [`Contract::policy`], run one observation at a time.
 #[derive(Debug, Clone)]
 pub struct OnnxPolicy {
     net: OnnxNet,
@@ -19,7 +19,7 @@ pub struct OnnxPolicy {
 impl OnnxPolicy {
     /// Loads and checks `path`. Its name in the study layout is the file's stem.
     pub fn load(path: &Path) -> Result<Self, OnnxError> {
-        let net = OnnxNet::load(path, &Contract::POLICY, 1)?;
+        let net = OnnxNet::load(path, &Contract::policy(), 1)?;
         let name = path
             .file_stem()
             .map_or_else(|| "onnx".to_string(), |s| s.to_string_lossy().into_owned());
@@ -52,7 +52,7 @@ impl Controller for OnnxPolicy {
     }
 
     fn check_observation(&self, dim: usize) -> Result<(), String> {
-        match Contract::POLICY.input_dims {
+        match &Contract::policy().input_dims[..] {
             [d] if *d == dim => Ok(()),
             d => Err(format!(
                 "{}: the policy reads observations of {d:?} floats, the environment gives {dim}",
