@@ -78,6 +78,14 @@ model("wrong_dtype", obs64, turn64, [h.make_node("ReduceSum", ["obs", "axes"], [
 model("unknown_op", obs, turn, [h.make_node("FishDance", ["obs"], ["turn"], domain="org.fishprobe.test")],
       [], domain_opsets=[("org.fishprobe.test", 1)])
 open(f"{d}/garbage.onnx", "wb").write(b"this is not a protobuf at all" * 10)
+# A fish model whose logits are NaN: flatten the view, multiply by zeros, add NaN.
+view = h.make_tensor_value_info("view", T.FLOAT, ["batch", 3, 72])
+logits = h.make_tensor_value_info("logits", T.FLOAT, ["batch", 1025])
+wz = h.make_tensor("wz", T.FLOAT, [216, 1025], [0.0] * (216 * 1025))
+bn = h.make_tensor("bn", T.FLOAT, [1025], [float("nan")] * 1025)
+model("nan_fish", view, logits, [h.make_node("Flatten", ["view"], ["f"], axis=1),
+      h.make_node("MatMul", ["f", "wz"], ["m"]), h.make_node("Add", ["m", "bn"], ["logits"])],
+      [wz, bn])
 "#;
     let o = Command::new("python3")
         .args(["-c", script, s(dir)])
@@ -231,5 +239,147 @@ fn onnx_files_that_break_the_contract_are_refused_naming_what_was_expected() {
     refused(
         "nan_turn.onnx",
         &["non-finite turn", "episode 0", "second 0"],
+    );
+}
+
+/// M_ConvNet exported and loaded back as `--model onnx:FILE` fits the real pairs as the native
+/// model does: every distance of the one lies in the other's 95 % interval.
+#[test]
+fn an_exported_convnet_fits_the_real_pairs_as_the_native_one() {
+    let Some(data) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return;
+    };
+    let d = fresh_dir("onnx-offline");
+    let onnx = d.join("convnet.onnx");
+    ok(&["export", "--convnet", "--onnx", s(&onnx)]);
+    let val = data.join("guppy-pairs/legacy/validation");
+    assert!(val.is_dir(), "{} missing", val.display());
+    let models = format!("ConvNet,onnx:{}", s(&onnx));
+    ok(&[
+        "compare-offline",
+        "--data",
+        s(&val),
+        "--models",
+        &models,
+        "--out",
+        s(&d.join("co")),
+    ]);
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("co/offline.json")).unwrap()).unwrap();
+    let (native, exported) = (&r["gaps"]["ConvNet"], &r["gaps"]["Onnx"]);
+    let mut checked = 0;
+    for (metric, a) in native.as_object().unwrap() {
+        let b = &exported[metric];
+        let w = |g: &serde_json::Value| g["w"].as_f64().unwrap();
+        let ci =
+            |g: &serde_json::Value| (g["ci"][0].as_f64().unwrap(), g["ci"][1].as_f64().unwrap());
+        let ((lo_a, hi_a), (lo_b, hi_b)) = (ci(a), ci(b));
+        assert!(
+            lo_a <= w(b) && w(b) <= hi_a,
+            "{metric}: exported {b} outside native {a}"
+        );
+        assert!(
+            lo_b <= w(a) && w(a) <= hi_b,
+            "{metric}: native {a} outside exported {b}"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 6, "{checked}");
+}
+
+#[test]
+fn onnx_fish_models_that_break_the_contract_are_refused() {
+    let d = fresh_dir("onnx-bad-fish");
+    make_onnx_files(&d);
+    let sim = |file: &str| {
+        let model = format!("onnx:{}", s(&d.join(file)));
+        fishprobe(&[
+            "simulate",
+            "--model",
+            &model,
+            "--minutes",
+            "1",
+            "--out",
+            s(&d.join("t.hdf5")),
+        ])
+    };
+    // A policy is not a fish model.
+    let o = sim("constant_turn.onnx");
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("constant_turn.onnx") && e.contains("expected a fish model with input `view`"),
+        "{e}"
+    );
+    let o = sim("missing.onnx");
+    assert!(
+        stderr(&o).contains("missing.onnx") && stderr(&o).contains("cannot read"),
+        "{}",
+        stderr(&o)
+    );
+    // NaN logits: the simulation stops at the first frame, naming the model and the frame.
+    let o = sim("nan_fish.onnx");
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("Onnx") && e.contains("frame"), "{e}");
+    assert!(!e.contains("panicked"), "{e}");
+}
+
+/// A study names an ONNX candidate (path relative to the study file): it is trained against,
+/// evaluated and analysed like a built-in model, listed with its origin by `models --study`
+/// and the report, and every trial file's spec carries the file's SHA-256.
+#[test]
+fn a_study_tests_a_candidate_model_brought_as_onnx() {
+    let d = fresh_dir("onnx-study");
+    ok(&["export", "--convnet", "--onnx", s(&d.join("mynet.onnx"))]);
+    let cfg = d.join("study.toml");
+    std::fs::write(
+        &cfg,
+        "models = [{ name = \"Follow\", spec = { model = \"Follow\" } }, \
+         { name = \"MyNet\", spec = { model = \"Onnx\", path = \"mynet.onnx\" } }]\n",
+    )
+    .unwrap();
+    let study = d.join("s");
+    ok(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        s(&cfg),
+        "--out",
+        s(&study),
+    ]);
+    let listing: serde_json::Value =
+        serde_json::from_str(&ok(&["models", "--study", s(&study), "--json"])).unwrap();
+    let mynet = listing["models"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|m| m["candidate"] == "MyNet")
+        .unwrap()
+        .clone();
+    let origin = mynet["origin"].as_str().unwrap();
+    assert!(
+        origin.starts_with("ONNX file")
+            && origin.contains("mynet.onnx")
+            && origin.contains("sha256 "),
+        "{origin}"
+    );
+    let html = std::fs::read_to_string(study.join("report/index.html")).unwrap();
+    assert!(
+        html.contains("MyNet") && html.contains("ONNX file"),
+        "no origin in the report"
+    );
+    let trial = &fishprobe_io::trial_files(&study.join("rollouts/MyNet__MyNet"))[0];
+    let cfg_json = read_trial(trial).unwrap().task.unwrap().config_json;
+    let sha = origin
+        .split("sha256 ")
+        .nth(1)
+        .unwrap()
+        .trim_end_matches(')');
+    assert!(
+        cfg_json.contains(sha),
+        "the trial file does not trace the fish to its file"
     );
 }

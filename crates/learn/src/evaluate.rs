@@ -86,7 +86,10 @@ pub fn run_episode(
             )));
         }
         out[0] = action;
-        if env.step(&out, &mut obs)?.truncated {
+        let step = env
+            .step(&out, &mut obs)
+            .map_err(|e| LearnError::Run(format!("episode {k}: {e}")))?;
+        if step.truncated {
             break;
         }
     }

@@ -198,6 +198,39 @@ model_registry! {
 }
 
 impl ModelSpec {
+    /// Where the model comes from, for listings and reports: `built in`, `built in, changed:
+    /// speed_cm_s, zone_convention` (parameters that differ from the published ones), or
+    /// `ONNX file PATH (sha256 …)`.
+    pub fn origin(&self) -> String {
+        if let Self::Onnx(p) = self {
+            let sha = if p.sha256.is_empty() {
+                "not recorded"
+            } else {
+                p.sha256.as_str()
+            };
+            return format!("ONNX file {} (sha256 {sha})", p.path);
+        }
+        let (Ok(mine), Ok(Ok(default))) = (
+            serde_json::to_value(self),
+            Self::by_name(self.name()).map(|d| serde_json::to_value(&d)),
+        ) else {
+            return "built in".into();
+        };
+        let changed: Vec<&String> = mine
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(k, v)| default.get(k.as_str()) != Some(v))
+            .map(|(k, _)| k)
+            .collect();
+        if changed.is_empty() {
+            "built in".into()
+        } else {
+            let names: Vec<&str> = changed.iter().map(|k| k.as_str()).collect();
+            format!("built in, changed: {}", names.join(", "))
+        }
+    }
+
     /// The rule-based candidate models of the paper.
     pub const RULE_BASED: [&'static str; 3] = ["Follow", "Zone", "Force"];
 }
@@ -220,6 +253,18 @@ mod tests {
             assert_eq!(back, s);
         }
         assert_eq!(ModelSpec::by_name("virtualguppy").unwrap().name(), "Guppy");
+        assert_eq!(ModelSpec::by_name("Zone").unwrap().origin(), "built in");
+        let z = ZoneParams {
+            speed_cm_s: 5.0,
+            ..ZoneParams::default()
+        };
+        assert_eq!(ModelSpec::Zone(z).origin(), "built in, changed: speed_cm_s");
+        let o = ModelSpec::by_name("onnx:/nonexistent/m.onnx").unwrap();
+        assert_eq!(o.name(), "Onnx");
+        assert_eq!(
+            o.origin(),
+            "ONNX file /nonexistent/m.onnx (sha256 not recorded)"
+        );
         assert_eq!(ModelSpec::by_name("ZONE").unwrap().name(), "Zone");
         let e = ModelSpec::by_name("Couzin").unwrap_err().to_string();
         assert!(e.contains("Couzin") && e.contains("Zone"), "{e}");

@@ -130,6 +130,30 @@ pub struct StudyData {
     pub unreadable: Vec<(PathBuf, String)>,
     /// What is missing.
     pub missing: Vec<Missing>,
+    /// The study's candidate models from its `study.json`: (name, model, origin).
+    pub candidates: Vec<(String, String, String)>,
+}
+
+/// The candidates `fishprobe run` recorded in `study.json`, with their origin (built in,
+/// changed parameters, or an ONNX file with its SHA-256); none for a study made otherwise.
+fn candidates(root: &Path) -> Vec<(String, String, String)> {
+    let Ok(text) = std::fs::read_to_string(StudyLayout::new(root).config()) else {
+        return Vec::new();
+    };
+    let Ok(v) = serde_json::from_str::<Value>(&text) else {
+        return Vec::new();
+    };
+    v["models"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|m| {
+            let name = m["name"].as_str()?.to_string();
+            let spec: fishprobe_models::ModelSpec =
+                serde_json::from_value(m["spec"].clone()).ok()?;
+            Some((name, spec.name().to_string(), spec.origin()))
+        })
+        .collect()
 }
 
 /// Loads the report's inputs. `analysis_dir`: where `fishprobe analyze` wrote (default
@@ -182,6 +206,7 @@ pub fn gather(
         }),
     }
 
+    d.candidates = candidates(root);
     let study = StudyFiles::discover(root).ok();
     let training = training_logs(root, &mut d);
     d.training = training;

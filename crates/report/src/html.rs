@@ -245,6 +245,15 @@ impl Page<'_> {
                 &rows,
             );
         }
+        if !d.candidates.is_empty() {
+            let rows: Vec<Vec<String>> = d
+                .candidates
+                .iter()
+                .map(|(n, m, o)| vec![n.clone(), format!("M_{m}"), o.clone()])
+                .collect();
+            o.push_str("<p>Candidate models (from <code>study.json</code>), each with where it comes from:</p>");
+            table(o, &["candidate", "model", "origin"], &rows);
+        }
         if !d.conditions.is_empty() {
             let mut models: Vec<&str> = d.conditions.iter().map(|c| c.model.as_str()).collect();
             models.sort_by_key(|m| (Arm::from_label(m).is_reality(), *m));

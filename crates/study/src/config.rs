@@ -298,6 +298,25 @@ impl StudyFile {
                 p.policy = format!("{prefix}{}", dir.join(path).display());
             }
         }
+        // ONNX candidate models: the path relative to the study file, and the file's SHA-256
+        // recorded (so every trial traces its fish to the exact file, and a file replaced
+        // later is refused rather than mixed in).
+        let models = self
+            .models
+            .iter_mut()
+            .flatten()
+            .chain(&mut self.extra_models);
+        for m in models {
+            if let ModelSpec::Onnx(p) = &mut m.spec {
+                let path = std::path::Path::new(&p.path);
+                if path.is_relative() {
+                    p.path = dir.join(path).display().to_string();
+                }
+                if p.sha256.is_empty() {
+                    p.sha256 = fishprobe_models::OnnxParams::for_file(&p.path).sha256;
+                }
+            }
+        }
         self.apply(preset)
     }
 

@@ -29,6 +29,13 @@ pub struct ModelsArgs {
     /// Master seed for --measure.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// List (and measure) these models instead of the built-in ones: names, or `onnx:FILE`
+    /// for a model brought as an ONNX file (repeat the option).
+    #[arg(long)]
+    model: Vec<String>,
+    /// List the candidate models of a study (its `study.json`), each with its origin.
+    #[arg(long, conflicts_with = "model")]
+    study: Option<std::path::PathBuf>,
 }
 
 /// Real guppy pairs, 48 training recordings (../shared/data/README.md).
@@ -37,10 +44,30 @@ const REAL_GUPPIES: &str =
 paused (<0.5 cm/s) 0-45 % per fish; wall distance mean 13.1, median 11.1 cm; IID median 5.3 cm";
 
 pub fn run(a: ModelsArgs) -> Result<()> {
-    let specs: Vec<ModelSpec> = ModelSpec::NAMES
-        .iter()
-        .map(|n| ModelSpec::by_name(n))
-        .collect::<Result<_, _>>()?;
+    // (the name each model carries, its spec)
+    let named: Vec<(String, ModelSpec)> = if let Some(dir) = &a.study {
+        let file = fishprobe_io::StudyLayout::new(dir).config();
+        let text = std::fs::read_to_string(&file)
+            .with_context(|| format!("reading {} (made by fishprobe run)", file.display()))?;
+        let cfg: fishprobe_study::StudyConfig =
+            serde_json::from_str(&text).with_context(|| format!("{}", file.display()))?;
+        cfg.models.into_iter().map(|m| (m.name, m.spec)).collect()
+    } else if a.model.is_empty() {
+        ModelSpec::NAMES
+            .iter()
+            .map(|n| ModelSpec::by_name(n).map(|s| (n.to_string(), s)))
+            .collect::<Result<_, _>>()?
+    } else {
+        a.model
+            .iter()
+            .map(|n| {
+                let s = ModelSpec::by_name(n)?;
+                s.build().with_context(|| format!("model {n}"))?;
+                Ok((n.clone(), s))
+            })
+            .collect::<Result<_>>()?
+    };
+    let specs: Vec<ModelSpec> = named.iter().map(|(_, s)| s.clone()).collect();
     let measurements = if a.measure {
         super::check_minutes("--minutes", f64::from(a.minutes))?;
         if a.episodes == 0 || a.episodes > 10_000 {
@@ -62,11 +89,21 @@ pub fn run(a: ModelsArgs) -> Result<()> {
     };
     let mut text = String::new();
     if a.json {
-        let models: Vec<Value> = specs.iter().map(model_json).collect::<Result<_>>()?;
+        let models: Vec<Value> = named
+            .iter()
+            .map(|(n, s)| {
+                let mut v = model_json(s)?;
+                v["candidate"] = json!(n);
+                Ok(v)
+            })
+            .collect::<Result<_>>()?;
         let out = json!({ "models": models, "measurements": params_json(&measurements)? });
         text = serde_json::to_string_pretty(&out)? + "\n";
     } else {
-        for s in &specs {
+        for (n, s) in &named {
+            if n != s.name() {
+                writeln!(text, "candidate {n}:")?;
+            }
             write_model(&mut text, s)?;
         }
         if !measurements.is_empty() {
@@ -83,6 +120,7 @@ fn model_json(s: &ModelSpec) -> Result<Value> {
     }
     Ok(json!({
         "name": s.name(),
+        "origin": s.origin(),
         "summary": s.summary(),
         "params": params,
         "fields": s.field_docs().iter()
@@ -92,7 +130,7 @@ fn model_json(s: &ModelSpec) -> Result<Value> {
 }
 
 fn write_model(out: &mut String, s: &ModelSpec) -> Result<()> {
-    writeln!(out, "{} — {}", s.name(), s.summary())?;
+    writeln!(out, "{} — {} [{}]", s.name(), s.summary(), s.origin())?;
     let values = params_json(s)?;
     for f in s.field_docs() {
         let v = values.get(f.name).map(Value::to_string).unwrap_or_default();
