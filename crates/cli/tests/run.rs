@@ -286,46 +286,33 @@ fn a_study_evaluates_a_policy_trained_elsewhere_without_training_it() {
     );
     // A policy for a model the study does not have, or a file that does not load: refused
     // before any work.
-    std::fs::write(
-        &cfg,
-        "[[policies]]\nmodel = \"Nope\"\npolicy = \"onnx:zone.onnx\"\n",
-    )
-    .unwrap();
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        base.join("t").to_str().unwrap(),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("not one of the study's models"),
-        "{}",
-        stderr(&o)
-    );
-    std::fs::write(
-        &cfg,
-        "[[policies]]\nmodel = \"Zone\"\npolicy = \"onnx:missing.onnx\"\n",
-    )
-    .unwrap();
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        base.join("u").to_str().unwrap(),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("missing.onnx"),
-        "{}",
-        stderr(&o)
-    );
-    assert!(
-        !base.join("u/policies").exists(),
-        "work started before the check"
-    );
+    for (k, (model, file, needle)) in [
+        ("Nope", "zone.onnx", "not one of the study's models"),
+        ("Zone", "missing.onnx", "missing.onnx"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let toml = format!("[[policies]]\nmodel = \"{model}\"\npolicy = \"onnx:{file}\"\n");
+        std::fs::write(&cfg, toml).unwrap();
+        let out = base.join(format!("refused{k}"));
+        let o = fishprobe(&[
+            "run",
+            "--preset",
+            "smoke",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(
+            !o.status.success() && stderr(&o).contains(needle),
+            "{}",
+            stderr(&o)
+        );
+        assert!(
+            !out.join("policies").exists(),
+            "work started before the check"
+        );
+    }
 }

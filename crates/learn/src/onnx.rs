@@ -191,16 +191,7 @@ pub fn policy_to_onnx(policy: &GaussianPolicy) -> Result<Vec<u8>, LearnError> {
     }
     graph.msg(11, &value_info("obs", policy.obs_dim()));
     graph.msg(12, &value_info("turn", 1));
-    let mut opset = Msg::default();
-    opset.string(1, "").int(2, 13);
-    let mut model = Msg::default();
-    model
-        .int(1, 8)
-        .string(2, "fishprobe")
-        .string(3, env!("CARGO_PKG_VERSION"))
-        .msg(7, &graph)
-        .msg(8, &opset);
-    Ok(model.0)
+    Ok(model_proto(&graph, &[]))
 }
 
 /// The ONNX model bytes of M_ConvNet in fishprobe's fish-model contract.
@@ -301,6 +292,19 @@ pub fn convnet_to_onnx(net: &fishprobe_models::ConvNet) -> Result<Vec<u8>, Learn
         &value_info_dims("view", &[fishprobe_models::convnet::CHANNELS, bins]),
     );
     graph.msg(12, &value_info_dims("logits", &[a.cells()]));
+    // The grid, so the file says what its logits mean.
+    let grid = [
+        ("v_max_cm_s", a.v_max_cm_s.to_string()),
+        ("v_bins", a.v_bins.to_string()),
+        ("omega_max_rad_s", a.w_max_rad_s.to_string()),
+        ("omega_bins", a.w_bins.to_string()),
+    ];
+    Ok(model_proto(&graph, &grid))
+}
+
+/// The ModelProto around `graph` (ONNX IR 8, opset 13, producer fishprobe and its version),
+/// with `metadata_props`.
+fn model_proto(graph: &Msg, metadata: &[(&str, String)]) -> Vec<u8> {
     let mut opset = Msg::default();
     opset.string(1, "").int(2, 13);
     let mut model = Msg::default();
@@ -308,20 +312,14 @@ pub fn convnet_to_onnx(net: &fishprobe_models::ConvNet) -> Result<Vec<u8>, Learn
         .int(1, 8)
         .string(2, "fishprobe")
         .string(3, env!("CARGO_PKG_VERSION"))
-        .msg(7, &graph)
+        .msg(7, graph)
         .msg(8, &opset);
-    // The grid, so the file says what its logits mean.
-    for (k, v) in [
-        ("v_max_cm_s", a.v_max_cm_s.to_string()),
-        ("v_bins", a.v_bins.to_string()),
-        ("omega_max_rad_s", a.w_max_rad_s.to_string()),
-        ("omega_bins", a.w_bins.to_string()),
-    ] {
+    for (k, v) in metadata {
         let mut e = Msg::default();
-        e.string(1, k).string(2, &v);
+        e.string(1, k).string(2, v);
         model.msg(14, &e);
     }
-    Ok(model.0)
+    model.0
 }
 
 #[cfg(test)]

@@ -424,18 +424,7 @@ impl FishModel for ConvNetFish {
     fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
         let arch = &self.net.arch;
         let len = arch.view_len();
-        // A poisoned lock only means another thread panicked mid-inference; the buffers are
-        // overwritten below, so they are still usable. When every set is busy (more callers
-        // than cores), wait for the first.
-        let mut guard = self
-            .scratch
-            .iter()
-            .find_map(|m| match m.try_lock() {
-                Ok(g) => Some(g),
-                Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
-                Err(std::sync::TryLockError::WouldBlock) => None,
-            })
-            .unwrap_or_else(|| self.scratch[0].lock().unwrap_or_else(|p| p.into_inner()));
+        let mut guard = free_slot(&self.scratch);
         let (x, ws) = &mut *guard;
         x.resize(views.len() * len, 0.0);
         for (v, row) in views.iter().zip(x.chunks_exact_mut(len)) {
@@ -456,6 +445,22 @@ impl FishModel for ConvNetFish {
     ) -> FishMotion {
         sample_motion(&self.net.arch, view, inferred, mind, rng)
     }
+}
+
+/// The first free set of scratch buffers of a batched model, one set per concurrent
+/// `infer_batch` call (the vector environment calls from every core at once). A poisoned lock
+/// only means another thread panicked mid-inference; the buffers are overwritten by the
+/// caller, so they are still usable. When every set is busy (more callers than cores), waits
+/// for the first. `slots` must not be empty.
+pub(crate) fn free_slot<T>(slots: &[Mutex<T>]) -> std::sync::MutexGuard<'_, T> {
+    slots
+        .iter()
+        .find_map(|m| match m.try_lock() {
+            Ok(g) => Some(g),
+            Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
+            Err(std::sync::TryLockError::WouldBlock) => None,
+        })
+        .unwrap_or_else(|| slots[0].lock().unwrap_or_else(|p| p.into_inner()))
 }
 
 /// SPEC §6: a cell of the (v, ω) grid drawn from the probabilities `inferred`, then a value

@@ -158,15 +158,7 @@ impl FishModel for OnnxFish {
     fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
         let arch = &self.arch;
         let (len, cells) = (arch.view_len(), arch.cells());
-        let mut guard = self
-            .scratch
-            .iter()
-            .find_map(|m| match m.try_lock() {
-                Ok(g) => Some(g),
-                Err(std::sync::TryLockError::Poisoned(p)) => Some(p.into_inner()),
-                Err(std::sync::TryLockError::WouldBlock) => None,
-            })
-            .unwrap_or_else(|| self.scratch[0].lock().unwrap_or_else(|p| p.into_inner()));
+        let mut guard = crate::convnet::free_slot(&self.scratch);
         let (x, logits) = &mut *guard;
         x.resize(views.len() * len, 0.0);
         logits.resize(views.len() * cells, 0.0);
