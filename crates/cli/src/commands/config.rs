@@ -82,6 +82,9 @@ enum ConfigWhat {
         #[arg(long)]
         model: Option<String>,
     },
+    /// Print the settings reference (Markdown, every documented setting with its default,
+    /// unit and meaning): what docs/settings.md holds.
+    Reference,
     /// Check a settings file (.json or .toml) and print it resolved, with every default.
     Check {
         /// The file.
@@ -103,6 +106,7 @@ pub fn run(a: ConfigArgs) -> Result<()> {
             };
             emit(&text)
         }
+        ConfigWhat::Reference => emit(&super::reference::reference()),
         ConfigWhat::Check { file } => {
             let s = SimSettings::load(&file)?;
             emit(&format!(

@@ -19,6 +19,7 @@ mod import_legacy;
 mod inspect;
 mod live;
 mod models;
+mod reference;
 mod report;
 mod run;
 mod simulate;
@@ -32,7 +33,12 @@ use clap::{Parser, Subcommand};
 /// Simulates the 1 x 1 m RoboFish tank with a robot fish and a fish driven by a candidate
 /// behaviour model.
 #[derive(Debug, Parser)]
-#[command(name = "fishprobe", version, about, long_about = None)]
+#[command(
+    name = "fishprobe",
+    version = concat!(env!("CARGO_PKG_VERSION"), " (", env!("FISHPROBE_COMMIT"), ")"),
+    about,
+    long_about = None
+)]
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
