@@ -1,4 +1,4 @@
-//! The results of an analysis: `results.json` (shape documented in the README), one CSV per
+//! The results of an analysis: `results.json` (shape documented in docs/guide/analyse.md), one CSV per
 //! section, and a Markdown summary.
 
 use crate::config::AnalysisConfig;

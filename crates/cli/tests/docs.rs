@@ -31,3 +31,50 @@ fn the_version_names_the_commit() {
     // A checkout gives a commit hash; a source tree without git says so.
     assert!(v.contains("commit ") || v.contains("commit unknown"), "{v}");
 }
+
+/// The README's shell blocks marked `<!-- runnable -->` run as written (in a scratch
+/// directory): a newcomer's first commands must work.
+#[test]
+fn the_readmes_runnable_blocks_run_as_written() {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../README.md"))
+            .unwrap();
+    let dir = common::fresh_dir("readme");
+    let mut lines = readme.lines();
+    let mut ran = 0;
+    while let Some(l) = lines.next() {
+        if l.trim() != "<!-- runnable -->" {
+            continue;
+        }
+        assert_eq!(
+            lines.next().map(str::trim),
+            Some("```sh"),
+            "a runnable block is ```sh"
+        );
+        for cmd in lines.by_ref().take_while(|l| l.trim() != "```") {
+            let cmd = cmd.split(" #").next().unwrap_or("").trim();
+            if cmd.is_empty() || cmd.starts_with('#') {
+                continue;
+            }
+            let mut words = cmd.split_whitespace();
+            assert_eq!(
+                words.next(),
+                Some("fishprobe"),
+                "not a fishprobe command: {cmd}"
+            );
+            let args: Vec<&str> = words.collect();
+            let o = std::process::Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+                .args(&args)
+                .current_dir(&dir)
+                .output()
+                .unwrap();
+            assert!(
+                o.status.success(),
+                "README command failed: {cmd}\n{}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            ran += 1;
+        }
+    }
+    assert!(ran >= 3, "only {ran} runnable commands in the README");
+}

@@ -1,6 +1,6 @@
 //! Does PPO learn? The `paper` preset trains one policy per rule-based model (seed 0) and each
 //! is evaluated on its own model against the scripted goal-seeker (18 episodes of 15 minutes,
-//! evaluation seed 0), as in the README's "Does it learn?".
+//! evaluation seed 0), as in docs/validation.md, "Does it learn?".
 //!
 //! Opt-in, about 3 minutes on 2 cores in a release build (longer while other work shares them):
 //! `cargo test --release -p fishprobe --test learns -- --ignored --nocapture`.
@@ -8,7 +8,7 @@
 //! Each policy must beat the goal-seeker (issue 4). π_Follow does so only since the `paper`
 //! preset bounds the policy's log-s.d. (`PpoConfig::log_std_max`): with RLlib's unbounded one
 //! its mean action was untrained wherever the goal lay behind the robot and it reached 95 % of
-//! the goal-seeker (README, "Does it learn?").
+//! the goal-seeker (docs/validation.md, "Does it learn?").
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 

@@ -21,7 +21,7 @@ fishprobe_sim::documented_params! {
         /// network to each batch, the advantages become noise, and π_Zone and π_Force do not
         /// learn; with 10 they do. A study whose policies did not learn would rank nothing, so
         /// the `paper` preset takes the value under which its policies learn and keeps every
-        /// other published number. The measurements: the validation record (README, "Does it
+        /// other published number. The measurements: the validation record (docs/validation.md, "Does it
         /// learn?").
         pub num_sgd_iter: usize = 10; "epochs",
         /// Adam learning rate (paper: 0.00026).
@@ -52,7 +52,7 @@ fishprobe_sim::documented_params! {
         /// mean, and the mean itself (the action used in evaluation) is left untrained there;
         /// with the bound the mean carries the turn. Above the bound the log-s.d. gets no
         /// gradient (a clamp). In a `--ppo` file, `null` (JSON) or `inf` (TOML) means no bound.
-        /// The measurements: the validation record (README, "Does it learn?").
+        /// The measurements: the validation record (docs/validation.md, "Does it learn?").
         pub log_std_max: Option<f32> = Some(0.0); "ln(normalised action units)",
         /// Hidden layers of the policy and the (separate) value network (RLlib default
         /// [256, 256], `vf_share_layers` false).

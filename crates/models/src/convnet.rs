@@ -11,7 +11,7 @@
 //!
 //! The weights shipped with fishprobe (`assets/convnet.safetensors` and its sidecar `assets/convnet.safetensors.json`)
 //! were trained by `fishprobe fit-convnet` on the shared pair recordings; the command, the data
-//! split and the validation loss are in the sidecar and in the README.
+//! split and the validation loss are in the sidecar and in docs/validation.md.
 
 use fishprobe_nn::{Activation, Conv1d, Mlp, MlpSpec, MlpWorkspace, PackedMlp};
 use fishprobe_sim::params::ConfigError;

@@ -8,7 +8,7 @@
 //! (the robot in the lab) differs between individuals and declines over a long trial. Each
 //! episode draws an individual — sociability, boldness, speed — from population distributions
 //! (`begin_episode`). The defaults were calibrated against the real pair recordings of the
-//! training split (README, "The virtual guppy").
+//! training split (docs/validation.md, "The virtual guppy").
 
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{wrap_angle, AgentState, FishMind, FishModel, FishMotion, FishView, SimRng};

@@ -96,7 +96,7 @@ impl StudyConfig {
     /// A preset: `paper` (the published protocol, with PPO's `paper` preset: 10 epochs per
     /// batch, bounded log-s.d.), `published` (the same with the published PPO settings, 100
     /// epochs and RLlib's unbounded log-s.d., whose π_Zone and π_Force do not learn in this
-    /// simulator), `quick` (the README's default: a complete study in
+    /// simulator), `quick` (the README's main command: a complete study in
     /// minutes) or `smoke` (tiny, for tests).
     pub fn preset(name: &str) -> Option<Self> {
         let paper = Self {

@@ -22,7 +22,7 @@ pub struct TrainArgs {
     #[arg(long)]
     out: PathBuf,
     /// `paper` (the published settings with 10 epochs per batch instead of 100 and the
-    /// policy's log-s.d. bounded at 0: see the README's "Does it learn?"), `published`
+    /// policy's log-s.d. bounded at 0: see docs/validation.md, "Does it learn?"), `published`
     /// (exactly the published settings, 100 epochs, RLlib's unbounded log-s.d.),
     /// `quick` (200,000 steps) or `smoke` (a few thousand steps of a small network).
     #[arg(long, default_value = "paper")]
