@@ -12,6 +12,8 @@
 //! # Ok::<(), fishprobe_analysis::AnalysisError>(())
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod approach;
 pub mod compare;
 pub mod config;

@@ -393,7 +393,7 @@ impl OfflineResults {
         s
     }
 
-    /// A Markdown table: metrics as rows, models as columns, W [CI]; the smallest per row in bold.
+    /// A Markdown table: metrics as rows, models as columns, W \[CI\]; the smallest per row in bold.
     pub fn markdown(&self) -> String {
         let models: Vec<&String> = self.gaps.keys().collect();
         let mut s = String::from("| metric |");

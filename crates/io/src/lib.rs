@@ -22,6 +22,8 @@
 //! in `tests/damaged_files.rs`) where a C parser can crash the process. Its files open in h5py
 //! (`tests/write_read.rs`). To swap it, rewrite `backend.rs`; nothing else names it.
 
+#![warn(missing_docs)]
+
 pub mod attr;
 pub mod backend;
 pub mod error;

@@ -34,6 +34,8 @@
 //! assert!((net.forward(&x, 1, &mut ws)[0] - 0.3).abs() < 1e-3);
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod act;
 pub mod adam;
 pub mod conv1d;

@@ -22,6 +22,8 @@
 //! # Ok::<(), fishprobe_onnx::OnnxError>(())
 //! ```
 
+#![warn(missing_docs)]
+
 mod net;
 mod policy;
 

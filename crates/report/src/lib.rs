@@ -29,6 +29,8 @@
 //! # Ok::<(), fishprobe_report::ReportError>(())
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod config;
 pub mod data;
 pub mod error;

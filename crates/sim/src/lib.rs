@@ -27,6 +27,8 @@
 //!
 //! Models live in `fishprobe-models`; this crate depends on nothing of ours.
 
+#![warn(missing_docs)]
+
 pub mod agent;
 pub mod checker;
 pub mod controller;

@@ -1,6 +1,6 @@
 //! Documented parameter structs and their validation.
 //!
-//! Every configuration struct of fishprobe is declared with [`documented_params!`], which
+//! Every configuration struct of fishprobe is declared with [`crate::documented_params!`], which
 //! writes the struct (serde, `deny_unknown_fields`, missing fields take their default), its
 //! `Default` (the paper's values) and a table of the fields with unit and documentation, so
 //! that `fishprobe models` and the rustdoc show the same text.

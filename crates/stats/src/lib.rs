@@ -16,6 +16,8 @@
 //! # Ok::<(), fishprobe_stats::StatsError>(())
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod cliff;
 pub mod error;
 pub mod holm;

@@ -34,6 +34,8 @@
 //! ([`StudyError`], [`StepError`]). The directory's names come from
 //! [`fishprobe_io::StudyLayout`].
 
+#![warn(missing_docs)]
+
 pub mod config;
 mod error;
 mod manifest;

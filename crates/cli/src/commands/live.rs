@@ -81,7 +81,7 @@ pub struct LabArgs {
     /// Trials to run.
     #[arg(long, default_value_t = 1)]
     trials: usize,
-    /// Output directory: trials land in OUT/<Policy>__VirtualLab/.
+    /// Output directory: trials land in `OUT/<Policy>__VirtualLab/`.
     #[arg(long)]
     out: PathBuf,
     /// Master seed (one virtual guppy per trial, drawn from the population).

@@ -49,7 +49,7 @@ pub struct Figure {
     pub svg: String,
 }
 
-/// Metric labels with units, in [`METRICS`] order.
+/// Metric labels with units, in [`fishprobe_analysis::METRICS`] order.
 pub const METRIC_LABELS: [&str; 9] = [
     "IID (cm)",
     "IID change (cm/s)",
