@@ -5,8 +5,8 @@
 //! the robot, the task, the `Env`, `FishModel` and `Controller` traits), then
 //! [`fishprobe_models`] (the candidate fish models and how one is added), [`fishprobe_io`] (trial
 //! files, the study layout, locks), [`fishprobe_learn`] (PPO, evaluation, behavioural cloning),
-//! [`fishprobe_stats`] and [`fishprobe_analysis`] (the statistics and the study's comparisons),
-//! [`fishprobe_report`], [`fishprobe_live`] (the bridge and the virtual lab), [`fishprobe_onnx`]
+//! `fishprobe_stats` and [`fishprobe_analysis`] (the statistics and the study's comparisons),
+//! [`fishprobe_report`], [`fishprobe_live`] (the bridge and the virtual lab), `fishprobe_onnx`
 //! (files users bring) and [`fishprobe_study`] (`fishprobe run`). ARCHITECTURE.md draws how they
 //! depend on each other. Every public item is documented (`#![warn(missing_docs)]` in each
 //! library, and CI denies warnings).
