@@ -79,15 +79,32 @@ pub fn approach(
         }
     }
     for (p, (d, episodes)) in per {
-        let n = d.len() as f64;
-        res.approach.insert(
-            p,
-            Approach {
-                min_iid: d.iter().map(|x| x.0).fold(f64::INFINITY, f64::min),
-                mean_iid: d.iter().map(|x| x.0).sum::<f64>() / n,
-                frac_closer_to_fish: d.iter().filter(|x| x.0 < x.1).count() as f64 / n,
-                episodes,
-            },
-        );
+        res.approach.insert(p, summary(&d, episodes));
     }
+}
+
+/// The assay's measures over all frames of all episodes: (robot-fish, robot-goal) distance
+/// per frame.
+fn summary(d: &[(f64, f64)], episodes: usize) -> Approach {
+    let n = d.len() as f64;
+    Approach {
+        min_iid: d.iter().map(|x| x.0).fold(f64::INFINITY, f64::min),
+        mean_iid: d.iter().map(|x| x.0).sum::<f64>() / n,
+        frac_closer_to_fish: d.iter().filter(|x| x.0 < x.1).count() as f64 / n,
+        episodes,
+    }
+}
+
+/// The assay's measures over the approach episodes in `files` (as `fishprobe assay approach`
+/// reports them for one policy); an unreadable file is an error naming it.
+pub fn assay_files(files: &[std::path::PathBuf], cfg: &AnalysisConfig) -> Result<Approach, String> {
+    let mut d = Vec::new();
+    for f in files {
+        let (_, e) = episode(f, cfg).map_err(|why| format!("{}: {why}", f.display()))?;
+        d.extend(e);
+    }
+    if d.is_empty() {
+        return Err("no approach episodes".into());
+    }
+    Ok(summary(&d, files.len()))
 }

@@ -320,3 +320,34 @@ fn import_legacy_converts_the_validation_split() {
         stderr(&o)
     );
 }
+
+/// `fishprobe assay approach` for one policy: the goal-seeker ignores the fish, so it is never
+/// nearer the fish than the goal, and the JSON carries every measure.
+#[test]
+fn the_approach_assay_of_one_policy() {
+    let o = fishprobe(&[
+        "assay",
+        "approach",
+        "--policy",
+        "scripted:goal-seeker",
+        "--episodes",
+        "3",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(v["episodes"], 3);
+    assert_eq!(v["fraction_nearer_fish_than_goal"], 0.0);
+    let closest = v["closest_cm"].as_f64().unwrap();
+    let mean = v["mean_distance_cm"].as_f64().unwrap();
+    assert!(closest > 20.0 && mean >= closest, "{v}");
+    let o = fishprobe(&[
+        "assay",
+        "approach",
+        "--policy",
+        "scripted:goal-seeker",
+        "--episodes",
+        "0",
+    ]);
+    assert!(!o.status.success() && stderr(&o).contains("--episodes"));
+}

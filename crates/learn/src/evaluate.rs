@@ -134,6 +134,32 @@ pub fn run_episode(
     })
 }
 
+/// The approach assay of SPEC §8 as an evaluation: the robot in a corner (-45, -45) facing the
+/// centre, a motionless fish at (-20, 20) and the goal at (20, -20), 30 cm from the walls on
+/// either side of it; `episodes` of `minutes`, files `approach_<k>.hdf5` in `out`.
+pub fn approach_assay(
+    episodes: usize,
+    minutes: f32,
+    seed: u64,
+    out: PathBuf,
+) -> Result<Evaluation, LearnError> {
+    let mut env = EnvConfig::default();
+    env.task.evaluation_goals = [[20.0, -20.0], [20.0, -20.0]];
+    Ok(Evaluation {
+        model: ModelSpec::by_name("Stationary")?,
+        env,
+        episodes,
+        minutes,
+        seed,
+        start: Some(StartPoses {
+            robot: [-45.0, -45.0, std::f32::consts::FRAC_PI_4],
+            fish: vec![[-20.0, 20.0, 0.0]],
+        }),
+        out,
+        prefix: "approach".into(),
+    })
+}
+
 /// Runs the episodes in parallel; writes the trial files and `summary.csv` into `e.out`.
 pub fn evaluate(c: &dyn Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>, LearnError> {
     let results: Vec<EpisodeResult> = (0..e.episodes)

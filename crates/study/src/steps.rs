@@ -8,8 +8,8 @@ use fishprobe_learn::{Evaluation, PolicyController, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
-use fishprobe_models::{GuppyParams, ModelSpec};
-use fishprobe_sim::{derive_seed, Controller, EnvConfig, StartPoses};
+use fishprobe_models::GuppyParams;
+use fishprobe_sim::{derive_seed, Controller, EnvConfig};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -164,21 +164,12 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         }),
         // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
         StepKind::Approach { p } => staged(&out, |tmp| {
-            let mut env = EnvConfig::default();
-            env.task.evaluation_goals = [[20.0, -20.0], [20.0, -20.0]];
-            let e = Evaluation {
-                model: ModelSpec::by_name("Stationary")?,
-                env,
-                episodes: c.approach_episodes,
-                minutes: c.approach_minutes,
-                seed: seed(&format!("approach/{}", c.models[*p].name)),
-                start: Some(StartPoses {
-                    robot: [-45.0, -45.0, std::f32::consts::FRAC_PI_4],
-                    fish: vec![[-20.0, 20.0, 0.0]],
-                }),
-                out: tmp.to_path_buf(),
-                prefix: "approach".into(),
-            };
+            let e = fishprobe_learn::approach_assay(
+                c.approach_episodes,
+                c.approach_minutes,
+                seed(&format!("approach/{}", c.models[*p].name)),
+                tmp.to_path_buf(),
+            )?;
             fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
             Ok(())
         }),

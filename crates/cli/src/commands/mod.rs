@@ -9,6 +9,7 @@ macro_rules! say {
 }
 
 mod analyze;
+mod assay;
 mod bench;
 mod compare_offline;
 mod config;
@@ -64,6 +65,8 @@ enum Command {
     Train(train::TrainArgs),
     /// Run a trained policy (or the scripted baseline) on the 15-minute evaluation task.
     Evaluate(evaluate::EvaluateArgs),
+    /// Assays of one policy's strategy: `assay approach` (does it go to the fish first?).
+    Assay(assay::AssayArgs),
     /// Export a trained policy as ONNX (observation in, turn angle out).
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
@@ -191,5 +194,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => train::run(a),
         Command::Evaluate(a) => evaluate::run(a),
         Command::Export(a) => export::run(a),
+        Command::Assay(a) => assay::run(a),
     }
 }

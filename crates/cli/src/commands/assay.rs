@@ -1,0 +1,93 @@
+//! `fishprobe assay approach`: the approach assay of SPEC §8 for one policy, so a single
+//! policy's strategy can be checked without a study (issue 20): does it go to the fish first?
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use fishprobe_analysis::approach::assay_files;
+use fishprobe_analysis::AnalysisConfig;
+use std::path::PathBuf;
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct AssayArgs {
+    #[command(subcommand)]
+    what: AssayWhat,
+}
+
+#[derive(Debug, Subcommand)]
+enum AssayWhat {
+    /// The robot in a corner, a motionless fish and the goal 30 cm from the walls on either
+    /// side: the closest and mean robot-fish distance and the fraction of frames the robot is
+    /// nearer the fish than the goal (the paper: π_Zone and π_Force approach the fish,
+    /// π_Follow does not).
+    Approach(ApproachArgs),
+}
+
+#[derive(Debug, Args)]
+struct ApproachArgs {
+    /// The policy: a directory from `fishprobe train`, `onnx:FILE` or `scripted:goal-seeker`.
+    #[arg(long)]
+    policy: String,
+    /// Episodes (SPEC choice: 10).
+    #[arg(long, default_value_t = 10)]
+    episodes: usize,
+    /// Minutes per episode (SPEC choice: 2).
+    #[arg(long, default_value_t = 2.0)]
+    minutes: f32,
+    /// Master seed of the episodes.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Keep the episodes' trial files here (default: a temporary directory, removed after).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(a: AssayArgs) -> Result<()> {
+    let AssayWhat::Approach(a) = a.what;
+    if a.episodes == 0 || a.episodes > 10_000 {
+        bail!("--episodes must lie in [1, 10000], got {}", a.episodes);
+    }
+    super::check_minutes("--minutes", f64::from(a.minutes))?;
+    let c = fishprobe_learn::controller(&a.policy, false)
+        .with_context(|| format!("loading --policy {}", a.policy))?;
+    let temporary = a.out.is_none();
+    let out = a.out.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("fishprobe-assay-{}", std::process::id()))
+    });
+    let _lock = super::lock_out(&out, "assay approach")?;
+    let e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
+    let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
+    let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
+    let r = assay_files(&files, &AnalysisConfig::default()).map_err(anyhow::Error::msg)?;
+    if temporary {
+        drop(_lock);
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    let text = if a.json {
+        serde_json::to_string_pretty(&serde_json::json!({
+            "policy": c.describe(),
+            "episodes": r.episodes,
+            "minutes": a.minutes,
+            "seed": a.seed,
+            "closest_cm": r.min_iid,
+            "mean_distance_cm": r.mean_iid,
+            "fraction_nearer_fish_than_goal": r.frac_closer_to_fish,
+        }))? + "\n"
+    } else {
+        format!(
+            "approach assay of {}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episodes of {} min, seed {})\n",
+            c.describe(),
+            r.min_iid,
+            r.mean_iid,
+            100.0 * r.frac_closer_to_fish,
+            r.episodes,
+            a.minutes,
+            a.seed
+        )
+    };
+    emit(&text)
+}
