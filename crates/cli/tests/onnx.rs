@@ -383,3 +383,31 @@ fn a_study_tests_a_candidate_model_brought_as_onnx() {
         "the trial file does not trace the fish to its file"
     );
 }
+
+/// Results do not depend on the number of threads with an ONNX fish either: 64 environments
+/// split into one or two shares (different batch sizes for the engine) train the same policy.
+#[test]
+fn training_against_an_onnx_model_does_not_depend_on_the_thread_count() {
+    let d = fresh_dir("onnx-threads");
+    let onnx = d.join("convnet.onnx");
+    ok(&["export", "--convnet", "--onnx", s(&onnx)]);
+    let model = format!("onnx:{}", s(&onnx));
+    for jobs in ["1", "2"] {
+        ok(&[
+            "train",
+            "--model",
+            &model,
+            "--preset",
+            "quick",
+            "--steps",
+            "8192",
+            "--jobs",
+            jobs,
+            "--out",
+            s(&d.join(jobs)),
+        ]);
+    }
+    let a = std::fs::read(d.join("1/policy.safetensors")).unwrap();
+    let b = std::fs::read(d.join("2/policy.safetensors")).unwrap();
+    assert!(a == b, "the policy depends on the thread count");
+}
