@@ -104,22 +104,6 @@ fn tensor(name: &str, dims: &[usize], data: &[f32]) -> Msg {
     t
 }
 
-fn value_info(name: &str, cols: usize) -> Msg {
-    let mut batch = Msg::default();
-    batch.string(2, "batch");
-    let mut width = Msg::default();
-    width.int(1, cols as i64);
-    let mut shape = Msg::default();
-    shape.msg(1, &batch).msg(1, &width);
-    let mut tensor_type = Msg::default();
-    tensor_type.int(1, FLOAT).msg(2, &shape);
-    let mut ty = Msg::default();
-    ty.msg(1, &tensor_type);
-    let mut vi = Msg::default();
-    vi.string(1, name).msg(2, &ty);
-    vi
-}
-
 fn node(op: &str, inputs: &[&str], output: &str, attr: Option<(&str, f32)>) -> Msg {
     let mut n = Msg::default();
     for i in inputs {
@@ -189,8 +173,8 @@ pub fn policy_to_onnx(policy: &GaussianPolicy) -> Result<Vec<u8>, LearnError> {
     for t in &inits {
         graph.msg(5, t);
     }
-    graph.msg(11, &value_info("obs", policy.obs_dim()));
-    graph.msg(12, &value_info("turn", 1));
+    graph.msg(11, &value_info_dims("obs", &[policy.obs_dim()]));
+    graph.msg(12, &value_info_dims("turn", &[1]));
     Ok(model_proto(&graph, &[]))
 }
 

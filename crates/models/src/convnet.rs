@@ -400,9 +400,7 @@ impl ConvNetFish {
         Self {
             dense: PackedMlp::new(&net.mlp),
             net,
-            scratch: (0..std::thread::available_parallelism().map_or(1, |n| n.get()))
-                .map(|_| Mutex::new((Vec::new(), ConvNetWorkspace::default())))
-                .collect(),
+            scratch: slots(|| (Vec::new(), ConvNetWorkspace::default())),
         }
     }
 
@@ -445,6 +443,13 @@ impl FishModel for ConvNetFish {
     ) -> FishMotion {
         sample_motion(&self.net.arch, view, inferred, mind, rng)
     }
+}
+
+/// One set of scratch buffers per core, for a batched model's concurrent `infer_batch` calls.
+pub(crate) fn slots<T>(make: impl Fn() -> T) -> Vec<Mutex<T>> {
+    (0..std::thread::available_parallelism().map_or(1, |n| n.get()))
+        .map(|_| Mutex::new(make()))
+        .collect()
 }
 
 /// The first free set of scratch buffers of a batched model, one set per concurrent

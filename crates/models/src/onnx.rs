@@ -115,9 +115,7 @@ impl OnnxFish {
             arch,
             nets: RwLock::new(nets),
             base,
-            scratch: (0..std::thread::available_parallelism().map_or(1, |n| n.get()))
-                .map(|_| Mutex::new((Vec::new(), Vec::new())))
-                .collect(),
+            scratch: crate::convnet::slots(|| (Vec::new(), Vec::new())),
         })
     }
 
