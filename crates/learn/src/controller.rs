@@ -55,12 +55,6 @@ impl PolicyController {
         );
         Ok(Self::new(policy, stochastic, name, description))
     }
-
-    /// The same policy under another short name (a study's name for its model).
-    pub fn renamed(mut self, name: String) -> Self {
-        self.name = name;
-        self
-    }
 }
 
 impl Controller for PolicyController {

@@ -425,10 +425,7 @@ impl FishModel for ConvNetFish {
         let mut guard = free_slot(&self.scratch);
         let (x, ws) = &mut *guard;
         x.resize(views.len() * len, 0.0);
-        for (v, row) in views.iter().zip(x.chunks_exact_mut(len)) {
-            let other = v.closest_other().map(|(o, _)| o);
-            encode_view(arch, &v.tank, &v.me, other, row);
-        }
+        encode_views(arch, views, x);
         self.net.features(x, views.len(), ws);
         let logits = self.dense.forward(&ws.conv_out, views.len(), &mut ws.mlp);
         fishprobe_nn::dist::softmax_rows(logits, out, arch.cells());
@@ -442,6 +439,14 @@ impl FishModel for ConvNetFish {
         rng: &mut SimRng,
     ) -> FishMotion {
         sample_motion(&self.net.arch, view, inferred, mind, rng)
+    }
+}
+
+/// The views of `views`' fish, one row of `arch.view_len()` each, into `x` (sized already).
+pub(crate) fn encode_views(arch: &ConvNetArch, views: &[FishView], x: &mut [f32]) {
+    for (v, row) in views.iter().zip(x.chunks_exact_mut(arch.view_len())) {
+        let other = v.closest_other().map(|(o, _)| o);
+        encode_view(arch, &v.tank, &v.me, other, row);
     }
 }
 

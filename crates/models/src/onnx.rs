@@ -6,7 +6,7 @@
 //! `v_max_cm_s`, `v_bins`, `omega_max_rad_s`, `omega_bins`. Inference is batched over the fish
 //! of a vector environment like M_ConvNet's.
 
-use crate::convnet::{encode_view, sample_motion, ConvNetArch};
+use crate::convnet::{encode_views, sample_motion, ConvNetArch};
 use fishprobe_onnx::{Contract, OnnxError, OnnxNet};
 use fishprobe_sim::params::ConfigError;
 use fishprobe_sim::{FishMind, FishModel, FishMotion, FishView, SimRng};
@@ -90,9 +90,12 @@ impl OnnxFish {
     /// Loads and checks the file of `p`.
     pub fn load(p: &OnnxParams) -> Result<Self, OnnxError> {
         let path = Path::new(&p.path);
+        let mut grid = None;
         let base = OnnxNet::load_with(path, 1, |meta| {
             let a = arch_from(meta)?;
-            Ok(Contract::fish(a.bins, a.cells()))
+            let contract = Contract::fish(a.bins, a.cells());
+            grid = Some(a);
+            Ok(contract)
         })?;
         if !p.sha256.is_empty() && base.sha256() != p.sha256 {
             return Err(OnnxError::Contract {
@@ -104,11 +107,7 @@ impl OnnxFish {
                 ),
             });
         }
-        let arch = arch_from(base.metadata()).map_err(|found| OnnxError::Contract {
-            path: path.to_path_buf(),
-            expected: "metadata_props fishprobe can use".into(),
-            found,
-        })?;
+        let arch = grid.expect("load_with calls contract_of before it succeeds");
         let mut nets = HashMap::new();
         nets.insert(1, Arc::new(base.clone()));
         Ok(Self {
@@ -160,10 +159,7 @@ impl FishModel for OnnxFish {
         let (x, logits) = &mut *guard;
         x.resize(views.len() * len, 0.0);
         logits.resize(views.len() * cells, 0.0);
-        for (v, row) in views.iter().zip(x.chunks_exact_mut(len)) {
-            let other = v.closest_other().map(|(o, _)| o);
-            encode_view(arch, &v.tank, &v.me, other, row);
-        }
+        encode_views(arch, views, x);
         if self.logits(x, views.len(), logits).is_err() {
             out[..views.len() * cells].fill(f32::NAN);
             return;

@@ -13,7 +13,6 @@ pub struct OnnxPolicy {
     net: OnnxNet,
     name: String,
     out: [f32; 1],
-    failed: bool,
 }
 
 impl OnnxPolicy {
@@ -27,7 +26,6 @@ impl OnnxPolicy {
             net,
             name,
             out: [0.0],
-            failed: false,
         })
     }
 
@@ -65,7 +63,6 @@ impl Controller for OnnxPolicy {
     /// bridge answers with a stop.
     fn act(&mut self, input: &ControlInput<'_>, _rng: &mut SimRng) -> f32 {
         if self.net.run(input.obs, &mut self.out).is_err() {
-            self.failed = true;
             return f32::NAN;
         }
         self.out[0]
