@@ -12,9 +12,12 @@ use crate::ppo::{adapt_kl, collect, update, Rollout, Scratch, UpdateStats};
 use fishprobe_models::ModelSpec;
 use fishprobe_nn::store::{load, save, write_atomic, Tensors};
 use fishprobe_nn::Adam;
-use fishprobe_sim::{derive_seed, stream, EnvConfig, EnvSnapshot, SimRng, TaskMode, VecEnv};
+use fishprobe_sim::{
+    derive_seed, stream, EnvConfig, EnvSnapshot, FishModel, SimRng, TaskMode, VecEnv,
+};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// What a run is: everything `params.json` records.
@@ -147,7 +150,19 @@ fn run_err(path: &Path, what: impl std::fmt::Display) -> LearnError {
 
 impl Trainer {
     /// Starts a new run in `dir` (which must not hold one).
-    pub fn create(dir: &Path, mut spec: RunSpec) -> Result<Self, LearnError> {
+    pub fn create(dir: &Path, spec: RunSpec) -> Result<Self, LearnError> {
+        let model = spec.model.build()?;
+        Self::create_with_model(dir, spec, model)
+    }
+
+    /// [`Trainer::create`] with the fish model given rather than built from `spec.model`,
+    /// which then only records what it is: a model that only its caller can build (a fish
+    /// model written in Python, `ModelSpec::Python`).
+    pub fn create_with_model(
+        dir: &Path,
+        mut spec: RunSpec,
+        model: Arc<dyn FishModel>,
+    ) -> Result<Self, LearnError> {
         spec.ppo.validate()?;
         spec.env.mode = TaskMode::Training;
         spec.env.validate()?;
@@ -157,7 +172,7 @@ impl Trainer {
                 "already holds a training run (use --resume to continue it, or another --out)",
             ));
         }
-        let mut t = Self::build(dir, spec)?;
+        let mut t = Self::build(dir, spec, model)?;
         t.venv.reset(derive_seed(t.spec.seed, "envs", 0))?;
         let params = serde_json::to_string_pretty(&t.spec).map_err(|e| run_err(dir, e))?;
         write_atomic(&dir.join("params.json"), params.as_bytes())?;
@@ -169,8 +184,7 @@ impl Trainer {
         Ok(t)
     }
 
-    fn build(dir: &Path, spec: RunSpec) -> Result<Self, LearnError> {
-        let model = spec.model.build()?;
+    fn build(dir: &Path, spec: RunSpec, model: Arc<dyn FishModel>) -> Result<Self, LearnError> {
         let venv = VecEnv::new(spec.env.clone(), model, spec.ppo.num_envs)?;
         let obs_dim = venv.obs_dim();
         let policy =
@@ -197,13 +211,32 @@ impl Trainer {
 
     /// Continues the run in `dir` from its last checkpoint (from the start when it has none).
     pub fn resume(dir: &Path) -> Result<Self, LearnError> {
+        let spec = Self::recorded_spec(dir)?;
+        let model = spec.model.build()?;
+        Self::resume_spec(dir, spec, model)
+    }
+
+    /// [`Trainer::resume`] with the fish model given (see [`Trainer::create_with_model`]).
+    pub fn resume_with_model(dir: &Path, model: Arc<dyn FishModel>) -> Result<Self, LearnError> {
+        Self::resume_spec(dir, Self::recorded_spec(dir)?, model)
+    }
+
+    /// The settings `dir`'s `params.json` records.
+    pub fn recorded_spec(dir: &Path) -> Result<RunSpec, LearnError> {
         let params = dir.join("params.json");
         let text = std::fs::read_to_string(&params)
             .map_err(|e| run_err(&params, format!("cannot resume: {e}")))?;
-        let spec: RunSpec = serde_json::from_str(&text)
-            .map_err(|e| run_err(&params, format!("not a run's parameters: {e}")))?;
+        serde_json::from_str(&text)
+            .map_err(|e| run_err(&params, format!("not a run's parameters: {e}")))
+    }
+
+    fn resume_spec(
+        dir: &Path,
+        spec: RunSpec,
+        model: Arc<dyn FishModel>,
+    ) -> Result<Self, LearnError> {
         spec.ppo.validate()?;
-        let mut t = Self::build(dir, spec)?;
+        let mut t = Self::build(dir, spec, model)?;
         match std::fs::read_to_string(dir.join("checkpoints/latest")) {
             Ok(name) => t.load_checkpoint(&dir.join("checkpoints").join(name.trim()))?,
             Err(_) => t
@@ -330,7 +363,7 @@ impl Trainer {
 
     fn about(&self) -> serde_json::Value {
         serde_json::json!({
-            "model": self.spec.model.name(),
+            "model": self.spec.model.label(),
             "seed": self.spec.seed,
             "preset": self.spec.preset,
             "iteration": self.iteration,

@@ -30,6 +30,7 @@ pub mod force;
 pub mod guppy;
 pub mod measure;
 pub mod onnx;
+pub mod python;
 pub mod stationary;
 pub mod zone;
 
@@ -38,6 +39,7 @@ pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
 pub use guppy::{Guppy, GuppyParams};
 pub use onnx::{OnnxFish, OnnxParams};
+pub use python::PythonParams;
 pub use stationary::{Stationary, StationaryParams};
 pub use zone::{Zone, ZoneConvention, ZoneParams};
 
@@ -70,6 +72,16 @@ pub enum ModelError {
     /// which cannot be cloned).
     #[error("{0}")]
     Onnx(String),
+    /// A fish model written in Python, asked for where there is no Python: only the Python
+    /// package (which holds the model object) can run it.
+    #[error(
+        "the fish model `{class}` is written in Python: only the fishprobe Python package can run it \
+         (pass the model object again, e.g. fishprobe.train(model=..., resume=True))"
+    )]
+    NeedsPython {
+        /// The model's class.
+        class: String,
+    },
 }
 
 impl From<fishprobe_onnx::OnnxError> for ModelError {
@@ -197,6 +209,8 @@ model_registry! {
     ; // Models read from a file (no defaults; not in NAMES):
     /// A candidate model brought as an ONNX file (`onnx:PATH`).
     Onnx(OnnxParams),
+    /// A fish model written in Python (run by the Python package only).
+    Python(PythonParams),
 }
 
 impl ModelSpec {
@@ -211,6 +225,9 @@ impl ModelSpec {
                 p.sha256.as_str()
             };
             return format!("ONNX file {} (sha256 {sha})", p.path);
+        }
+        if let Self::Python(p) = self {
+            return format!("Python class {}", p.class);
         }
         let (Ok(mine), Ok(Ok(default))) = (
             serde_json::to_value(self),
@@ -230,6 +247,15 @@ impl ModelSpec {
         } else {
             let names: Vec<&str> = changed.iter().map(|k| k.as_str()).collect();
             format!("built in, changed: {}", names.join(", "))
+        }
+    }
+
+    /// What to call the model in listings and policy files: its name, or for a Python model
+    /// the name it gave itself.
+    pub fn label(&self) -> String {
+        match self {
+            Self::Python(p) if !p.name.is_empty() => p.name.clone(),
+            _ => self.name().to_string(),
         }
     }
 

@@ -1,0 +1,787 @@
+//! `fishprobe._native`: the Rust half of the `fishprobe` Python package (`python/`).
+//!
+//! The Python half (`python/fishprobe/`) wraps these classes into Gymnasium's interfaces; this
+//! module only moves numbers between numpy and the simulator, trainer and file reader, and
+//! turns every error into a Python exception (`ValueError` for bad input, `TypeError` for
+//! wrong kinds of objects, `OSError` for files, `RuntimeError` for the rest). The GIL is
+//! released while Rust steps many environments or trains, so the work uses every core.
+
+// PyO3's macros expand to FFI glue that needs `unsafe`; this crate writes none itself.
+#![allow(unsafe_code)]
+
+mod fish;
+mod render;
+
+use fish::PyFish;
+use fishprobe_io::{IoError, TrialFile};
+use fishprobe_learn::{LearnError, PpoConfig, RunSpec, Trainer};
+use fishprobe_models::{ModelError, ModelSpec, PythonParams};
+use fishprobe_sim::{
+    AgentState, ControlInput, Controller, Env as _, EnvConfig, FishModel, SimError, SimRng,
+    TankEnv, TaskMode,
+};
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyOSError, PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use std::sync::Arc;
+
+/// Most environments one vector environment may hold: each is a few kilobytes, but a typo
+/// (`num_envs=10**9`) must be refused, not allocated.
+const MAX_NUM_ENVS: usize = 65_536;
+
+fn sim_err(e: SimError) -> PyErr {
+    match e {
+        SimError::NeedsReset => PyRuntimeError::new_err(e.to_string()),
+        SimError::Config(_)
+        | SimError::NonFiniteAction { .. }
+        | SimError::ActionShape { .. }
+        | SimError::ObservationShape { .. }
+        | SimError::StartPoses(_) => PyValueError::new_err(e.to_string()),
+        other => PyRuntimeError::new_err(other.to_string()),
+    }
+}
+
+fn model_err(e: ModelError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn learn_err(e: LearnError) -> PyErr {
+    match e {
+        LearnError::Config(_) => PyValueError::new_err(e.to_string()),
+        LearnError::Io(_) => PyOSError::new_err(e.to_string()),
+        other => PyRuntimeError::new_err(other.to_string()),
+    }
+}
+
+fn io_err(e: IoError) -> PyErr {
+    match e {
+        IoError::Read { .. } | IoError::Write { .. } | IoError::NotRegular { .. } => {
+            PyOSError::new_err(e.to_string())
+        }
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+/// A Python value as JSON text (dicts of settings and model specs).
+fn to_json(obj: &Bound<'_, PyAny>) -> PyResult<String> {
+    let json = obj.py().import("json")?;
+    json.call_method1("dumps", (obj,))
+        .and_then(|t| t.extract())
+        .map_err(|e: PyErr| PyTypeError::new_err(format!("not JSON-like: {e}")))
+}
+
+/// A resolved `model=` argument.
+struct Model {
+    spec: ModelSpec,
+    model: Arc<dyn FishModel>,
+    python: Option<Arc<PyFish>>,
+}
+
+impl Model {
+    /// A name (`"Zone"`, `"onnx:PATH"`), a spec dict (`{"model": "Zone", "speed_cm_s": 5}`), or
+    /// a Python object with `decide(views)`.
+    fn resolve(obj: &Bound<'_, PyAny>) -> PyResult<Self> {
+        if let Ok(name) = obj.extract::<String>() {
+            let spec = ModelSpec::by_name(&name).map_err(model_err)?;
+            return Self::from_spec(spec);
+        }
+        if obj.cast::<PyDict>().is_ok() {
+            let text = to_json(obj)?;
+            let spec: ModelSpec = serde_json::from_str(&text).map_err(|e| {
+                PyValueError::new_err(format!(
+                    "model spec {text}: {e} (a spec is {{\"model\": NAME, field: value, ...}}; fields: \
+                     `fishprobe models --model NAME`)"
+                ))
+            })?;
+            return Self::from_spec(spec);
+        }
+        let fish = Arc::new(PyFish::new(obj)?);
+        let spec = ModelSpec::Python(PythonParams {
+            class: fish.class().to_string(),
+            name: fish.name().to_string(),
+        });
+        Ok(Self {
+            spec,
+            model: fish.clone(),
+            python: Some(fish),
+        })
+    }
+
+    fn from_spec(spec: ModelSpec) -> PyResult<Self> {
+        let model = spec.build().map_err(model_err)?;
+        Ok(Self {
+            spec,
+            model,
+            python: None,
+        })
+    }
+
+    /// Raises what the Python model raised during the last step, if anything.
+    fn check(&self) -> PyResult<()> {
+        match self.python.as_ref().and_then(|f| f.take_error()) {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+}
+
+/// The environment settings: `settings` (a dict of `EnvConfig` fields, as in a settings
+/// file's `env` table; missing fields keep their defaults), then `mode` and `fish_count`.
+fn env_config(
+    settings: Option<&Bound<'_, PyAny>>,
+    mode: &str,
+    fish_count: Option<u32>,
+) -> PyResult<EnvConfig> {
+    let mut cfg = match settings {
+        Some(s) if !s.is_none() => {
+            let text = to_json(s)?;
+            serde_json::from_str::<EnvConfig>(&text)
+                .map_err(|e| PyValueError::new_err(format!("settings: {e}")))?
+        }
+        _ => EnvConfig::default(),
+    };
+    cfg.mode = match mode {
+        "training" => TaskMode::Training,
+        "evaluation" => TaskMode::Evaluation,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "mode `{other}`: use \"training\" or \"evaluation\""
+            )))
+        }
+    };
+    if let Some(n) = fish_count {
+        cfg.fish_count = n;
+    }
+    cfg.validate()
+        .map_err(|e| PyValueError::new_err(format!("settings: {e}")))?;
+    Ok(cfg)
+}
+
+fn pose(a: &AgentState) -> [f32; 3] {
+    [a.x, a.y, a.heading]
+}
+
+/// Poses of the robot and the fish, and the active goal, of `env`.
+fn state_info<'py>(py: Python<'py>, env: &TankEnv, info: &Bound<'py, PyDict>) -> PyResult<()> {
+    info.set_item(
+        "robot_pose",
+        PyArray1::from_slice(py, &pose(&env.robot().state)),
+    )?;
+    let fish: Vec<f32> = env.fish().iter().flat_map(pose).collect();
+    let n = env.fish().len();
+    info.set_item("fish_poses", PyArray1::from_vec(py, fish).reshape([n, 3])?)?;
+    info.set_item("goal", PyArray1::from_slice(py, &env.active_goal()))?;
+    info.set_item("frame", env.frame())?;
+    info.set_item("goals_total", env.summary().goal_events.len())?;
+    Ok(())
+}
+
+/// One environment: the tank, a robot, `fish_count` fish and the lead-to-goal task.
+#[pyclass(module = "fishprobe._native")]
+struct Env {
+    env: TankEnv,
+    obs: Vec<f32>,
+    model: Model,
+    spoiled: bool,
+}
+
+#[pymethods]
+impl Env {
+    #[new]
+    #[pyo3(signature = (model, mode="training", fish_count=None, settings=None))]
+    fn new(
+        model: &Bound<'_, PyAny>,
+        mode: &str,
+        fish_count: Option<u32>,
+        settings: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let cfg = env_config(settings, mode, fish_count)?;
+        let model = Model::resolve(model)?;
+        let env = TankEnv::new(cfg, model.model.clone()).map_err(sim_err)?;
+        let obs = vec![0.0; env.observation_space().dim()];
+        Ok(Self {
+            env,
+            obs,
+            model,
+            spoiled: false,
+        })
+    }
+
+    /// Observation length.
+    #[getter]
+    fn obs_dim(&self) -> usize {
+        self.obs.len()
+    }
+
+    /// Actions per episode (the time limit).
+    #[getter]
+    fn max_episode_steps(&self) -> u32 {
+        self.env.max_episode_steps()
+    }
+
+    /// The fish model's name.
+    #[getter]
+    fn model_name(&self) -> String {
+        self.model.spec.label()
+    }
+
+    /// The model spec, as JSON.
+    #[getter]
+    fn model_spec(&self) -> PyResult<String> {
+        serde_json::to_string(&self.model.spec).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// The resolved environment settings, as JSON.
+    #[getter]
+    fn settings(&self) -> PyResult<String> {
+        serde_json::to_string(self.env.config()).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+
+    /// Frame rate (Hz).
+    #[getter]
+    fn frame_rate_hz(&self) -> f32 {
+        self.env.config().frame_rate_hz
+    }
+
+    /// Starts an episode: `seed` re-seeds, `None` continues the environment's streams.
+    /// Returns the observation and the info dict.
+    #[pyo3(signature = (seed=None))]
+    fn reset<'py>(
+        &mut self,
+        py: Python<'py>,
+        seed: Option<u64>,
+    ) -> PyResult<(Bound<'py, PyArray1<f32>>, Bound<'py, PyDict>)> {
+        self.env.reset(seed, &mut self.obs).map_err(sim_err)?;
+        self.spoiled = false;
+        let info = PyDict::new(py);
+        state_info(py, &self.env, &info)?;
+        Ok((PyArray1::from_slice(py, &self.obs), info))
+    }
+
+    /// One action (a relative turn, rad). Returns (obs, reward, terminated, truncated, info).
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        action: f32,
+    ) -> PyResult<(
+        Bound<'py, PyArray1<f32>>,
+        f32,
+        bool,
+        bool,
+        Bound<'py, PyDict>,
+    )> {
+        if self.spoiled {
+            return Err(PyRuntimeError::new_err(
+                "the fish model failed during this episode: call reset() before step()",
+            ));
+        }
+        let t = self.env.step(&[action], &mut self.obs).map_err(sim_err);
+        if let Err(e) = self.model.check() {
+            self.spoiled = true;
+            return Err(e);
+        }
+        let t = t?;
+        let info = PyDict::new(py);
+        info.set_item("goals_reached", t.info.goals_reached)?;
+        info.set_item("robot_wall_contacts", t.info.robot_wall_contacts)?;
+        info.set_item("fish_wall_contacts", t.info.fish_wall_contacts)?;
+        info.set_item("robot_near_wall", t.info.robot_near_wall)?;
+        state_info(py, &self.env, &info)?;
+        Ok((
+            PyArray1::from_slice(py, &self.obs),
+            t.reward,
+            t.terminated,
+            t.truncated,
+            info,
+        ))
+    }
+
+    /// A top-down picture of the tank, `size` x `size` pixels, RGB (uint8).
+    #[pyo3(signature = (size=400))]
+    fn render<'py>(&self, py: Python<'py>, size: usize) -> PyResult<Bound<'py, PyAny>> {
+        if !(16..=4096).contains(&size) {
+            return Err(PyValueError::new_err(format!(
+                "render size {size}: must lie in [16, 4096] pixels"
+            )));
+        }
+        let img = render::tank(&self.env, size);
+        Ok(PyArray1::from_vec(py, img)
+            .reshape([size, size, 3])?
+            .into_any())
+    }
+}
+
+/// Many environments stepped together on all cores (autoreset in the same step).
+#[pyclass(module = "fishprobe._native")]
+struct VecEnv {
+    venv: fishprobe_sim::VecEnv,
+    model: Model,
+    spoiled: bool,
+    actions: Vec<f32>,
+}
+
+#[pymethods]
+impl VecEnv {
+    #[new]
+    #[pyo3(signature = (num_envs, model, mode="training", fish_count=None, settings=None))]
+    fn new(
+        num_envs: usize,
+        model: &Bound<'_, PyAny>,
+        mode: &str,
+        fish_count: Option<u32>,
+        settings: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        if !(1..=MAX_NUM_ENVS).contains(&num_envs) {
+            return Err(PyValueError::new_err(format!(
+                "num_envs = {num_envs}: must lie in [1, {MAX_NUM_ENVS}]"
+            )));
+        }
+        let cfg = env_config(settings, mode, fish_count)?;
+        let model = Model::resolve(model)?;
+        let venv =
+            fishprobe_sim::VecEnv::new(cfg, model.model.clone(), num_envs).map_err(sim_err)?;
+        Ok(Self {
+            venv,
+            model,
+            spoiled: false,
+            actions: vec![0.0; num_envs],
+        })
+    }
+
+    #[getter]
+    fn num_envs(&self) -> usize {
+        self.venv.num_envs()
+    }
+
+    #[getter]
+    fn obs_dim(&self) -> usize {
+        self.venv.obs_dim()
+    }
+
+    #[getter]
+    fn max_episode_steps(&self) -> u32 {
+        self.venv.envs()[0].max_episode_steps()
+    }
+
+    #[getter]
+    fn model_name(&self) -> String {
+        self.model.spec.label()
+    }
+
+    /// Resets every environment; environment `i` is seeded from `seed` and `i`.
+    fn reset<'py>(&mut self, py: Python<'py>, seed: u64) -> PyResult<Bound<'py, PyAny>> {
+        let venv = &mut self.venv;
+        py.detach(|| venv.reset(seed).map(|_| ()))
+            .map_err(sim_err)?;
+        self.spoiled = false;
+        let (n, d) = (self.venv.num_envs(), self.venv.obs_dim());
+        Ok(PyArray1::from_slice(py, self.venv.observations())
+            .reshape([n, d])?
+            .into_any())
+    }
+
+    /// One action per environment. Returns (obs, rewards, terminated, truncated, final_obs,
+    /// ended, goals_reached): `ended[i]` marks environments whose episode ended in this step
+    /// (their row of `obs` is the next episode's first, `final_obs` holds the last).
+    #[allow(clippy::type_complexity)]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        actions: PyReadonlyArray1<'py, f32>,
+    ) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
+        if self.spoiled {
+            return Err(PyRuntimeError::new_err(
+                "the fish model failed during this step: call reset() before step()",
+            ));
+        }
+        let a = actions.as_slice()?;
+        if a.len() != self.actions.len() {
+            return Err(PyValueError::new_err(format!(
+                "{} actions for {} environments",
+                a.len(),
+                self.actions.len()
+            )));
+        }
+        self.actions.copy_from_slice(a);
+        let (venv, acts) = (&mut self.venv, &self.actions);
+        let r = py.detach(|| venv.step(acts));
+        if let Err(e) = self.model.check() {
+            self.spoiled = true;
+            return Err(e);
+        }
+        r.map_err(sim_err)?;
+        let (n, d) = (self.venv.num_envs(), self.venv.obs_dim());
+        let tr = self.venv.transitions();
+        let rewards: Vec<f32> = tr.iter().map(|t| t.reward).collect();
+        let term: Vec<bool> = tr.iter().map(|t| t.terminated).collect();
+        let trunc: Vec<bool> = tr.iter().map(|t| t.truncated).collect();
+        let goals: Vec<u32> = tr.iter().map(|t| t.info.goals_reached).collect();
+        let ended: Vec<bool> = self
+            .venv
+            .finished_episodes()
+            .iter()
+            .map(Option::is_some)
+            .collect();
+        let obs = PyArray1::from_slice(py, self.venv.observations()).reshape([n, d])?;
+        let fin = PyArray1::from_slice(py, self.venv.final_observations()).reshape([n, d])?;
+        pyo3::types::PyTuple::new(
+            py,
+            [
+                obs.into_any(),
+                PyArray1::from_vec(py, rewards).into_any(),
+                PyArray1::from_vec(py, term).into_any(),
+                PyArray1::from_vec(py, trunc).into_any(),
+                fin.into_any(),
+                PyArray1::from_vec(py, ended).into_any(),
+                PyArray1::from_vec(py, goals).into_any(),
+            ],
+        )
+    }
+
+    /// Goals and returns of the episodes that ended in the last step: a list with, for each
+    /// environment, `None` or `(episode_return, goals, actions)`.
+    fn finished<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let items: Vec<Option<(f32, usize, u32)>> = self
+            .venv
+            .finished_episodes()
+            .iter()
+            .map(|f| {
+                f.as_ref()
+                    .map(|s| (s.episode_return, s.goal_events.len(), s.actions))
+            })
+            .collect();
+        PyList::new(py, items)
+    }
+
+    /// A picture of environment `index`, as `Env.render`.
+    #[pyo3(signature = (index=0, size=400))]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        index: usize,
+        size: usize,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let Some(env) = self.venv.envs().get(index) else {
+            return Err(PyValueError::new_err(format!(
+                "environment {index} of {}",
+                self.venv.num_envs()
+            )));
+        };
+        if !(16..=4096).contains(&size) {
+            return Err(PyValueError::new_err(format!(
+                "render size {size}: must lie in [16, 4096] pixels"
+            )));
+        }
+        Ok(PyArray1::from_vec(py, render::tank(env, size))
+            .reshape([size, size, 3])?
+            .into_any())
+    }
+}
+
+/// A trained robot policy: a policy directory (`fishprobe train`'s output) or `onnx:PATH`.
+#[pyclass(module = "fishprobe._native")]
+struct Policy {
+    ctrl: Box<dyn Controller>,
+    rng: SimRng,
+}
+
+#[pymethods]
+impl Policy {
+    #[new]
+    #[pyo3(signature = (path, stochastic=false, seed=0))]
+    fn new(path: &str, stochastic: bool, seed: u64) -> PyResult<Self> {
+        if path.starts_with("scripted:") {
+            return Err(PyValueError::new_err(format!(
+                "{path}: scripted controllers use privileged state, not observations; \
+                 Policy runs a trained policy (a directory or onnx:PATH)"
+            )));
+        }
+        let ctrl = fishprobe_learn::controller(path, stochastic).map_err(|e| match e {
+            LearnError::Io(_) => PyOSError::new_err(e.to_string()),
+            other => PyValueError::new_err(other.to_string()),
+        })?;
+        Ok(Self {
+            ctrl,
+            rng: fishprobe_sim::stream(seed, "policy", 0),
+        })
+    }
+
+    /// The policy's name (the model it was trained against).
+    #[getter]
+    fn name(&self) -> String {
+        self.ctrl.name()
+    }
+
+    /// Turns (rad) for a batch of observations, shape (n, obs_dim) -> (n,).
+    fn act<'py>(
+        &mut self,
+        py: Python<'py>,
+        obs: PyReadonlyArray2<'py, f32>,
+    ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let shape = obs.shape().to_vec();
+        let (n, d) = (shape[0], shape[1]);
+        self.ctrl
+            .check_observation(d)
+            .map_err(PyValueError::new_err)?;
+        let obs = obs.as_slice()?;
+        if let Some(i) = obs.iter().position(|v| !v.is_finite()) {
+            return Err(PyValueError::new_err(format!(
+                "observation {} holds a non-finite value at index {}",
+                i / d.max(1),
+                i % d.max(1)
+            )));
+        }
+        let mut out = Vec::with_capacity(n);
+        for row in obs.chunks(d.max(1)).take(n) {
+            let input = ControlInput {
+                obs: row,
+                robot: AgentState::default(),
+                fish: &[],
+                goal: [0.0, 0.0],
+            };
+            out.push(self.ctrl.act(&input, &mut self.rng));
+        }
+        Ok(PyArray1::from_vec(py, out))
+    }
+}
+
+/// Reads a trial file (robofish.io 1.0, or the lab's pre-2020 layout) into plain Python
+/// values and numpy arrays.
+#[pyfunction]
+fn read_trial<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Bound<'py, PyDict>> {
+    let trial = match fishprobe_io::read_trial(&path) {
+        Ok(t) => t,
+        Err(first) => match fishprobe_io::read_legacy(&path) {
+            Ok(t) => t,
+            Err(_) => return Err(io_err(first)),
+        },
+    };
+    trial_dict(py, &trial)
+}
+
+fn attrs_dict<'py>(
+    py: Python<'py>,
+    attrs: &std::collections::BTreeMap<String, fishprobe_io::Attr>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(attrs).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+fn trial_dict<'py>(py: Python<'py>, t: &TrialFile) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("frame_rate_hz", t.frame_rate_hz)?;
+    d.set_item("world_size_cm", t.world_size_cm.to_vec())?;
+    let frames = t.entities.iter().map(|e| e.frames()).max().unwrap_or(0);
+    let n = t.entities.len();
+    let mut poses = vec![f32::NAN; n * frames * 3];
+    let entities = PyList::empty(py);
+    for (i, e) in t.entities.iter().enumerate() {
+        let headings = e.headings();
+        for (f, (p, h)) in e.positions.iter().zip(&headings).enumerate() {
+            let at = (i * frames + f) * 3;
+            poses[at..at + 3].copy_from_slice(&[p[0], p[1], *h]);
+        }
+        let ed = PyDict::new(py);
+        ed.set_item("name", &e.name)?;
+        ed.set_item("category", &e.category_label)?;
+        let pos: Vec<f32> = e.positions.iter().flatten().copied().collect();
+        ed.set_item(
+            "positions",
+            PyArray1::from_vec(py, pos).reshape([e.frames(), 2])?,
+        )?;
+        let ori: Vec<f32> = e.orientations.iter().flatten().copied().collect();
+        ed.set_item(
+            "orientations",
+            PyArray1::from_vec(py, ori).reshape([e.orientations.len(), 2])?,
+        )?;
+        ed.set_item("attributes", attrs_dict(py, &e.attributes)?)?;
+        entities.append(ed)?;
+    }
+    d.set_item("entities", entities)?;
+    d.set_item(
+        "names",
+        t.entities
+            .iter()
+            .map(|e| e.name.clone())
+            .collect::<Vec<_>>(),
+    )?;
+    d.set_item(
+        "categories",
+        t.entities
+            .iter()
+            .map(|e| e.category_label.clone())
+            .collect::<Vec<_>>(),
+    )?;
+    d.set_item(
+        "poses",
+        PyArray1::from_vec(py, poses).reshape([n, frames, 3])?,
+    )?;
+    d.set_item("attributes", attrs_dict(py, &t.attributes)?)?;
+    match &t.task {
+        None => {
+            d.set_item("goals", numpy::PyArray2::<f32>::zeros(py, [0, 2], false))?;
+            d.set_item("fishprobe", py.None())?;
+        }
+        Some(task) => {
+            let g: Vec<f32> = task.goals.iter().flatten().copied().collect();
+            d.set_item(
+                "goals",
+                PyArray1::from_vec(py, g).reshape([task.goals.len(), 2])?,
+            )?;
+            let m = PyDict::new(py);
+            m.set_item("kind", task.kind.label())?;
+            m.set_item("policy", &task.policy)?;
+            m.set_item("fish_model", &task.fish_model)?;
+            m.set_item("seed", task.seed)?;
+            m.set_item("goal_radius_cm", task.goal_radius_cm)?;
+            m.set_item("active_goal", PyArray1::from_slice(py, &task.active_goal))?;
+            m.set_item("goal_frames", PyArray1::from_slice(py, &task.goal_frames))?;
+            m.set_item(
+                "command_frames",
+                PyArray1::from_slice(py, &task.command_frames),
+            )?;
+            m.set_item(
+                "command_turns",
+                PyArray1::from_slice(py, &task.command_turns),
+            )?;
+            m.set_item("control_start_frame", task.control_start_frame)?;
+            let config = if task.config_json.trim().is_empty() {
+                py.None().into_bound(py)
+            } else {
+                py.import("json")?
+                    .call_method1("loads", (task.config_json.as_str(),))
+                    .unwrap_or_else(|_| {
+                        task.config_json
+                            .clone()
+                            .into_pyobject(py)
+                            .map_or_else(|_| py.None().into_bound(py), |s| s.into_any())
+                    })
+            };
+            m.set_item("config", config)?;
+            m.set_item("program_version", &task.program_version)?;
+            d.set_item("fishprobe", m)?;
+        }
+    }
+    Ok(d)
+}
+
+/// The names of the built-in fish models.
+#[pyfunction]
+fn model_names() -> Vec<&'static str> {
+    ModelSpec::NAMES.to_vec()
+}
+
+/// Trains a PPO policy (fishprobe's own trainer) against `model` into `out`; `callback` gets
+/// each iteration's statistics as a dict. Returns the policy file's path.
+#[pyfunction]
+#[pyo3(signature = (model, out, preset="paper", seed=0, steps=None, settings=None, ppo=None, resume=false, callback=None))]
+#[allow(clippy::too_many_arguments)]
+fn train(
+    py: Python<'_>,
+    model: &Bound<'_, PyAny>,
+    out: std::path::PathBuf,
+    preset: &str,
+    seed: u64,
+    steps: Option<u64>,
+    settings: Option<&Bound<'_, PyAny>>,
+    ppo: Option<&Bound<'_, PyAny>>,
+    resume: bool,
+    callback: Option<&Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    let _lock = fishprobe_io::DirLock::acquire(&out, "fishprobe.train")
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    let resolved = Model::resolve(model)?;
+    let mut trainer = if resume && out.join("params.json").exists() {
+        let recorded = Trainer::recorded_spec(&out).map_err(learn_err)?;
+        if recorded.model.name() != resolved.spec.name()
+            || (resolved.python.is_some() && recorded.model != resolved.spec)
+        {
+            return Err(PyValueError::new_err(format!(
+                "{}: the run was begun with the fish model {} ({}); resume it with that model, not {}",
+                out.display(),
+                recorded.model.label(),
+                recorded.model.origin(),
+                resolved.spec.origin()
+            )));
+        }
+        let model = match resolved.python {
+            Some(_) => resolved.model.clone(),
+            None => recorded.model.build().map_err(model_err)?,
+        };
+        Trainer::resume_with_model(&out, model).map_err(learn_err)?
+    } else {
+        let Some(mut cfg) = PpoConfig::preset(preset) else {
+            return Err(PyValueError::new_err(format!(
+                "unknown preset `{preset}`: use paper, published, quick or smoke"
+            )));
+        };
+        if let Some(p) = ppo.filter(|p| !p.is_none()) {
+            let mut base =
+                serde_json::to_value(&cfg).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+            let over: serde_json::Value = serde_json::from_str(&to_json(p)?)
+                .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+            let (Some(b), serde_json::Value::Object(o)) = (base.as_object_mut(), over) else {
+                return Err(PyTypeError::new_err("ppo must be a dict of PPO settings"));
+            };
+            b.extend(o);
+            cfg = serde_json::from_value(base)
+                .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+        }
+        if let Some(s) = steps {
+            cfg.total_timesteps = s;
+        }
+        cfg.validate()
+            .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+        let spec = RunSpec {
+            ppo: cfg,
+            env: env_config(settings, "training", None)?,
+            model: resolved.spec.clone(),
+            seed,
+            preset: preset.to_string(),
+            program_version: env!("CARGO_PKG_VERSION").into(),
+        };
+        Trainer::create_with_model(&out, spec, resolved.model.clone()).map_err(learn_err)?
+    };
+    while !trainer.done() {
+        let t = &mut trainer;
+        let r = py.detach(|| t.iterate());
+        resolved.check()?;
+        let stats = r.map_err(learn_err)?;
+        if let Some(cb) = callback.filter(|c| !c.is_none()) {
+            let text = serde_json::to_string(&stats)
+                .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+            let d = py.import("json")?.call_method1("loads", (text,))?;
+            cb.call1((d,))?;
+        }
+        // Ctrl+C between iterations: the run resumes from its last checkpoint.
+        py.check_signals()?;
+    }
+    let path = trainer.finish().map_err(learn_err)?;
+    Ok(path.display().to_string())
+}
+
+/// Whether `path` names a directory holding a study's results.
+#[pyfunction]
+fn results_path(study: std::path::PathBuf) -> std::path::PathBuf {
+    if study.is_dir() {
+        fishprobe_io::StudyLayout::new(&study).results()
+    } else {
+        study
+    }
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Env>()?;
+    m.add_class::<VecEnv>()?;
+    m.add_class::<Policy>()?;
+    m.add_function(wrap_pyfunction!(read_trial, m)?)?;
+    m.add_function(wrap_pyfunction!(model_names, m)?)?;
+    m.add_function(wrap_pyfunction!(train, m)?)?;
+    m.add_function(wrap_pyfunction!(results_path, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("MAX_NUM_ENVS", MAX_NUM_ENVS)?;
+    Ok(())
+}

@@ -1,0 +1,64 @@
+"""fishprobe's own PPO trainer from Python."""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Any, Callable
+
+from . import _native
+
+
+def _print_progress(stats: dict) -> None:
+    print(
+        f"iteration {stats['iteration']} steps {stats['timesteps']} "
+        f"return {stats['episode_return_mean']:.3f} goals/episode {stats['goals_per_episode']:.3f} "
+        f"{stats['steps_per_s']:.0f} steps/s",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def train(
+    model: Any,
+    out: str | os.PathLike,
+    preset: str = "paper",
+    seed: int = 0,
+    steps: int | None = None,
+    settings: dict | None = None,
+    ppo: dict | None = None,
+    resume: bool = False,
+    callback: Callable[[dict], Any] | None = _print_progress,
+) -> str:
+    """Trains a robot policy against ``model`` with fishprobe's PPO, exactly as
+    ``fishprobe train`` does, and writes the same run directory to ``out`` (``params.json``,
+    ``progress.csv``, ``result.json``, ``checkpoints/``, ``policy.safetensors``).
+
+    Args:
+        model: as for :class:`fishprobe.LeadToGoalEnv`, including a Python fish model.
+        out: the run directory (one writer at a time: a second ``train`` into it is refused).
+        preset: ``"paper"``, ``"published"``, ``"quick"`` or ``"smoke"`` (see ``fishprobe train
+            --help``).
+        seed: master seed; the same seed gives the same policy.
+        steps: environment steps (overrides the preset's).
+        settings: environment settings dict (``env`` table of a settings file).
+        ppo: PPO settings overriding the preset's, by field (``{"num_sgd_iter": 10}``).
+        resume: continue the run in ``out`` from its last checkpoint (pass the same model).
+        callback: called with each iteration's statistics (a dict, as a line of
+            ``result.json``); by default a line on stderr. ``None``: silent.
+
+    Returns:
+        The path of the trained policy file. Ctrl+C stops between iterations; ``resume=True``
+        continues from the last checkpoint.
+    """
+    return _native.train(
+        model,
+        os.fspath(out),
+        preset=preset,
+        seed=int(seed),
+        steps=None if steps is None else int(steps),
+        settings=settings,
+        ppo=ppo,
+        resume=resume,
+        callback=callback,
+    )

@@ -1,0 +1,75 @@
+"""fishprobe.train: the CLI's trainer from Python, with built-in or Python fish models."""
+
+import json
+
+import numpy as np
+import pytest
+
+import fishprobe
+from fishprobe.models import Attractor
+
+
+def test_train_writes_the_same_run_as_the_cli(tmp_path, smoke_policy):
+    out = tmp_path / "zone"
+    seen = []
+    path = fishprobe.train("Zone", out, preset="smoke", seed=0, callback=seen.append)
+    assert path.endswith("policy.safetensors")
+    assert seen and seen[-1]["timesteps"] >= 4096
+    for name in ("params.json", "progress.csv", "result.json", "policy.safetensors"):
+        assert (out / name).exists(), name
+    # Same seed, same settings: the same policy, byte for byte, as `fishprobe train`.
+    assert (out / "policy.safetensors").read_bytes() == (
+        smoke_policy / "policy.safetensors"
+    ).read_bytes()
+
+
+def test_train_against_a_python_model_and_resume(tmp_path):
+    out = tmp_path / "attractor"
+    fishprobe.train(Attractor(), out, preset="smoke", seed=1, steps=2048, callback=None)
+    params = json.loads((out / "params.json").read_text())
+    assert params["model"] == {
+        "model": "Python", "class": "fishprobe.models.Attractor", "name": "Attractor"}
+    p = fishprobe.Policy(out)
+    assert p.name == "Attractor"
+    assert p.act(np.zeros(180, np.float32)).shape == (1,)
+    # A finished run resumes to the same end; with another model it is refused.
+    fishprobe.train(Attractor(), out, resume=True, callback=None)
+    with pytest.raises(ValueError, match="Attractor"):
+        fishprobe.train("Zone", out, resume=True, callback=None)
+
+
+def test_interrupted_training_resumes_where_it_stopped(tmp_path):
+    class Stop(Exception):
+        pass
+
+    def stop_after_two(stats):
+        if stats["iteration"] == 2:
+            raise Stop
+
+    out = tmp_path / "run"
+    with pytest.raises(Stop):
+        fishprobe.train("Follow", out, preset="smoke", seed=2, callback=stop_after_two)
+    fishprobe.train("Follow", out, preset="smoke", resume=True, callback=None)
+    whole = tmp_path / "whole"
+    fishprobe.train("Follow", whole, preset="smoke", seed=2, callback=None)
+    assert (out / "policy.safetensors").read_bytes() == (whole / "policy.safetensors").read_bytes()
+
+
+def test_bad_training_arguments(tmp_path):
+    with pytest.raises(ValueError, match="preset"):
+        fishprobe.train("Zone", tmp_path / "a", preset="turbo")
+    with pytest.raises(ValueError, match="num_sgd_iter|ppo"):
+        fishprobe.train("Zone", tmp_path / "b", preset="smoke", ppo={"num_sgd_iter": -1})
+    with pytest.raises(ValueError, match="bogus"):
+        fishprobe.train("Zone", tmp_path / "c", preset="smoke", ppo={"bogus": 1})
+    with pytest.raises(ValueError, match="Zonk"):
+        fishprobe.train("Zonk", tmp_path / "d")
+
+
+def test_a_python_model_that_fails_during_training(tmp_path):
+    class Bad(fishprobe.FishModel):
+        def decide(self, views):
+            raise ZeroDivisionError("oops")
+
+    with pytest.raises(RuntimeError, match="oops"):
+        fishprobe.train(Bad(), tmp_path / "bad", preset="smoke", callback=None)
