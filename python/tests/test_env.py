@@ -157,3 +157,14 @@ def test_unknown_models_and_bad_settings_name_the_problem(tmp_path):
 def test_reset_options_are_refused():
     with pytest.raises(ValueError, match="options"):
         fishprobe.LeadToGoalEnv(model="Zone").reset(seed=0, options={"x": 1})
+
+
+def test_render_collection_gathers_one_frame_per_step():
+    env = gym.wrappers.RenderCollection(
+        fishprobe.LeadToGoalEnv(model="Zone", render_mode="rgb_array", render_size=64))
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    frames = env.render()
+    assert len(frames) == 4 and all(f.shape == (64, 64, 3) for f in frames)
+    assert not np.array_equal(frames[0], frames[-1])  # the agents moved

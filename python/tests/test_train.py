@@ -73,3 +73,18 @@ def test_a_python_model_that_fails_during_training(tmp_path):
 
     with pytest.raises(RuntimeError, match="oops"):
         fishprobe.train(Bad(), tmp_path / "bad", preset="smoke", callback=None)
+
+
+def test_a_second_writer_is_refused(tmp_path):
+    """One writer per run directory: while another process (here: this test, through the same
+    OS lock fishprobe takes) holds the directory, train refuses at once and writes nothing."""
+    fcntl = pytest.importorskip("fcntl")
+    out = tmp_path / "busy"
+    out.mkdir()
+    with open(out / ".fishprobe.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(RuntimeError, match="busy"):
+            fishprobe.train("Zone", out, preset="smoke", callback=None)
+    assert not (out / "params.json").exists()
+    fishprobe.train("Zone", out, preset="smoke", steps=1024, callback=None)
+    assert (out / "policy.safetensors").exists()

@@ -129,3 +129,13 @@ def test_numpy_reinforce_through_the_sb3_adapter():
     assert np.isfinite(w).all() and dones_seen
     assert v.env_is_wrapped(object) == [False] * 8
     assert v.get_attr("model_name") == ["Zone"] * 8
+
+
+def test_gymnasium_make_vec_uses_the_rust_vector_env():
+    import gymnasium as gym
+
+    v = gym.make_vec("fishprobe/LeadToGoal-v0", num_envs=4,
+                     vectorization_mode="vector_entry_point", model="Force")
+    assert isinstance(v, fishprobe.VectorEnv) and v.model_name == "Force"
+    obs, _ = v.reset(seed=0)
+    assert obs.shape == (4, 180)
