@@ -108,7 +108,7 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
             *e |= metrics;
         }
     }
-    for seeds in study.stability.values() {
+    for seeds in study.stability.values().chain(study.baselines.values()) {
         for f in seeds.values().flatten() {
             jobs.entry(f.clone()).or_insert(false);
         }
@@ -166,6 +166,7 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
     sim_to_sim(&mut res, study, &policies, &loaded, &mut skipped, cfg, seed);
     stability(&mut res, study, &loaded, &mut skipped, cfg, seed);
     crate::approach::approach(&mut res, study, &mut skipped, cfg);
+    crate::competence::competence(&mut res, study, &policies, &loaded, &mut skipped, cfg);
     skipped.sort_by(|a, b| a.what.cmp(&b.what));
     skipped.dedup();
     res.skipped = skipped;

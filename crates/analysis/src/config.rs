@@ -32,6 +32,10 @@ fishprobe_sim::documented_params! {
         /// Approach assay: the goal's position when a file does not record it (choice:
         /// (20, -20), see SPEC §8).
         pub approach_goal: [f32; 2] = [20.0, -20.0]; "cm",
+        /// Probe competence: a policy reaching fewer goals on its own model than this
+        /// fraction of the best scripted controller's is flagged as a weak probe, whose
+        /// strategy reflects the optimiser as much as the model (choice, issue 20: 0.8).
+        pub competence_threshold: f64 = 0.8; "1",
     }
 }
 

@@ -16,6 +16,7 @@
 
 pub mod approach;
 pub mod compare;
+pub mod competence;
 pub mod config;
 pub mod error;
 pub mod offline;

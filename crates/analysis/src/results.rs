@@ -179,6 +179,27 @@ pub struct TimeToGoal {
     pub real: Option<MeanSd>,
 }
 
+/// How well a policy leads its own model's fish, next to the scripted controllers on the same
+/// evaluation episodes (issue 20).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Competence {
+    /// Mean goals per evaluation episode of the policy on its own model.
+    pub policy_goals: f64,
+    /// Episodes behind that mean.
+    pub trials: usize,
+    /// Mean goals of each scripted controller on the same episodes.
+    pub baselines: BTreeMap<String, f64>,
+    /// The best scripted controller.
+    pub best: String,
+    /// Its mean goals.
+    pub best_goals: f64,
+    /// `policy_goals / best_goals` (NaN, written null, when the best reaches none).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub ratio: f64,
+    /// Below `AnalysisConfig::competence_threshold`: a weak probe.
+    pub weak: bool,
+}
+
 /// The approach assay of one policy.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Approach {
@@ -259,6 +280,9 @@ pub struct Results {
     /// Policy → approach assay.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub approach: BTreeMap<String, Approach>,
+    /// Policy → probe competence (its goals next to the scripted controllers').
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub competence: BTreeMap<String, Competence>,
     /// Retraining stability.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stability: Option<StabilityOut>,
@@ -303,6 +327,40 @@ impl Results {
     /// One CSV table per present section: (file name, contents).
     pub fn csv_tables(&self) -> Vec<(&'static str, String)> {
         let mut out = Vec::new();
+        if !self.competence.is_empty() {
+            let rows = self
+                .competence
+                .iter()
+                .flat_map(|(p, c)| {
+                    c.baselines.iter().map(move |(b, g)| {
+                        vec![
+                            p.clone(),
+                            c.policy_goals.to_string(),
+                            b.clone(),
+                            g.to_string(),
+                            (c.policy_goals / g).to_string(),
+                            (b == &c.best).to_string(),
+                            c.weak.to_string(),
+                        ]
+                    })
+                })
+                .collect();
+            out.push((
+                "competence.csv",
+                table(
+                    &[
+                        "policy",
+                        "policy_goals",
+                        "baseline",
+                        "baseline_goals",
+                        "ratio",
+                        "best",
+                        "weak",
+                    ],
+                    rows,
+                ),
+            ));
+        }
         if !self.goals.is_empty() {
             let rows = self
                 .goals
@@ -572,6 +630,39 @@ impl Results {
                     g.p,
                     g.cliffs_delta,
                     g.magnitude
+                );
+            }
+            s.push('\n');
+        }
+        if !self.competence.is_empty() {
+            s += "## Probe competence: goals on the own model, next to the best scripted controller\n\n| policy | goals | best scripted | its goals | ratio |\n|---|---|---|---|---|\n";
+            for (p, c) in &self.competence {
+                s += &format!(
+                    "| {p} | {:.1} | {} | {:.1} | {:.2}{} |\n",
+                    c.policy_goals,
+                    c.best,
+                    c.best_goals,
+                    c.ratio,
+                    if c.weak { " **weak**" } else { "" }
+                );
+            }
+            let weak: Vec<&str> = self
+                .competence
+                .iter()
+                .filter(|(_, c)| c.weak)
+                .map(|(p, _)| p.as_str())
+                .collect();
+            if !weak.is_empty() {
+                s += &format!(
+                    "\n**Warning:** {} reach{} less than {:.0} % of the best scripted controller's goals on \
+                     {} own model: {} strateg{} reflect{} the optimiser, not only the model.\n",
+                    weak.join(", "),
+                    if weak.len() == 1 { "es" } else { "" },
+                    100.0 * self.config.competence_threshold,
+                    if weak.len() == 1 { "its" } else { "their" },
+                    if weak.len() == 1 { "its" } else { "their" },
+                    if weak.len() == 1 { "y" } else { "ies" },
+                    if weak.len() == 1 { "s" } else { "" },
                 );
             }
             s.push('\n');

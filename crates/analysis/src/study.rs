@@ -28,6 +28,8 @@ pub struct StudyFiles {
     pub approach: BTreeMap<String, Vec<PathBuf>>,
     /// Retraining stability: model → seed → files.
     pub stability: BTreeMap<String, BTreeMap<String, Vec<PathBuf>>>,
+    /// Scripted baselines: model → controller → files (on the model's own evaluation episodes).
+    pub baselines: BTreeMap<String, BTreeMap<String, Vec<PathBuf>>>,
 }
 
 fn subdirs(dir: &Path) -> Vec<PathBuf> {
@@ -87,6 +89,16 @@ impl StudyFiles {
                     .map(|d| (name_of(&d), trial_files(&d)))
                     .collect();
                 s.stability.insert(name_of(&m), seeds);
+            }
+        }
+        let baselines = layout.baselines_root();
+        if baselines.is_dir() {
+            for m in subdirs(&baselines) {
+                let by: BTreeMap<String, Vec<PathBuf>> = subdirs(&m)
+                    .into_iter()
+                    .map(|d| (name_of(&d), trial_files(&d)))
+                    .collect();
+                s.baselines.insert(name_of(&m), by);
             }
         }
         if s.rollouts.is_empty() && s.approach.is_empty() && s.stability.is_empty() {

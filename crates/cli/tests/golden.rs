@@ -19,14 +19,17 @@ use std::path::{Path, PathBuf};
 /// Digest of the smoke study (fishprobe 0.1.0, x86-64 with AVX2 and FMA). History: 28e3bb4d…
 /// from commit 6638720 through issues 21 and 25 (refactors, bit-identical); then changed on
 /// purpose when NB2 trends at the dispersion boundary (α = 0) took statsmodels' small-sample
-/// factor (K counts α): only `temporal` entries with α = 0 changed (their CI and p).
-const GOLDEN: &str = "b4735a37fccf5bad";
+/// factor (K counts α): only `temporal` entries with α = 0 changed (their CI and p); then
+/// b4735a37… until the scripted baselines joined every study (issue 20: `baselines/` trial
+/// files and `competence` in results.json; every rollout file unchanged, checked by sha256).
+const GOLDEN: &str = "f4786dd46f3b448d";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
 /// after the NB2 change (the temporal table's intervals and p-values); then the table of
-/// candidate models with their origin was added to "What was run" (issue 18).
-const GOLDEN_REPORT: &str = "dc5c7f10162d2ee3";
+/// candidate models with their origin was added to "What was run" (issue 18); dc5c7f10… until
+/// the "Probe competence" section and summary table (issue 20).
+const GOLDEN_REPORT: &str = "dcd6df67f3d8642d";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {

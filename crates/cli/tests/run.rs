@@ -44,14 +44,26 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     assert_eq!(r["reality"], "VirtualLab");
     assert_eq!(r["sim_to_sim"].as_object().unwrap().len(), 4);
     assert!(r["stability"]["r"].is_number());
+    // Every policy's competence: its goals next to both scripted controllers' on its episodes.
+    for p in ["Follow", "Zone", "Force", "ConvNet"] {
+        let c = &r["competence"][p];
+        assert_eq!(c["baselines"].as_object().unwrap().len(), 2, "{c}");
+        assert!(
+            c["policy_goals"].is_number() && c["weak"].is_boolean(),
+            "{c}"
+        );
+        assert!(a.join(format!("baselines/{p}/FetchAndLead")).is_dir());
+    }
+    assert!(a.join("analysis/competence.csv").is_file());
     let html = std::fs::read_to_string(a.join("report/index.html")).unwrap();
     assert!(html.contains("id=\"virtual\""));
+    assert!(html.contains("id=\"competence\""));
     // A rerun finds everything complete and changes nothing.
     let before = results(&a);
     let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
-        stderr(&o).contains("42 steps, 42 complete"),
+        stderr(&o).contains("46 steps, 46 complete"),
         "{}",
         stderr(&o)
     );
@@ -71,7 +83,7 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let err = stderr(&o);
-    assert!(!err.contains("42 steps, 42 complete"), "{err}");
+    assert!(!err.contains("46 steps, 46 complete"), "{err}");
     assert!(lost.is_file(), "the lost trial was not redone");
     assert!(!stranger.exists(), "the stranger is still there");
     assert_eq!(

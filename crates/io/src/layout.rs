@@ -10,6 +10,7 @@
 //! STUDY/rollouts/<Policy>__<Model>/             evaluation episodes (an "arm")
 //! STUDY/rollouts/<Policy>__Real/                live trials;  <Policy>__VirtualLab/: virtual lab
 //! STUDY/approach_test/<Policy>/                 approach-assay episodes
+//! STUDY/baselines/<Model>/<Controller>/         scripted baselines on the model's own episodes
 //! STUDY/stability/<Model>/seed<k>/              stability episodes
 //! STUDY/analysis/results.json, STUDY/report/    results and report
 //! STUDY/logs/<step>.log                         one log per step
@@ -71,9 +72,10 @@ pub const REALITY_ARMS: [&str; 2] = [REAL, VIRTUAL_LAB];
 pub const ARM_SEPARATOR: &str = "__";
 
 /// The top-level directories that hold the outputs of study steps.
-pub const STEP_OUTPUT_DIRS: [&str; 5] = [
+pub const STEP_OUTPUT_DIRS: [&str; 6] = [
     "rollouts",
     "approach_test",
+    "baselines",
     "policies",
     "policies_stability",
     "stability",
@@ -164,6 +166,17 @@ impl StudyLayout {
     /// `approach_test/<policy>/`.
     pub fn approach(&self, policy: &str) -> PathBuf {
         self.approach_root().join(policy)
+    }
+
+    /// `baselines/`.
+    pub fn baselines_root(&self) -> PathBuf {
+        self.root.join("baselines")
+    }
+
+    /// `baselines/<model>/`: the scripted controllers (one directory each, named by the
+    /// controller) on the evaluation episodes of `model`'s own policy.
+    pub fn baselines(&self, model: &str) -> PathBuf {
+        self.baselines_root().join(model)
     }
 
     /// `stability/`.
@@ -267,6 +280,7 @@ mod tests {
             p("S/rollouts/Zone__VirtualLab")
         );
         assert_eq!(s.approach("Zone"), p("S/approach_test/Zone"));
+        assert_eq!(s.baselines("Zone"), p("S/baselines/Zone"));
         assert_eq!(s.stability("Force", 2), p("S/stability/Force/seed2"));
         assert_eq!(s.policy("Force", 0), p("S/policies/Force"));
         assert_eq!(s.policy("Force", 3), p("S/policies_stability/Force/seed3"));

@@ -3,7 +3,7 @@
 use crate::error::LearnError;
 use crate::policy::{to_env_action, GaussianPolicy};
 use fishprobe_nn::MlpWorkspace;
-use fishprobe_sim::{ControlInput, Controller, GoalSeeker, SimRng};
+use fishprobe_sim::{ControlInput, Controller, SimRng};
 use rand_distr::{Distribution, StandardNormal};
 use std::path::Path;
 
@@ -84,10 +84,18 @@ impl Controller for PolicyController {
 
 /// A controller from a `--policy` argument: a policy directory (`fishprobe train`'s output),
 /// `onnx:PATH` (an ONNX file of the policy contract, `docs/onnx-models.md`; always its
-/// deterministic output, so `stochastic` does not apply), or `scripted:goal-seeker`.
+/// deterministic output, so `stochastic` does not apply), or a scripted baseline
+/// (`scripted:goal-seeker`, `scripted:fetch-and-lead`).
 pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, LearnError> {
-    if arg == "scripted:goal-seeker" {
-        return Ok(Box::new(GoalSeeker));
+    if let Some(name) = arg.strip_prefix("scripted:") {
+        return fishprobe_sim::scripted(name).ok_or_else(|| {
+            LearnError::Policy(format!(
+                "unknown scripted controller `{arg}`: use {}",
+                fishprobe_sim::SCRIPTED
+                    .map(|n| format!("scripted:{n}"))
+                    .join(" or ")
+            ))
+        });
     }
     if let Some(path) = arg.strip_prefix("onnx:") {
         return Ok(Box::new(fishprobe_onnx::OnnxPolicy::load(Path::new(path))?));

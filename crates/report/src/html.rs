@@ -137,6 +137,7 @@ impl Page<'_> {
         self.sim_to_sim(&mut o);
         self.temporal(&mut o);
         self.time_to_goal(&mut o);
+        self.competence(&mut o);
         self.approach(&mut o);
         self.stability(&mut o);
         self.drawings(&mut o);
@@ -194,7 +195,7 @@ impl Page<'_> {
              <li><a href=\"#missing\">Missing parts</a></li><li><a href=\"#sim-to-real\">Sim-to-real gap</a></li>\
              <li><a href=\"#metrics\">Per-metric gaps</a></li><li><a href=\"#sim-to-sim\">Sim-to-sim</a></li>\
              <li><a href=\"#temporal\">Goals over time</a></li><li><a href=\"#time-to-goal\">Time to goal</a></li>\
-             <li><a href=\"#approach\">Approach assay</a></li><li><a href=\"#stability\">Retraining stability</a></li>\
+             <li><a href=\"#competence\">Probe competence</a></li><li><a href=\"#approach\">Approach assay</a></li><li><a href=\"#stability\">Retraining stability</a></li>\
              <li><a href=\"#iid\">Robot-fish distance</a></li><li><a href=\"#trajectories\">Trajectories</a></li>\
              <li><a href=\"#training\">Training</a></li><li><a href=\"#files\">Data files</a></li></ul></nav>\n",
         );
@@ -579,6 +580,51 @@ impl Page<'_> {
         } else {
             o.push_str("<p class=\"missing\">Needs <code>fishprobe analyze</code>.</p>\n");
         }
+    }
+
+    /// Probe competence: each policy's goals on its own model next to the scripted
+    /// controllers' on the same episodes.
+    fn competence(&self, o: &mut String) {
+        let Some(c) = self
+            .data
+            .results
+            .as_ref()
+            .map(|r| (&r.competence, r.config.competence_threshold))
+            .filter(|(c, _)| !c.is_empty())
+        else {
+            return;
+        };
+        let (c, threshold) = c;
+        o.push_str("<h2 id=\"competence\">Probe competence</h2>\n<p>Goals per evaluation episode of each policy on its own model, next to fishprobe's scripted controllers on the same episodes (<code>baselines/</code>): <i>GoalSeeker</i> drives to the goal, <i>FetchAndLead</i> fetches the fish and keeps ahead of it on its line to the goal. A policy below ");
+        let _ = write!(o, "{:.0} %", 100.0 * threshold);
+        o.push_str(" of the best is marked weak: it has not found what its model allows, and its strategy (approach assay, sim-to-sim) reflects the optimiser as much as the model.</p>\n");
+        let names: Vec<&String> = c
+            .values()
+            .flat_map(|x| x.baselines.keys())
+            .collect::<std::collections::BTreeSet<_>>()
+            .into_iter()
+            .collect();
+        let rows: Vec<Vec<String>> = c
+            .iter()
+            .map(|(p, v)| {
+                let mut row = vec![format!("π_{p}"), f(v.policy_goals, 1)];
+                row.extend(
+                    names
+                        .iter()
+                        .map(|n| v.baselines.get(*n).map_or("–".into(), |g| f(*g, 1))),
+                );
+                row.push(format!(
+                    "{}{}",
+                    f(v.ratio, 2),
+                    if v.weak { " (weak)" } else { "" }
+                ));
+                row
+            })
+            .collect();
+        let mut header = vec!["policy", "goals"];
+        header.extend(names.iter().map(|n| n.as_str()));
+        header.push("ratio to best");
+        table(o, &header, &rows);
     }
 
     /// The approach assay.

@@ -95,10 +95,132 @@ impl Controller for GoalSeeker {
     }
 }
 
+crate::documented_params! {
+    /// The fetch-and-lead baseline's settings: go to the fish, then keep ahead of it on its
+    /// line to the goal, so that a fish that follows the robot is led there.
+    pub struct FetchParams {
+        /// Beyond this robot-fish distance the robot goes to fetch the fish (choice: 25 cm,
+        /// about where M_Zone's and M_Force's attraction fades).
+        pub fetch_radius_cm: f32 = 25.0; "cm",
+        /// Within it, the robot heads for the point this far ahead of the fish on the fish's
+        /// line to the goal (choice: 15 cm, the middle of the 10-20 cm that led M_Zone and
+        /// M_Force best in a scan).
+        pub lead_distance_cm: f32 = 15.0; "cm",
+    }
+}
+
+impl FetchParams {
+    /// Checks both distances.
+    pub fn validate(&self, prefix: &str) -> Result<(), crate::params::ConfigError> {
+        crate::params::check::positive(prefix, "fetch_radius_cm", self.fetch_radius_cm)?;
+        crate::params::check::positive(prefix, "lead_distance_cm", self.lead_distance_cm)
+    }
+}
+
+/// The scripted baseline that leads: each second, if the fish (the centroid of the fish) is
+/// farther than `fetch_radius_cm`, turn toward it; otherwise turn toward the point
+/// `lead_distance_cm` ahead of it on its line to the active goal. A probe policy that leads its
+/// model's fish worse than this has not found what its model allows (issue 20).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FetchAndLead {
+    /// Its settings.
+    pub params: FetchParams,
+}
+
+impl Controller for FetchAndLead {
+    fn name(&self) -> String {
+        "FetchAndLead".into()
+    }
+
+    fn describe(&self) -> String {
+        "scripted:fetch-and-lead".into()
+    }
+
+    fn act(&mut self, input: &ControlInput<'_>, _rng: &mut SimRng) -> f32 {
+        let r = input.robot;
+        let n = input.fish.len();
+        if n == 0 {
+            return GoalSeeker.act(input, _rng);
+        }
+        let (fx, fy) = input
+            .fish
+            .iter()
+            .fold((0.0, 0.0), |(x, y), f| (x + f.x, y + f.y));
+        let (fx, fy) = (fx / n as f32, fy / n as f32);
+        let p = &self.params;
+        let (tx, ty) = if (fx - r.x).hypot(fy - r.y) > p.fetch_radius_cm {
+            (fx, fy)
+        } else {
+            let (gx, gy) = (input.goal[0] - fx, input.goal[1] - fy);
+            let d = gx.hypot(gy).max(1e-6);
+            (
+                fx + p.lead_distance_cm * gx / d,
+                fy + p.lead_distance_cm * gy / d,
+            )
+        };
+        wrap_angle((ty - r.y).atan2(tx - r.x) - r.heading)
+    }
+}
+
+/// The scripted controllers every study runs as baselines, by their `scripted:` names.
+pub const SCRIPTED: [&str; 2] = ["goal-seeker", "fetch-and-lead"];
+
+/// A scripted controller by its name after `scripted:` (`goal-seeker`, `fetch-and-lead`).
+pub fn scripted(name: &str) -> Option<Box<dyn Controller>> {
+    match name {
+        "goal-seeker" => Some(Box::new(GoalSeeker)),
+        "fetch-and-lead" => Some(Box::new(FetchAndLead::default())),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::rng::stream;
+
+    #[test]
+    fn fetch_and_lead_fetches_a_far_fish_then_leads_it_toward_the_goal() {
+        let mut rng = stream(0, "t", 0);
+        let mut c = FetchAndLead::default();
+        let pi = std::f32::consts::PI;
+        let fish = [AgentState::at(0.0, 40.0, 0.0)];
+        // Far (40 cm): straight at the fish, which is to the robot's left.
+        let input = ControlInput {
+            obs: &[],
+            robot: AgentState::at(0.0, 0.0, 0.0),
+            fish: &fish,
+            goal: [30.0, 40.0],
+        };
+        assert!((c.act(&input, &mut rng) - pi / 2.0).abs() < 1e-6);
+        // Near (10 cm): toward the point 15 cm beyond the fish on its line to the goal,
+        // (15, 40) from the robot at (0, 25): 45° to the left.
+        let input = ControlInput {
+            robot: AgentState::at(0.0, 25.0, 0.0),
+            ..input
+        };
+        assert!((c.act(&input, &mut rng) - pi / 4.0).abs() < 1e-5);
+        // Without fish it seeks the goal; its names are the scripted ones.
+        let alone = ControlInput { fish: &[], ..input };
+        assert_eq!(c.act(&alone, &mut rng), GoalSeeker.act(&alone, &mut rng));
+        assert_eq!(c.describe(), "scripted:fetch-and-lead");
+        for name in SCRIPTED {
+            assert_eq!(
+                scripted(name).unwrap().describe(),
+                format!("scripted:{name}")
+            );
+        }
+        assert!(scripted("dance").is_none());
+        let bad = FetchParams {
+            lead_distance_cm: 0.0,
+            ..FetchParams::default()
+        };
+        assert!(bad
+            .validate("fetch")
+            .unwrap_err()
+            .to_string()
+            .contains("lead_distance_cm"));
+    }
 
     #[test]
     fn the_goal_seeker_turns_toward_the_goal_from_any_heading() {

@@ -47,7 +47,10 @@ pub mod vector;
 
 pub use agent::AgentState;
 pub use checker::{check_env, CheckFailure, CheckReport};
-pub use controller::{ControlInput, Controller, ControllerClone, GoalSeeker};
+pub use controller::{
+    scripted, ControlInput, Controller, ControllerClone, FetchAndLead, FetchParams, GoalSeeker,
+    SCRIPTED,
+};
 pub use env::{
     BoxSpace, Env, EnvConfig, EnvSnapshot, EpisodeSummary, RecordedCommand, StartPoses, StepInfo,
     TankEnv, Trajectory, Transition,

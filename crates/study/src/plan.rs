@@ -23,6 +23,12 @@ pub enum StepKind {
         /// Rollout model index.
         m: usize,
     },
+    /// The scripted baselines on the evaluation episodes of model `m`'s own policy (probe
+    /// competence, issue 20).
+    Baseline {
+        /// Model index.
+        m: usize,
+    },
     /// The approach assay of policy `p`.
     Approach {
         /// Policy index.
@@ -67,6 +73,7 @@ impl StepKind {
             StepKind::Train { m, k } => format!("train-{}-{k}", study.name(*m)),
             StepKind::Eval { p, m } => format!("eval-{}__{}", study.name(*p), study.name(*m)),
             StepKind::Approach { p } => format!("approach-{}", study.name(*p)),
+            StepKind::Baseline { m } => format!("baseline-{}", study.name(*m)),
             StepKind::Stability { m, k } => format!("stability-{}-{k}", study.name(*m)),
             StepKind::Reality { p } => format!("reality-{}", study.name(*p)),
             StepKind::Analyze => "analyze".into(),
@@ -113,6 +120,13 @@ impl StepKind {
                 serde_json::json!({"eval": [study.name(*p), model(*m)], "seed": c.seed,
                 "episodes": study.eval_episodes(*p, *m), "minutes": c.episode_minutes})
             }
+            // Same seed and episodes as the model's own evaluation, so that policy and
+            // baselines face the same fish starts.
+            StepKind::Baseline { m } => {
+                serde_json::json!({"baseline": model(*m), "controllers": fishprobe_sim::SCRIPTED,
+                "fetch": fishprobe_sim::FetchParams::default(), "seed": c.seed,
+                "episodes": study.eval_episodes(*m, *m), "minutes": c.episode_minutes})
+            }
             StepKind::Approach { p } => {
                 serde_json::json!({"approach": study.name(*p), "seed": c.seed,
                 "episodes": c.approach_episodes, "minutes": c.approach_minutes})
@@ -144,6 +158,7 @@ impl StepKind {
             StepKind::Train { m, k } => l.policy(study.name(*m), *k),
             StepKind::Eval { p, m } => l.arm(study.name(*p), &sim(*m)),
             StepKind::Approach { p } => l.approach(study.name(*p)),
+            StepKind::Baseline { m } => l.baselines(study.name(*m)),
             StepKind::Stability { m, k } => l.stability(study.name(*m), *k),
             StepKind::Reality { p } => l.arm(study.name(*p), &study.reality_arm()),
             StepKind::Analyze => l.analysis(),
@@ -216,6 +231,7 @@ impl Study {
                 deps.extend(needs_fit(m));
                 for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps));
             }
+            for_analysis.push(add(StepKind::Baseline { m: p }, needs_fit(p), &mut steps));
             for_analysis.push(add(StepKind::Approach { p }, policy.clone(), &mut steps));
             for_analysis.push(add(StepKind::Reality { p }, policy, &mut steps));
         }
@@ -243,8 +259,9 @@ mod tests {
         let cfg = StudyConfig::preset("smoke").unwrap();
         let s = Study::new("/tmp/x".into(), cfg.clone(), None).unwrap();
         let plan = s.plan();
-        // 4 models x 2 seeds trainings, 16 evals, 4 approach, 4 reality, 8 stability, analyze, report.
-        assert_eq!(plan.len(), 8 + 16 + 4 + 4 + 8 + 2);
+        // 4 models x 2 seeds trainings, 16 evals, 4 baselines, 4 approach, 4 reality, 8
+        // stability, analyze, report.
+        assert_eq!(plan.len(), 8 + 16 + 4 + 4 + 4 + 8 + 2);
         for (i, st) in plan.iter().enumerate() {
             assert!(st.deps.iter().all(|&d| d < i), "{} before its deps", st.id);
         }
@@ -285,7 +302,8 @@ mod tests {
         hundred.ppo_epochs = Some(100);
         let published = StudyConfig::preset("published").unwrap();
         for (a, (b, c)) in base.iter().zip(plan(hundred).iter().zip(&plan(published))) {
-            let downstream = !a.id.starts_with("fit-convnet");
+            // Baselines run no policy: the PPO settings do not touch them.
+            let downstream = !a.id.starts_with("fit-convnet") && !a.id.starts_with("baseline-");
             assert_eq!(a.hash != b.hash, downstream, "{}", a.id);
             assert_eq!(a.hash != c.hash, downstream, "{}", a.id);
             if a.id.starts_with("train-") {

@@ -40,10 +40,34 @@ pub(crate) fn output_valid(study: &Study, s: &Step) -> bool {
         StepKind::Train { .. } => out.join("policy.safetensors").is_file(),
         StepKind::Eval { p, m } => files_in(&out) == study.eval_episodes(*p, *m),
         StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
+        StepKind::Baseline { m } => fishprobe_sim::SCRIPTED.iter().all(|name| {
+            fishprobe_sim::scripted(name)
+                .is_some_and(|b| files_in(&out.join(b.name())) == study.eval_episodes(*m, *m))
+        }),
         StepKind::Stability { .. } => files_in(&out) == c.stability_episodes,
         StepKind::Reality { .. } => files_in(&out) > 0,
         StepKind::Analyze => StudyLayout::results_in(&out).is_file(),
         StepKind::Report => out.join("index.html").is_file(),
+    }
+}
+
+/// The evaluation episodes of policy `p` on model `m`, written to `out` (the scripted baselines
+/// of model `m` run on those of `m`'s own policy: the same starts and fish).
+fn eval_episodes(study: &Study, p: usize, m: usize, out: PathBuf) -> Evaluation {
+    let c = &study.cfg;
+    Evaluation {
+        model: c.models[m].spec.clone(),
+        env: EnvConfig::default(),
+        episodes: study.eval_episodes(p, m),
+        minutes: c.episode_minutes,
+        seed: derive_seed(
+            c.seed,
+            &format!("eval/{}/{}", c.models[p].name, c.models[m].name),
+            0,
+        ),
+        start: None,
+        out,
+        prefix: "trial".into(),
     }
 }
 
@@ -149,17 +173,23 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
             Ok(())
         }
         StepKind::Eval { p, m } => staged(&out, |tmp| {
-            let e = Evaluation {
-                model: c.models[*m].spec.clone(),
-                env: EnvConfig::default(),
-                episodes: study.eval_episodes(*p, *m),
-                minutes: c.episode_minutes,
-                seed: seed(&format!("eval/{}/{}", c.models[*p].name, c.models[*m].name)),
-                start: None,
-                out: tmp.to_path_buf(),
-                prefix: "trial".into(),
-            };
+            let e = eval_episodes(study, *p, *m, tmp.to_path_buf());
             fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
+            Ok(())
+        }),
+        StepKind::Baseline { m } => staged(&out, |tmp| {
+            for name in fishprobe_sim::SCRIPTED {
+                let b = fishprobe_sim::scripted(name)
+                    .ok_or_else(|| StepError::Missing(format!("scripted controller `{name}`")))?;
+                let e = eval_episodes(study, *m, *m, tmp.join(b.name()));
+                let r = fishprobe_learn::evaluate(b.as_ref(), &e)?;
+                let (mean, _) = fishprobe_learn::goals_mean_sd(&r);
+                say(&format!(
+                    "{} on {}: {mean:.1} goals per episode",
+                    b.name(),
+                    c.models[*m].name
+                ));
+            }
             Ok(())
         }),
         // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.

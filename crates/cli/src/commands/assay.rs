@@ -26,7 +26,8 @@ enum AssayWhat {
 
 #[derive(Debug, Args)]
 struct ApproachArgs {
-    /// The policy: a directory from `fishprobe train`, `onnx:FILE` or `scripted:goal-seeker`.
+    /// The policy: a directory from `fishprobe train`, `onnx:FILE`, `scripted:goal-seeker`
+    /// or `scripted:fetch-and-lead`.
     #[arg(long)]
     policy: String,
     /// Episodes (SPEC choice: 10).

@@ -16,8 +16,10 @@ const MAX_EPISODES: usize = 100_000;
 #[derive(Debug, Args)]
 pub struct EvaluateArgs {
     /// A policy directory from `fishprobe train`, `onnx:FILE` (a policy trained elsewhere, e.g.
-    /// Stable-Baselines3; docs/onnx-models.md), or `scripted:goal-seeker` (turns toward the
-    /// active goal every second, ignoring the fish: the baseline a policy must beat).
+    /// Stable-Baselines3; docs/onnx-models.md), or a scripted baseline: `scripted:goal-seeker`
+    /// (turns toward the active goal every second, ignoring the fish) or
+    /// `scripted:fetch-and-lead` (goes to the fish, then keeps 15 cm ahead of it on its line
+    /// to the goal).
     #[arg(long)]
     policy: String,
     /// Fish model to evaluate against.

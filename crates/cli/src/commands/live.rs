@@ -37,7 +37,7 @@ enum LiveWhat {
 #[derive(Debug, Args)]
 struct ServeArgs {
     /// The policy: a directory from `fishprobe train`, `onnx:FILE` (docs/onnx-models.md) or
-    /// `scripted:goal-seeker`.
+    /// `scripted:goal-seeker` / `scripted:fetch-and-lead`.
     #[arg(long)]
     policy: String,
     /// Address to listen on (loopback by default).
@@ -75,7 +75,7 @@ struct ReplayArgs {
 #[derive(Debug, Args)]
 pub struct LabArgs {
     /// The policy: a directory from `fishprobe train`, `onnx:FILE` (docs/onnx-models.md) or
-    /// `scripted:goal-seeker`.
+    /// `scripted:goal-seeker` / `scripted:fetch-and-lead`.
     #[arg(long)]
     policy: String,
     /// Trials to run.

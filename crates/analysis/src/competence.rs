@@ -1,0 +1,112 @@
+//! Probe competence (issue 20): how well each policy leads the fish of its own model, next to
+//! fishprobe's scripted controllers on the same evaluation episodes. A probe that reaches far
+//! fewer goals than a simple script has not found what its model allows, so its behaviour
+//! (the approach assay, the sim-to-sim matrix) says as much about the optimiser as about the
+//! model; the study flags it.
+
+use crate::config::AnalysisConfig;
+use crate::results::{Competence, Results, Skipped};
+use crate::study::StudyFiles;
+use crate::trial::TrialData;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
+
+fn mean_goals(files: &[PathBuf], loaded: &Loaded) -> Option<(f64, usize)> {
+    let goals: Vec<f64> = files
+        .iter()
+        .filter_map(|f| loaded.get(f)?.as_ref().ok())
+        .map(|t| f64::from(t.goals_reached))
+        .collect();
+    (!goals.is_empty()).then(|| (goals.iter().sum::<f64>() / goals.len() as f64, goals.len()))
+}
+
+/// One policy's competence from its mean goals and its baselines' (controller → mean goals).
+pub fn competence_of(
+    policy_goals: f64,
+    trials: usize,
+    baselines: BTreeMap<String, f64>,
+    threshold: f64,
+) -> Option<Competence> {
+    let (best, best_goals) = baselines
+        .iter()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(c, g)| (c.clone(), *g))?;
+    let ratio = if best_goals > 0.0 {
+        policy_goals / best_goals
+    } else {
+        f64::NAN
+    };
+    Some(Competence {
+        policy_goals,
+        trials,
+        baselines,
+        best,
+        best_goals,
+        ratio,
+        weak: ratio < threshold,
+    })
+}
+
+/// Fills `res.competence` for every policy with baselines on its own model.
+pub(crate) fn competence(
+    res: &mut Results,
+    study: &StudyFiles,
+    policies: &[String],
+    loaded: &Loaded,
+    skipped: &mut Vec<Skipped>,
+    cfg: &AnalysisConfig,
+) {
+    for p in policies {
+        let Some(by) = study.baselines.get(p) else {
+            continue;
+        };
+        let Some((goals, trials)) = study
+            .rollouts
+            .get(&(p.clone(), p.clone()))
+            .and_then(|f| mean_goals(f, loaded))
+        else {
+            continue;
+        };
+        let mut baselines = BTreeMap::new();
+        for (c, files) in by {
+            match mean_goals(files, loaded) {
+                Some((g, _)) => {
+                    baselines.insert(c.clone(), g);
+                }
+                None => skipped.push(Skipped {
+                    what: format!("baselines/{p}/{c}"),
+                    reason: "no valid trials".into(),
+                }),
+            }
+        }
+        if let Some(c) = competence_of(goals, trials, baselines, cfg.competence_threshold) {
+            res.competence.insert(p.clone(), c);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_ratio_is_to_the_best_baseline_and_weak_below_the_threshold() {
+        let b = BTreeMap::from([
+            ("GoalSeeker".to_string(), 10.2),
+            ("FetchAndLead".into(), 83.7),
+        ]);
+        let c = competence_of(35.0, 18, b.clone(), 0.8).unwrap();
+        assert_eq!(c.best, "FetchAndLead");
+        assert!((c.ratio - 35.0 / 83.7).abs() < 1e-12);
+        assert!(c.weak);
+        let strong = competence_of(83.7 * 0.8, 18, b, 0.8).unwrap();
+        assert!(!strong.weak, "exactly at the threshold is not weak");
+        // Baselines that reach nothing give no ratio, and no verdict.
+        let zero =
+            competence_of(3.0, 18, BTreeMap::from([("GoalSeeker".into(), 0.0)]), 0.8).unwrap();
+        assert!(zero.ratio.is_nan() && !zero.weak);
+        assert!(competence_of(3.0, 18, BTreeMap::new(), 0.8).is_none());
+    }
+}
