@@ -21,8 +21,10 @@ use std::path::{Path, PathBuf};
 /// purpose when NB2 trends at the dispersion boundary (α = 0) took statsmodels' small-sample
 /// factor (K counts α): only `temporal` entries with α = 0 changed (their CI and p); then
 /// b4735a37… until the scripted baselines joined every study (issue 20: `baselines/` trial
-/// files and `competence` in results.json; every rollout file unchanged, checked by sha256).
-const GOLDEN: &str = "f4786dd46f3b448d";
+/// files and `competence` in results.json; every rollout file unchanged, checked by sha256);
+/// then f4786dd4… until `task.training_goal_reached_by` joined the settings that every trial
+/// file records in its config JSON (positions of all 84 trial files compared: identical).
+const GOLDEN: &str = "76290e504dcadf69";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…

@@ -612,10 +612,14 @@ impl TankEnv {
             }
         }
         self.frame += 1;
-        if let Some(goal) =
-            self.goals
-                .check(p.mode, &p.task, &self.tank, &self.fish, &mut self.task_rng)
-        {
+        if let Some(goal) = self.goals.check_with_robot(
+            p.mode,
+            &p.task,
+            &self.tank,
+            &self.fish,
+            Some(&self.robot.state),
+            &mut self.task_rng,
+        ) {
             self.acc.goals_reached += 1;
             self.summary.goal_events.push(GoalEvent {
                 frame: self.frame,

@@ -64,5 +64,5 @@ pub use rng::{derive_seed, stream, SimRng};
 pub use robot::{Robot, RobotParams};
 pub use sandbox::Sandbox;
 pub use script::{RobotScript, ScriptParams};
-pub use task::{GoalEvent, GoalTracker, TaskMode, TaskParams};
+pub use task::{GoalEvent, GoalReacher, GoalTracker, TaskMode, TaskParams};
 pub use vector::{AutoresetMode, VecEnv};

@@ -37,11 +37,29 @@ crate::documented_params! {
         pub start_wall_clearance_cm: f32 = 5.0; "cm",
         /// Reward per goal reached (paper: +1).
         pub goal_reward: f32 = 1.0; "1",
+        /// Who reaching a *training* goal counts (and re-draws it): `fish` (choice: the task is
+        /// to bring the fish there, and evaluation counts only the fish), `robot` (the paper's
+        /// methods: "each time the robot reached it") or `either`. Evaluation always counts the
+        /// fish. A reading of the fidelity sweep (issue 20).
+        pub training_goal_reached_by: GoalReacher = GoalReacher::Fish; "-",
         /// Penalty subtracted once per action when the robot came near a wall (paper: 0.1).
         pub wall_penalty: f32 = 0.1; "1",
         /// Robot-to-wall distance below which the wall penalty applies (paper: 3 cm).
         pub wall_penalty_distance_cm: f32 = 3.0; "cm",
     }
+}
+
+/// Who must enter a training goal for it to count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalReacher {
+    /// Any fish (fishprobe's default).
+    #[default]
+    Fish,
+    /// The robot.
+    Robot,
+    /// The robot or any fish.
+    Either,
 }
 
 impl TaskParams {
@@ -152,11 +170,30 @@ impl GoalTracker {
         fish: &[AgentState],
         rng: &mut SimRng,
     ) -> Option<[f32; 2]> {
+        self.check_with_robot(mode, p, tank, fish, None, rng)
+    }
+
+    /// [`GoalTracker::check`], with the robot for training goals that the robot may reach
+    /// ([`TaskParams::training_goal_reached_by`]).
+    pub fn check_with_robot(
+        &mut self,
+        mode: TaskMode,
+        p: &TaskParams,
+        tank: &Tank,
+        fish: &[AgentState],
+        robot: Option<&AgentState>,
+        rng: &mut SimRng,
+    ) -> Option<[f32; 2]> {
         let r2 = p.goal_radius_cm * p.goal_radius_cm;
         let [gx, gy] = self.active;
-        let inside = fish
-            .iter()
-            .any(|f| (f.x - gx) * (f.x - gx) + (f.y - gy) * (f.y - gy) < r2);
+        let within = |a: &AgentState| (a.x - gx) * (a.x - gx) + (a.y - gy) * (a.y - gy) < r2;
+        let by_fish = || fish.iter().any(within);
+        let by_robot = || robot.is_some_and(within);
+        let inside = match (mode, p.training_goal_reached_by) {
+            (TaskMode::Evaluation, _) | (TaskMode::Training, GoalReacher::Fish) => by_fish(),
+            (TaskMode::Training, GoalReacher::Robot) => by_robot(),
+            (TaskMode::Training, GoalReacher::Either) => by_fish() || by_robot(),
+        };
         if !inside {
             return None;
         }
@@ -224,6 +261,55 @@ mod tests {
             g.check(TaskMode::Evaluation, &p, &tank, &rim, &mut rng),
             None
         );
+    }
+
+    #[test]
+    fn who_reaches_a_training_goal_is_a_setting_and_evaluation_counts_only_fish() {
+        let tank = Tank::default();
+        let mut rng = stream(2, "t", 0);
+        let fish_at = |g: [f32; 2]| [AgentState::at(g[0], g[1], 0.0)];
+        let away = [AgentState::at(-40.0, 40.0, 0.0)];
+        for (by, fish_counts, robot_counts) in [
+            (GoalReacher::Fish, true, false),
+            (GoalReacher::Robot, false, true),
+            (GoalReacher::Either, true, true),
+        ] {
+            let p = TaskParams {
+                training_goal_reached_by: by,
+                ..TaskParams::default()
+            };
+            let mut g = GoalTracker::start(TaskMode::Training, &p, &tank, &away, &mut rng);
+            let goal = g.active;
+            let robot = AgentState::at(goal[0], goal[1], 0.0);
+            let fish = fish_at(goal);
+            let t = TaskMode::Training;
+            let mut h = g.clone();
+            assert_eq!(
+                h.check_with_robot(t, &p, &tank, &fish, None, &mut rng)
+                    .is_some(),
+                fish_counts,
+                "{by:?}"
+            );
+            assert_eq!(
+                g.check_with_robot(t, &p, &tank, &away, Some(&robot), &mut rng)
+                    .is_some(),
+                robot_counts,
+                "{by:?}"
+            );
+            // Evaluation goals count the fish whatever the setting.
+            let mut e = GoalTracker::start(TaskMode::Evaluation, &p, &tank, &away, &mut rng);
+            let at = AgentState::at(e.active[0], e.active[1], 0.0);
+            let m = TaskMode::Evaluation;
+            assert!(e
+                .check_with_robot(m, &p, &tank, &away, Some(&at), &mut rng)
+                .is_none());
+            assert!(e
+                .check_with_robot(m, &p, &tank, &[at], None, &mut rng)
+                .is_some());
+        }
+        let text = r#"{"training_goal_reached_by": "either"}"#;
+        let p: TaskParams = serde_json::from_str(text).unwrap();
+        assert_eq!(p.training_goal_reached_by, GoalReacher::Either);
     }
 
     #[test]

@@ -15,6 +15,7 @@ mod compare_offline;
 mod config;
 mod evaluate;
 mod export;
+mod fidelity;
 mod fit_convnet;
 mod import_legacy;
 mod inspect;
@@ -67,6 +68,9 @@ enum Command {
     Evaluate(evaluate::EvaluateArgs),
     /// Assays of one policy's strategy: `assay approach` (does it go to the fish first?).
     Assay(assay::AssayArgs),
+    /// The fidelity sweep: probes trained under each reading of what the paper leaves open,
+    /// scored against the paper's simulation results (issue 20).
+    Fidelity(fidelity::FidelityArgs),
     /// Export a trained policy as ONNX (observation in, turn angle out).
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
@@ -195,5 +199,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Evaluate(a) => evaluate::run(a),
         Command::Export(a) => export::run(a),
         Command::Assay(a) => assay::run(a),
+        Command::Fidelity(a) => fidelity::run(a),
     }
 }

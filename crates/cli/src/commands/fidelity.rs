@@ -1,0 +1,369 @@
+//! `fishprobe fidelity`: the sweep of issue 20. The paper leaves details open that decide what
+//! PPO can find; each reading of them is a set of overrides (environment, fish model, PPO),
+//! and for each reading and model this trains a probe, evaluates it on its own model, runs the
+//! approach assay and the scripted baselines, and prints a scoreboard against the paper.
+//! Resumable: a finished cell is read back, an interrupted training resumes.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
+use fishprobe_learn::{Evaluation, PolicyController, PpoConfig, RunSpec, Trainer};
+use fishprobe_models::ModelSpec;
+use fishprobe_sim::{derive_seed, EnvConfig};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct FidelityArgs {
+    /// Readings to run, comma-separated (default: all; `--list` names them).
+    #[arg(long, value_delimiter = ',')]
+    readings: Vec<String>,
+    /// Models, comma-separated (a reading that changes one model runs only on it).
+    #[arg(long, value_delimiter = ',', default_value = "Follow,Zone,Force")]
+    models: Vec<String>,
+    /// PPO preset every reading starts from.
+    #[arg(long, default_value = "paper")]
+    preset: String,
+    /// Evaluation episodes of 15 minutes per cell (paper: 18).
+    #[arg(long, default_value_t = 18)]
+    episodes: usize,
+    /// Approach-assay episodes of 2 minutes per cell (SPEC choice: 10).
+    #[arg(long, default_value_t = 10)]
+    approach_episodes: usize,
+    /// Master seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Where the runs and `scoreboard.md` / `scoreboard.json` go.
+    #[arg(long, default_value = "fidelity")]
+    out: PathBuf,
+    /// List the readings and exit.
+    #[arg(long)]
+    list: bool,
+    /// Threads (default: all cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+}
+
+/// One reading: overrides merged field by field into the defaults.
+struct Reading {
+    name: &'static str,
+    what: &'static str,
+    /// Only these models (empty: all).
+    models: &'static [&'static str],
+    env: fn() -> Value,
+    model: fn() -> Value,
+    ppo: fn(&PpoConfig) -> Value,
+}
+
+fn none() -> Value {
+    json!({})
+}
+fn no_ppo(_: &PpoConfig) -> Value {
+    json!({})
+}
+
+/// The readings of issue 20 (one departure from the defaults each).
+const READINGS: &[Reading] = &[
+    Reading {
+        name: "baseline",
+        what: "fishprobe's defaults",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "robot-reaches",
+        what: "a training goal counts (and is re-drawn) when the robot reaches it, as the paper's methods say",
+        models: &[],
+        env: || json!({"task": {"training_goal_reached_by": "robot"}}),
+        model: none,
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "either-reaches",
+        what: "a training goal counts when the robot or the fish reaches it",
+        models: &[],
+        env: || json!({"task": {"training_goal_reached_by": "either"}}),
+        model: none,
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "zone-radii",
+        what: "M_Zone's zone sizes read as radii, not widths",
+        models: &["Zone"],
+        env: none,
+        model: || json!({"zone_convention": "radii"}),
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "force-noise-per-frame",
+        what: "M_Force's noise amplitudes read per frame",
+        models: &["Force"],
+        env: none,
+        model: || json!({"noise_convention": "per_frame"}),
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "force-noise-std-dev",
+        what: "M_Force's noise amplitudes read as standard deviations",
+        models: &["Force"],
+        env: none,
+        model: || json!({"noise_convention": "std_dev"}),
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "follow-4cm-s",
+        what: "M_Follow at 4 cm/s (the paper's ~15 s per goal suggests a slower fish than our 6.3)",
+        models: &["Follow"],
+        env: none,
+        model: || json!({"speed_cm_s": 4.0}),
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "budget-4x",
+        what: "four times the training steps",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: |p| json!({"total_timesteps": p.total_timesteps * 4}),
+    },
+    Reading {
+        name: "epochs-30",
+        what: "30 epochs per batch (between the preset's 10 and the published 100)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: |_| json!({"num_sgd_iter": 30}),
+    },
+];
+
+/// The paper's simulation results per policy on its own model (approximate, read off its
+/// Fig. 3 and Fig. 7 and text): goals per 15 min, closest approach (cm) and fraction of time
+/// nearer the fish than the goal in the approach assay. `None`: not reported.
+fn paper(model: &str) -> (Option<f64>, Option<f64>, Option<f64>) {
+    match model {
+        "Follow" => (Some(60.0), None, Some(0.0)),
+        "Zone" => (Some(41.0), Some(4.0), Some(0.223)),
+        "Force" => (Some(51.0), Some(0.35), Some(0.561)),
+        "ConvNet" => (None, None, Some(0.046)),
+        _ => (None, None, None),
+    }
+}
+
+fn merge(base: &mut Value, over: &Value) {
+    match (base, over) {
+        (Value::Object(b), Value::Object(o)) => {
+            for (k, v) in o {
+                merge(b.entry(k.clone()).or_insert(Value::Null), v);
+            }
+        }
+        (b, o) => *b = o.clone(),
+    }
+}
+
+fn with<T: serde::Serialize + serde::de::DeserializeOwned>(base: &T, over: &Value) -> Result<T> {
+    let mut v = serde_json::to_value(base)?;
+    merge(&mut v, over);
+    Ok(serde_json::from_value(v)?)
+}
+
+/// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
+fn cell(a: &FidelityArgs, r: &Reading, model: &str, dir: &Path) -> Result<Value> {
+    let done = dir.join("cell.json");
+    if let Ok(text) = std::fs::read_to_string(&done) {
+        if let Ok(v) = serde_json::from_str::<Value>(&text) {
+            return Ok(v);
+        }
+    }
+    let Some(base_ppo) = PpoConfig::preset(&a.preset) else {
+        bail!("unknown --preset `{}`", a.preset);
+    };
+    let ppo: PpoConfig = with(&base_ppo, &(r.ppo)(&base_ppo))?;
+    ppo.validate()?;
+    let env: EnvConfig = with(&EnvConfig::default(), &(r.env)())?;
+    env.validate()?;
+    let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &(r.model)())?;
+    spec.validate()?;
+    let train_dir = dir.join("policy");
+    let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
+    let mut t = if train_dir.join("params.json").exists() {
+        Trainer::resume(&train_dir)?
+    } else {
+        Trainer::create(
+            &train_dir,
+            RunSpec {
+                ppo,
+                env: env.clone(),
+                model: spec.clone(),
+                seed,
+                preset: a.preset.clone(),
+                program_version: env!("CARGO_PKG_VERSION").into(),
+            },
+        )?
+    };
+    while !t.done() {
+        let s = t.iterate()?;
+        say!(
+            "  {} / {model}: iteration {} steps {} goals/episode {:.2}",
+            r.name,
+            s.iteration,
+            s.timesteps,
+            s.goals_per_episode
+        );
+    }
+    t.finish()?;
+    let policy = PolicyController::load(&train_dir, false)?;
+    // Evaluation on the 15-minute task (evaluation goals always count the fish).
+    let e = Evaluation {
+        model: spec.clone(),
+        env: env.clone(),
+        episodes: a.episodes,
+        minutes: 15.0,
+        seed: derive_seed(a.seed, &format!("fidelity-eval/{model}"), 0),
+        start: None,
+        out: dir.join("eval"),
+        prefix: "trial".into(),
+    };
+    let res = fishprobe_learn::evaluate(&policy, &e)?;
+    let (goals, sd) = fishprobe_learn::goals_mean_sd(&res);
+    let ttg: Vec<f64> = res.iter().filter_map(|x| x.mean_time_to_goal_s).collect();
+    let ttg = (!ttg.is_empty()).then(|| ttg.iter().sum::<f64>() / ttg.len() as f64);
+    let mut best = ("", 0.0);
+    for name in fishprobe_sim::SCRIPTED {
+        let Some(b) = fishprobe_sim::scripted(name) else {
+            continue;
+        };
+        let be = Evaluation {
+            out: dir.join(format!("baseline-{name}")),
+            ..e.clone()
+        };
+        let (g, _) = fishprobe_learn::goals_mean_sd(&fishprobe_learn::evaluate(b.as_ref(), &be)?);
+        if g > best.1 {
+            best = (name, g);
+        }
+    }
+    let ae = fishprobe_learn::approach_assay(
+        a.approach_episodes,
+        2.0,
+        derive_seed(a.seed, "fidelity-approach", 0),
+        dir.join("approach"),
+    )?;
+    let files: Vec<PathBuf> = fishprobe_learn::evaluate(&policy, &ae)?
+        .into_iter()
+        .map(|x| x.file)
+        .collect();
+    let ap = assay_files(&files, &AnalysisConfig::default()).map_err(anyhow::Error::msg)?;
+    let row = json!({
+        "reading": r.name, "model": model, "goals": goals, "goals_sd": sd,
+        "time_to_goal_s": ttg, "closest_cm": ap.min_iid, "mean_distance_cm": ap.mean_iid,
+        "nearer_fish": ap.frac_closer_to_fish, "best_scripted": best.0,
+        "best_scripted_goals": best.1,
+        "competence": if best.1 > 0.0 { goals / best.1 } else { f64::NAN },
+        "steps": t.timesteps(),
+    });
+    fishprobe_nn::store::write_atomic(&done, serde_json::to_string_pretty(&row)?.as_bytes())?;
+    Ok(row)
+}
+
+fn factor(ours: f64, paper: Option<f64>) -> String {
+    match paper {
+        Some(p) if p > 0.0 && ours.is_finite() => format!(" (x{:.2})", ours / p),
+        _ => String::new(),
+    }
+}
+
+fn scoreboard(rows: &[Value]) -> String {
+    let mut s = String::from(
+        "| reading | model | goals / 15 min (paper, factor) | time to goal (s) | closest (cm; paper) | nearer the fish (paper) | best scripted | competence |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let m = r["model"].as_str().unwrap_or("");
+        let (pg, pc, pf) = paper(m);
+        let g = r["goals"].as_f64().unwrap_or(f64::NAN);
+        let c = r["closest_cm"].as_f64().unwrap_or(f64::NAN);
+        let f = r["nearer_fish"].as_f64().unwrap_or(f64::NAN);
+        let opt = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
+        s += &format!(
+            "| {} | {m} | {g:.1} ± {:.1} ({}{}) | {} | {c:.1} ({}) | {:.1} % ({}) | {} {:.1} | {:.2} |\n",
+            r["reading"].as_str().unwrap_or(""),
+            r["goals_sd"].as_f64().unwrap_or(f64::NAN),
+            opt(pg, 0),
+            factor(g, pg),
+            opt(r["time_to_goal_s"].as_f64(), 1),
+            opt(pc, 2),
+            100.0 * f,
+            pf.map_or("–".into(), |x| format!("{:.1} %", 100.0 * x)),
+            r["best_scripted"].as_str().unwrap_or(""),
+            r["best_scripted_goals"].as_f64().unwrap_or(f64::NAN),
+            r["competence"].as_f64().unwrap_or(f64::NAN),
+        );
+    }
+    s
+}
+
+pub fn run(a: FidelityArgs) -> Result<()> {
+    if a.list {
+        let mut s = String::new();
+        for r in READINGS {
+            let only = if r.models.is_empty() {
+                String::new()
+            } else {
+                format!(" [{}]", r.models.join(", "))
+            };
+            s += &format!("{:<24} {}{only}\n", r.name, r.what);
+        }
+        return emit(&s);
+    }
+    if !(1..=1000).contains(&a.episodes) || !(1..=1000).contains(&a.approach_episodes) {
+        bail!("--episodes and --approach-episodes must lie in [1, 1000]");
+    }
+    for m in &a.models {
+        ModelSpec::by_name(m).with_context(|| format!("--models {m}"))?;
+    }
+    let chosen: Vec<&Reading> = if a.readings.is_empty() {
+        READINGS.iter().collect()
+    } else {
+        a.readings
+            .iter()
+            .map(|n| {
+                READINGS.iter().find(|r| r.name == n).ok_or_else(|| {
+                    anyhow::anyhow!("unknown reading `{n}` (see `fishprobe fidelity --list`)")
+                })
+            })
+            .collect::<Result<_>>()?
+    };
+    let _lock = super::lock_out(&a.out, "fidelity")?;
+    let mut rows = Vec::new();
+    for r in chosen {
+        for m in &a.models {
+            let name = ModelSpec::by_name(m)?.name().to_string();
+            if !r.models.is_empty() && !r.models.contains(&name.as_str()) {
+                continue;
+            }
+            say!("{} / {name}: {}", r.name, r.what);
+            let dir = a.out.join(r.name).join(&name);
+            let row = super::with_jobs(a.jobs, || cell(&a, r, &name, &dir))??;
+            rows.push(row);
+            let board = scoreboard(&rows);
+            fishprobe_nn::store::write_atomic(
+                &a.out.join("scoreboard.md"),
+                format!(
+                    "# fishprobe fidelity sweep\n\n`fishprobe fidelity --preset {} --episodes {} --seed {}` (fishprobe {})\n\n{board}",
+                    a.preset,
+                    a.episodes,
+                    a.seed,
+                    env!("CARGO_PKG_VERSION")
+                )
+                .as_bytes(),
+            )?;
+            fishprobe_nn::store::write_atomic(
+                &a.out.join("scoreboard.json"),
+                serde_json::to_string_pretty(&rows)?.as_bytes(),
+            )?;
+        }
+    }
+    emit(&scoreboard(&rows))
+}

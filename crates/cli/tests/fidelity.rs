@@ -1,0 +1,91 @@
+//! `fishprobe fidelity`: the sweep of issue 20, with a tiny budget.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir, stderr, stdout};
+
+#[test]
+fn the_sweep_trains_scores_and_reads_finished_cells_back() {
+    let d = fresh_dir("fidelity");
+    let out = d.join("sweep");
+    let args = [
+        "fidelity",
+        "--preset",
+        "smoke",
+        "--readings",
+        "baseline,robot-reaches,zone-radii",
+        "--models",
+        "Zone,Follow",
+        "--episodes",
+        "2",
+        "--approach-episodes",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let o = fishprobe(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // zone-radii changes only M_Zone, so it runs only there: 2 + 2 + 1 cells.
+    let rows: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("scoreboard.json")).unwrap())
+            .unwrap();
+    assert_eq!(rows.len(), 5);
+    for r in &rows {
+        assert!(
+            r["goals"].is_number() && r["nearer_fish"].is_number(),
+            "{r}"
+        );
+        assert!(r["best_scripted"].is_string(), "{r}");
+    }
+    let robot = out.join("robot-reaches/Zone/policy/params.json");
+    let params: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(robot).unwrap()).unwrap();
+    assert_eq!(params["env"]["task"]["training_goal_reached_by"], "robot");
+    let radii = out.join("zone-radii/Zone/policy/params.json");
+    let params: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(radii).unwrap()).unwrap();
+    assert_eq!(params["model"]["zone_convention"], "radii");
+    let board = std::fs::read_to_string(out.join("scoreboard.md")).unwrap();
+    assert!(
+        board.contains("| robot-reaches | Zone |") && board.contains("(41 (x"),
+        "{board}"
+    );
+    // A second run reads every finished cell back: the same scoreboard.
+    let o2 = fishprobe(&args);
+    assert!(o2.status.success(), "{}", stderr(&o2));
+    assert_eq!(stdout(&o), stdout(&o2));
+    assert!(!stderr(&o2).contains("iteration"), "{}", stderr(&o2));
+}
+
+#[test]
+fn readings_are_listed_and_unknown_ones_refused() {
+    let o = fishprobe(&["fidelity", "--list"]);
+    assert!(o.status.success());
+    for r in ["baseline", "robot-reaches", "zone-radii", "budget-4x"] {
+        assert!(stdout(&o).contains(r), "{}", stdout(&o));
+    }
+    let d = fresh_dir("fidelity-bad");
+    let o = fishprobe(&[
+        "fidelity",
+        "--readings",
+        "moonlight",
+        "--out",
+        d.join("x").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("unknown reading `moonlight`"),
+        "{}",
+        stderr(&o)
+    );
+    let o = fishprobe(&[
+        "fidelity",
+        "--models",
+        "Zonk",
+        "--out",
+        d.join("y").to_str().unwrap(),
+    ]);
+    assert!(stderr(&o).contains("Zonk"), "{}", stderr(&o));
+}
