@@ -43,6 +43,20 @@ fn subdirs(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
+/// `dir/<a>/<b>/*.hdf5` as a → b → files (none when `dir` is missing).
+fn two_levels(dir: &Path) -> BTreeMap<String, BTreeMap<String, Vec<PathBuf>>> {
+    subdirs(dir)
+        .into_iter()
+        .map(|a| {
+            let inner = subdirs(&a)
+                .into_iter()
+                .map(|b| (name_of(&b), trial_files(&b)))
+                .collect();
+            (name_of(&a), inner)
+        })
+        .collect()
+}
+
 fn name_of(p: &Path) -> String {
     p.file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -81,26 +95,8 @@ impl StudyFiles {
                 s.approach.insert(name_of(&d), trial_files(&d));
             }
         }
-        let stability = layout.stability_root();
-        if stability.is_dir() {
-            for m in subdirs(&stability) {
-                let seeds: BTreeMap<String, Vec<PathBuf>> = subdirs(&m)
-                    .into_iter()
-                    .map(|d| (name_of(&d), trial_files(&d)))
-                    .collect();
-                s.stability.insert(name_of(&m), seeds);
-            }
-        }
-        let baselines = layout.baselines_root();
-        if baselines.is_dir() {
-            for m in subdirs(&baselines) {
-                let by: BTreeMap<String, Vec<PathBuf>> = subdirs(&m)
-                    .into_iter()
-                    .map(|d| (name_of(&d), trial_files(&d)))
-                    .collect();
-                s.baselines.insert(name_of(&m), by);
-            }
-        }
+        s.stability = two_levels(&layout.stability_root());
+        s.baselines = two_levels(&layout.baselines_root());
         if s.rollouts.is_empty() && s.approach.is_empty() && s.stability.is_empty() {
             return Err(AnalysisError::Layout {
                 path: root.to_path_buf(),

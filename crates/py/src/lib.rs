@@ -177,6 +177,18 @@ fn state_info<'py>(py: Python<'py>, env: &TankEnv, info: &Bound<'py, PyDict>) ->
     Ok(())
 }
 
+/// The top-down picture of `env` as a (size, size, 3) uint8 array.
+fn picture<'py>(py: Python<'py>, env: &TankEnv, size: usize) -> PyResult<Bound<'py, PyAny>> {
+    if !(16..=4096).contains(&size) {
+        return Err(PyValueError::new_err(format!(
+            "render size {size}: must lie in [16, 4096] pixels"
+        )));
+    }
+    Ok(PyArray1::from_vec(py, render::tank(env, size))
+        .reshape([size, size, 3])?
+        .into_any())
+}
+
 /// One environment: the tank, a robot, `fish_count` fish and the lead-to-goal task.
 #[pyclass(module = "fishprobe._native")]
 struct Env {
@@ -301,15 +313,7 @@ impl Env {
     /// A top-down picture of the tank, `size` x `size` pixels, RGB (uint8).
     #[pyo3(signature = (size=400))]
     fn render<'py>(&self, py: Python<'py>, size: usize) -> PyResult<Bound<'py, PyAny>> {
-        if !(16..=4096).contains(&size) {
-            return Err(PyValueError::new_err(format!(
-                "render size {size}: must lie in [16, 4096] pixels"
-            )));
-        }
-        let img = render::tank(&self.env, size);
-        Ok(PyArray1::from_vec(py, img)
-            .reshape([size, size, 3])?
-            .into_any())
+        picture(py, &self.env, size)
     }
 }
 
@@ -469,14 +473,7 @@ impl VecEnv {
                 self.venv.num_envs()
             )));
         };
-        if !(16..=4096).contains(&size) {
-            return Err(PyValueError::new_err(format!(
-                "render size {size}: must lie in [16, 4096] pixels"
-            )));
-        }
-        Ok(PyArray1::from_vec(py, render::tank(env, size))
-            .reshape([size, size, 3])?
-            .into_any())
+        picture(py, env, size)
     }
 }
 
