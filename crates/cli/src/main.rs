@@ -7,9 +7,10 @@
 //! files, the study layout, locks), [`fishprobe_learn`] (PPO, evaluation, behavioural cloning),
 //! `fishprobe_stats` and [`fishprobe_analysis`] (the statistics and the study's comparisons),
 //! [`fishprobe_report`], [`fishprobe_live`] (the bridge and the virtual lab), `fishprobe_onnx`
-//! (files users bring) and [`fishprobe_study`] (`fishprobe run`). ARCHITECTURE.md draws how they
-//! depend on each other. Every public item is documented (`#![warn(missing_docs)]` in each
-//! library, and CI denies warnings).
+//! (files users bring) and [`fishprobe_study`] (`fishprobe run`); `fishprobe_py` is the native
+//! half of the Python package (`python/`, documented for Python users in `python/README.md`).
+//! ARCHITECTURE.md draws how they depend on each other. Every public item is documented
+//! (`#![warn(missing_docs)]` in each library, and CI denies warnings).
 
 mod commands;
 

@@ -15,7 +15,7 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
         "--preset",
         "smoke",
         "--readings",
-        "baseline,robot-reaches,zone-radii",
+        "baseline,robot-reaches,zone-radii,robot-reaches+zone-radii",
         "--models",
         "Zone,Follow",
         "--episodes",
@@ -27,11 +27,12 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
     ];
     let o = fishprobe(&args);
     assert!(o.status.success(), "{}", stderr(&o));
-    // zone-radii changes only M_Zone, so it runs only there: 2 + 2 + 1 cells.
+    // zone-radii changes only M_Zone, so it (and a combination with it) runs only there:
+    // 2 + 2 + 1 + 1 cells.
     let rows: Vec<serde_json::Value> =
         serde_json::from_str(&std::fs::read_to_string(out.join("scoreboard.json")).unwrap())
             .unwrap();
-    assert_eq!(rows.len(), 5);
+    assert_eq!(rows.len(), 6);
     for r in &rows {
         assert!(
             r["goals"].is_number() && r["nearer_fish"].is_number(),
@@ -47,6 +48,11 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
     let params: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(radii).unwrap()).unwrap();
     assert_eq!(params["model"]["zone_convention"], "radii");
+    let both = out.join("robot-reaches+zone-radii/Zone/policy/params.json");
+    let params: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(both).unwrap()).unwrap();
+    assert_eq!(params["model"]["zone_convention"], "radii");
+    assert_eq!(params["env"]["task"]["training_goal_reached_by"], "robot");
     let board = std::fs::read_to_string(out.join("scoreboard.md")).unwrap();
     assert!(
         board.contains("| robot-reaches | Zone |") && board.contains("(41 (x"),

@@ -8,6 +8,7 @@
 
 // PyO3's macros expand to FFI glue that needs `unsafe`; this crate writes none itself.
 #![allow(unsafe_code)]
+#![warn(missing_docs)]
 
 mod fish;
 mod render;

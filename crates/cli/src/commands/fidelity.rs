@@ -17,7 +17,8 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct FidelityArgs {
-    /// Readings to run, comma-separated (default: all; `--list` names them).
+    /// Readings to run, comma-separated (default: all; `--list` names them); `a+b` combines
+    /// readings (their overrides merged, on the models both apply to).
     #[arg(long, value_delimiter = ',')]
     readings: Vec<String>,
     /// Models, comma-separated (a reading that changes one model runs only on it).
@@ -140,6 +141,49 @@ const READINGS: &[Reading] = &[
     },
 ];
 
+/// One cell's reading: one reading, or several combined (`a+b`).
+struct Combo {
+    name: String,
+    parts: Vec<&'static Reading>,
+}
+
+impl Combo {
+    fn parse(name: &str) -> Result<Self> {
+        let parts = name
+            .split('+')
+            .map(|n| {
+                READINGS.iter().find(|r| r.name == n.trim()).ok_or_else(|| {
+                    anyhow::anyhow!("unknown reading `{n}` (see `fishprobe fidelity --list`)")
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Self {
+            name: name.to_string(),
+            parts,
+        })
+    }
+
+    fn what(&self) -> String {
+        let w: Vec<&str> = self.parts.iter().map(|r| r.what).collect();
+        w.join("; ")
+    }
+
+    /// Whether every part that is specific to some models includes `model`.
+    fn applies_to(&self, model: &str) -> bool {
+        self.parts
+            .iter()
+            .all(|r| r.models.is_empty() || r.models.contains(&model))
+    }
+
+    fn merged(&self, part: impl Fn(&Reading) -> Value) -> Value {
+        let mut v = json!({});
+        for r in &self.parts {
+            merge(&mut v, &part(r));
+        }
+        v
+    }
+}
+
 /// The paper's simulation results per policy on its own model (approximate, read off its
 /// Fig. 3 and Fig. 7 and text): goals per 15 min, closest approach (cm) and fraction of time
 /// nearer the fish than the goal in the approach assay. `None`: not reported.
@@ -171,7 +215,7 @@ fn with<T: serde::Serialize + serde::de::DeserializeOwned>(base: &T, over: &Valu
 }
 
 /// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
-fn cell(a: &FidelityArgs, r: &Reading, model: &str, dir: &Path) -> Result<Value> {
+fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let done = dir.join("cell.json");
     if let Ok(text) = std::fs::read_to_string(&done) {
         if let Ok(v) = serde_json::from_str::<Value>(&text) {
@@ -181,11 +225,11 @@ fn cell(a: &FidelityArgs, r: &Reading, model: &str, dir: &Path) -> Result<Value>
     let Some(base_ppo) = PpoConfig::preset(&a.preset) else {
         bail!("unknown --preset `{}`", a.preset);
     };
-    let ppo: PpoConfig = with(&base_ppo, &(r.ppo)(&base_ppo))?;
+    let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)(&base_ppo)))?;
     ppo.validate()?;
-    let env: EnvConfig = with(&EnvConfig::default(), &(r.env)())?;
+    let env: EnvConfig = with(&EnvConfig::default(), &r.merged(|p| (p.env)()))?;
     env.validate()?;
-    let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &(r.model)())?;
+    let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
     spec.validate()?;
     let train_dir = dir.join("policy");
     let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
@@ -323,29 +367,28 @@ pub fn run(a: FidelityArgs) -> Result<()> {
     for m in &a.models {
         ModelSpec::by_name(m).with_context(|| format!("--models {m}"))?;
     }
-    let chosen: Vec<&Reading> = if a.readings.is_empty() {
-        READINGS.iter().collect()
+    let chosen: Vec<Combo> = if a.readings.is_empty() {
+        READINGS
+            .iter()
+            .map(|r| Combo::parse(r.name))
+            .collect::<Result<_>>()?
     } else {
         a.readings
             .iter()
-            .map(|n| {
-                READINGS.iter().find(|r| r.name == n).ok_or_else(|| {
-                    anyhow::anyhow!("unknown reading `{n}` (see `fishprobe fidelity --list`)")
-                })
-            })
+            .map(|n| Combo::parse(n))
             .collect::<Result<_>>()?
     };
     let _lock = super::lock_out(&a.out, "fidelity")?;
     let mut rows = Vec::new();
-    for r in chosen {
+    for r in &chosen {
         for m in &a.models {
             let name = ModelSpec::by_name(m)?.name().to_string();
-            if !r.models.is_empty() && !r.models.contains(&name.as_str()) {
+            if !r.applies_to(&name) {
                 continue;
             }
-            say!("{} / {name}: {}", r.name, r.what);
-            let dir = a.out.join(r.name).join(&name);
-            let row = super::with_jobs(a.jobs, || cell(&a, r, &name, &dir))??;
+            say!("{} / {name}: {}", r.name, r.what());
+            let dir = a.out.join(&r.name).join(&name);
+            let row = super::with_jobs(a.jobs, || cell(&a, &r, &name, &dir))??;
             rows.push(row);
             let board = scoreboard(&rows);
             fishprobe_nn::store::write_atomic(
