@@ -63,6 +63,16 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
     assert!(o2.status.success(), "{}", stderr(&o2));
     assert_eq!(stdout(&o), stdout(&o2));
     assert!(!stderr(&o2).contains("iteration"), "{}", stderr(&o2));
+    // Other settings into the same directory: refused, naming the cell.
+    let mut other = args.to_vec();
+    other[8] = "3"; // --episodes
+    let o3 = fishprobe(&other);
+    assert!(!o3.status.success());
+    assert!(
+        stderr(&o3).contains("made with other settings"),
+        "{}",
+        stderr(&o3)
+    );
 }
 
 #[test]

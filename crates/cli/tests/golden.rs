@@ -23,15 +23,17 @@ use std::path::{Path, PathBuf};
 /// b4735a37… until the scripted baselines joined every study (issue 20: `baselines/` trial
 /// files and `competence` in results.json; every rollout file unchanged, checked by sha256);
 /// then f4786dd4… until `task.training_goal_reached_by` joined the settings that every trial
-/// file records in its config JSON (positions of all 84 trial files compared: identical).
-const GOLDEN: &str = "76290e504dcadf69";
+/// file records in its config JSON (positions of all 84 trial files compared: identical); then
+/// 76290e50… until M_Follow's default speed became 4 cm/s (the fidelity sweep, issue 20).
+const GOLDEN: &str = "bdb51e1a588f6706";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
 /// after the NB2 change (the temporal table's intervals and p-values); then the table of
 /// candidate models with their origin was added to "What was run" (issue 18); dc5c7f10… until
-/// the "Probe competence" section and summary table (issue 20).
-const GOLDEN_REPORT: &str = "dcd6df67f3d8642d";
+/// the "Probe competence" section and summary table (issue 20); dcd6df67… until M_Follow's
+/// default speed became 4 cm/s (its trials, and so the figures, changed).
+const GOLDEN_REPORT: &str = "1f4529659d804787";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {

@@ -1,14 +1,17 @@
-//! Does PPO learn? The `paper` preset trains one policy per rule-based model (seed 0) and each
-//! is evaluated on its own model against the scripted goal-seeker (18 episodes of 15 minutes,
-//! evaluation seed 0), as in docs/validation.md, "Does it learn?".
+//! Does PPO learn, and are the probes competent? The `paper` preset trains one policy per
+//! rule-based model (seed 0) and each is evaluated on its own model against fishprobe's
+//! scripted controllers (18 episodes of 15 minutes, evaluation seed 0), as in
+//! docs/validation.md, "Does it learn?" and "The fidelity sweep".
 //!
 //! Opt-in, about 3 minutes on 2 cores in a release build (longer while other work shares them):
 //! `cargo test --release -p fishprobe --test learns -- --ignored --nocapture`.
 //!
-//! Each policy must beat the goal-seeker (issue 4). π_Follow does so only since the `paper`
-//! preset bounds the policy's log-s.d. (`PpoConfig::log_std_max`): with RLlib's unbounded one
-//! its mean action was untrained wherever the goal lay behind the robot and it reached 95 % of
-//! the goal-seeker (docs/validation.md, "Does it learn?").
+//! Each policy must reach at least 80 % of the best scripted controller's goals (issue 20's
+//! bar; issue 4's was to beat the goal-seeker, which π_Follow can no longer do clearly since
+//! M_Follow swims at 4 cm/s: the goal-seeker is then all but optimal, 63.6 goals against
+//! π_Follow's 61.4). **Known to fail today** for π_Zone (about 0.48 of FetchAndLead) and π_Force
+//! (about 0.74): the probes of the `paper` preset do not yet find what those models allow, the
+//! open part of issue 20 (docs/validation.md, "The fidelity sweep").
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
@@ -70,15 +73,21 @@ fn paper_preset_policies_learn_their_models() {
             model,
             &d.join(format!("eval-{model}")),
         );
-        let baseline = evaluate(
-            "scripted:goal-seeker",
-            model,
-            &d.join(format!("base-{model}")),
-        );
-        println!("π_{model}: {policy:.1} goals per 15 min; goal-seeker {baseline:.1}");
-        if policy <= baseline {
+        let (best, baseline) = ["goal-seeker", "fetch-and-lead"]
+            .into_iter()
+            .map(|c| {
+                let goals = evaluate(
+                    &format!("scripted:{c}"),
+                    model,
+                    &d.join(format!("base-{model}-{c}")),
+                );
+                (c, goals)
+            })
+            .fold(("", 0.0), |a, b| if b.1 > a.1 { b } else { a });
+        println!("π_{model}: {policy:.1} goals per 15 min; best scripted ({best}) {baseline:.1}");
+        if policy < 0.8 * baseline {
             failures.push(format!(
-                "π_{model} {policy:.1} goals, not more than the goal-seeker's {baseline:.1}"
+                "π_{model} {policy:.1} goals, under 80 % of {best}'s {baseline:.1}"
             ));
         }
     }

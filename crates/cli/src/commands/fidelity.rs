@@ -117,10 +117,18 @@ const READINGS: &[Reading] = &[
     },
     Reading {
         name: "follow-4cm-s",
-        what: "M_Follow at 4 cm/s (the paper's ~15 s per goal suggests a slower fish than our 6.3)",
+        what: "M_Follow at 4 cm/s (the default since this sweep: the paper's ~15 s per goal)",
         models: &["Follow"],
         env: none,
         model: || json!({"speed_cm_s": 4.0}),
+        ppo: no_ppo,
+    },
+    Reading {
+        name: "follow-6.3cm-s",
+        what: "M_Follow at 6.3 cm/s, M_Zone's speed (the default before this sweep)",
+        models: &["Follow"],
+        env: none,
+        model: || json!({"speed_cm_s": 6.3}),
         ppo: no_ppo,
     },
     Reading {
@@ -216,12 +224,6 @@ fn with<T: serde::Serialize + serde::de::DeserializeOwned>(base: &T, over: &Valu
 
 /// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
 fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
-    let done = dir.join("cell.json");
-    if let Ok(text) = std::fs::read_to_string(&done) {
-        if let Ok(v) = serde_json::from_str::<Value>(&text) {
-            return Ok(v);
-        }
-    }
     let Some(base_ppo) = PpoConfig::preset(&a.preset) else {
         bail!("unknown --preset `{}`", a.preset);
     };
@@ -231,6 +233,25 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     env.validate()?;
     let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
     spec.validate()?;
+    // A finished cell is read back only if it was made with these settings (a default that
+    // changed since, or another --preset, must not pass for this reading).
+    let settings = json!({"ppo": ppo, "env": env, "model": spec, "episodes": a.episodes,
+        "approach_episodes": a.approach_episodes, "seed": a.seed});
+    // As the file will hold it (an f32 becomes its shortest decimal there).
+    let settings: Value = serde_json::from_str(&serde_json::to_string(&settings)?)?;
+    let done = dir.join("cell.json");
+    if let Ok(text) = std::fs::read_to_string(&done) {
+        if let Ok(v) = serde_json::from_str::<Value>(&text) {
+            if v["settings"] == settings {
+                return Ok(v);
+            }
+            bail!(
+                "{} holds a cell made with other settings (another --preset, --episodes or \
+                 --seed, or fishprobe's defaults changed since): use another --out or remove it",
+                dir.display()
+            );
+        }
+    }
     let train_dir = dir.join("policy");
     let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
     let mut t = if train_dir.join("params.json").exists() {
@@ -307,6 +328,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         "best_scripted_goals": best.1,
         "competence": if best.1 > 0.0 { goals / best.1 } else { f64::NAN },
         "steps": t.timesteps(),
+        "settings": settings,
     });
     fishprobe_nn::store::write_atomic(&done, serde_json::to_string_pretty(&row)?.as_bytes())?;
     Ok(row)
@@ -388,7 +410,7 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             }
             say!("{} / {name}: {}", r.name, r.what());
             let dir = a.out.join(&r.name).join(&name);
-            let row = super::with_jobs(a.jobs, || cell(&a, &r, &name, &dir))??;
+            let row = super::with_jobs(a.jobs, || cell(&a, r, &name, &dir))??;
             rows.push(row);
             let board = scoreboard(&rows);
             fishprobe_nn::store::write_atomic(
