@@ -21,6 +21,8 @@ pub const POSE: usize = 5;
 pub struct PyFish {
     decide: Py<PyAny>,
     namespace: Py<PyAny>,
+    /// `numpy.asarray`, looked up once (it is called twice per frame).
+    asarray: Py<PyAny>,
     name: String,
     class: String,
     error: Mutex<Option<PyErr>>,
@@ -57,9 +59,11 @@ impl PyFish {
             Err(_) => qual.rsplit('.').next().unwrap_or(&qual).to_string(),
         };
         let namespace = py.import("types")?.getattr("SimpleNamespace")?.unbind();
+        let asarray = py.import("numpy")?.getattr("asarray")?.unbind();
         Ok(Self {
             decide: decide.unbind(),
             namespace,
+            asarray,
             name,
             class,
             error: Mutex::new(None),
@@ -123,16 +127,14 @@ impl PyFish {
             .into_iter()
             .enumerate()
         {
-            let np = py.import("numpy")?;
-            let a = np
-                .call_method1("asarray", (arr,))
-                .and_then(|a| a.call_method1("astype", ("float32",)))
-                .map_err(|e| {
-                    PyTypeError::new_err(format!(
-                        "{}.decide: `{what}` is not an array of numbers ({e})",
-                        self.class
-                    ))
-                })?;
+            let kw = PyDict::new(py);
+            kw.set_item("dtype", "float32")?;
+            let a = self.asarray.bind(py).call((arr,), Some(&kw)).map_err(|e| {
+                PyTypeError::new_err(format!(
+                    "{}.decide: `{what}` is not an array of numbers ({e})",
+                    self.class
+                ))
+            })?;
             let a = a.cast_into::<numpy::PyArrayDyn<f32>>().map_err(|_| {
                 PyTypeError::new_err(format!("{}.decide: `{what}` is not numeric", self.class))
             })?;

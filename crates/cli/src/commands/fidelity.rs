@@ -296,7 +296,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let (goals, sd) = fishprobe_learn::goals_mean_sd(&res);
     let ttg: Vec<f64> = res.iter().filter_map(|x| x.mean_time_to_goal_s).collect();
     let ttg = (!ttg.is_empty()).then(|| ttg.iter().sum::<f64>() / ttg.len() as f64);
-    let mut best = ("", 0.0);
+    let mut baselines = std::collections::BTreeMap::new();
     for name in fishprobe_sim::SCRIPTED {
         let Some(b) = fishprobe_sim::scripted(name) else {
             continue;
@@ -306,10 +306,16 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
             ..e.clone()
         };
         let (g, _) = fishprobe_learn::goals_mean_sd(&fishprobe_learn::evaluate(b.as_ref(), &be)?);
-        if g > best.1 {
-            best = (name, g);
-        }
+        baselines.insert(name.to_string(), g);
     }
+    // The study's own measure of competence, on the scripts' `scripted:` names.
+    let competence = fishprobe_analysis::competence::competence_of(
+        goals,
+        res.len(),
+        baselines,
+        AnalysisConfig::default().competence_threshold,
+    )
+    .ok_or_else(|| anyhow::anyhow!("no scripted baseline ran"))?;
     let ae = fishprobe_learn::approach_assay(
         a.approach_episodes,
         2.0,
@@ -324,9 +330,9 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let row = json!({
         "reading": r.name, "model": model, "goals": goals, "goals_sd": sd,
         "time_to_goal_s": ttg, "closest_cm": ap.min_iid, "mean_distance_cm": ap.mean_iid,
-        "nearer_fish": ap.frac_closer_to_fish, "best_scripted": best.0,
-        "best_scripted_goals": best.1,
-        "competence": if best.1 > 0.0 { goals / best.1 } else { f64::NAN },
+        "nearer_fish": ap.frac_closer_to_fish, "best_scripted": competence.best,
+        "best_scripted_goals": competence.best_goals,
+        "competence": competence.ratio,
         "steps": t.timesteps(),
         "settings": settings,
     });
