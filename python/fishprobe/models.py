@@ -19,8 +19,8 @@ class FishModel:
 
     - ``me``: ``(n, 5)``, the fish's own x, y (cm, tank centre is 0, y up), heading (rad,
       counter-clockwise from +x), vx, vy (cm/s, over the last frame);
-    - ``others``: ``(n, 7, 5)``, the other agents the fish sees, the robot first, then the other
-      fish, as ``me``; rows past ``n_others`` are NaN;
+    - ``others``: ``(n, 16, 5)``, the other agents the fish sees, the robot first, then the other
+      fish (a tank holds up to 16 fish), as ``me``; rows past ``n_others`` are NaN;
     - ``n_others``: ``(n,)`` int64, how many rows of ``others`` are valid;
     - ``walls``: ``(n, 4)``, distances (cm) to the left, right, bottom and top walls;
     - ``time_s``: ``(n,)``, time since the episode began; ``dt``: the frame duration (s);

@@ -33,7 +33,7 @@ def test_a_python_model_moves_the_fish_as_it_says():
     assert env.model_name == "Recorder"
     assert len(rec.seen) == 25  # one call per frame, both fish at once
     v = rec.seen[0]
-    assert v.me.shape == (2, 5) and v.others.shape == (2, 7, 5)
+    assert v.me.shape == (2, 5) and v.others.shape == (2, 16, 5)
     assert list(v.n_others) == [2, 2]  # the robot and the other fish
     assert np.isnan(v.others[:, 2:]).all()
     assert v.walls.shape == (2, 4) and (v.walls >= 0).all()

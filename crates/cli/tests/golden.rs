@@ -24,8 +24,11 @@ use std::path::{Path, PathBuf};
 /// files and `competence` in results.json; every rollout file unchanged, checked by sha256);
 /// then f4786dd4… until `task.training_goal_reached_by` joined the settings that every trial
 /// file records in its config JSON (positions of all 84 trial files compared: identical); then
-/// 76290e50… until M_Follow's default speed became 4 cm/s (the fidelity sweep, issue 20).
-const GOLDEN: &str = "bdb51e1a588f6706";
+/// 76290e50… until M_Follow's default speed became 4 cm/s (the fidelity sweep, issue 20);
+/// then bdb51e1a… until `task.group_goal` and `task.group_goal_fraction` joined the recorded
+/// settings (issue 22: groups). With those two keys left out of the config JSON the digest was
+/// bdb51e1a… again: the models' group versions leave one fish bit-identical.
+const GOLDEN: &str = "a3cadde9b70245ec";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…

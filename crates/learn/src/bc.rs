@@ -219,7 +219,7 @@ fn add_file(
             }
             let s_me = AgentState::at(a.pos[i][0], a.pos[i][1], a.heading[i]);
             let s_other = AgentState::at(b.pos[i][0], b.pos[i][1], b.heading[i]);
-            encode_view(arch, &tank, &s_me, Some(&s_other), &mut view);
+            encode_view(arch, &tank, &s_me, &[s_other], &mut view);
             let (dx, dy) = (a.pos[i + 1][0] - a.pos[i][0], a.pos[i + 1][1] - a.pos[i][1]);
             let v = (dx * dx + dy * dy).sqrt() * rate;
             let w = wrap_angle(a.heading[i + 1] - a.heading[i]) * rate;
@@ -483,7 +483,7 @@ mod tests {
             let ahead = r.random::<bool>();
             let me = AgentState::at(0.0, 0.0, 0.0);
             let o = AgentState::at(if ahead { 10.0 } else { -10.0 }, 1.0, 0.0);
-            encode_view(&arch, &tank, &me, Some(&o), &mut view);
+            encode_view(&arch, &tank, &me, &[o], &mut view);
             d.x.extend_from_slice(&view);
             d.y.push(usize::from(!ahead));
         }

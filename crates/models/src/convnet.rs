@@ -2,9 +2,9 @@
 //! trained by behavioural cloning on pairs of live guppies (`fishprobe fit-convnet`).
 //!
 //! The fish sees an egocentric view of 72 bins of 5° around its heading with three channels:
-//! wall intensity along the bin's ray, the closest other agent's intensity in the bin holding
+//! wall intensity along the bin's ray, the other agent's intensity in the bin holding
 //! it, and that agent's heading relative to the fish's (divided by π) in the same bin
-//! ([`encode_view`]). The network is a circular 1-D convolution, two fully connected Leaky-ReLU
+//! ([`encode_view`]; in a group, the nearest agent per bin). The network is a circular 1-D convolution, two fully connected Leaky-ReLU
 //! layers and a linear layer giving the logits of a 2-D grid of (speed, turn rate) cells
 //! ([`ConvNet`]). The fish samples a cell, then a value uniformly inside it. Inference is
 //! batched over all fish of a vector environment ([`FishModel::infer_batch`]).
@@ -141,13 +141,15 @@ impl ConvNetArch {
     }
 }
 
-/// The egocentric view of a fish at `me`, with the closest other agent `other` (position and
-/// heading) if any, into `out` (`3 x bins`, channel-major).
+/// The egocentric view of a fish at `me`, with the other agents `others` (position and
+/// heading; none, the pair partner, or a group) into `out` (`3 x bins`, channel-major). Each
+/// bin holds the nearest agent whose bearing falls in it (ties: the first listed), so a group
+/// is seen as the nearest agent per sector and one partner exactly as in the pair recordings.
 pub fn encode_view(
     arch: &ConvNetArch,
     tank: &Tank,
     me: &AgentState,
-    other: Option<&AgentState>,
+    others: &[AgentState],
     out: &mut [f32],
 ) {
     let n = arch.bins;
@@ -162,12 +164,23 @@ pub fn encode_view(
     }
     near.fill(0.0);
     rel.fill(0.0);
-    if let Some(o) = other {
+    // Bin and distance of an agent (None when its position is not finite).
+    let place = |o: &AgentState| {
         let (dx, dy) = (o.x - me.x, o.y - me.y);
         let d = (dx * dx + dy * dy).sqrt();
-        if d.is_finite() {
+        d.is_finite().then(|| {
             let bearing = fishprobe_sim::wrap_angle(dy.atan2(dx) - me.heading);
             let i = (((bearing + std::f32::consts::PI) / width) as usize).min(n - 1);
+            (i, d)
+        })
+    };
+    for (j, o) in others.iter().enumerate() {
+        let Some((i, d)) = place(o) else { continue };
+        // A nearer agent in the same bin (or an equally near one listed earlier) wins it.
+        let beaten = others.iter().enumerate().any(|(l, q)| {
+            l != j && place(q).is_some_and(|(k, e)| k == i && (e < d || (e == d && l < j)))
+        });
+        if !beaten {
             near[i] = (1.0 - d / arch.far_plane_cm).max(0.0);
             rel[i] = fishprobe_sim::wrap_angle(o.heading - me.heading) / std::f32::consts::PI;
         }
@@ -445,8 +458,7 @@ impl FishModel for ConvNetFish {
 /// The views of `views`' fish, one row of `arch.view_len()` each, into `x` (sized already).
 pub(crate) fn encode_views(arch: &ConvNetArch, views: &[FishView], x: &mut [f32]) {
     for (v, row) in views.iter().zip(x.chunks_exact_mut(arch.view_len())) {
-        let other = v.closest_other().map(|(o, _)| o);
-        encode_view(arch, &v.tank, &v.me, other, row);
+        encode_view(arch, &v.tank, &v.me, v.others(), row);
     }
 }
 
@@ -586,7 +598,7 @@ mod tests {
         // Straight ahead (bearing 0): bin 36 of 72 covers [0°, 5°).
         let other = AgentState::at(10.0, 0.1, std::f32::consts::FRAC_PI_2);
         let mut v = vec![0.0; a.view_len()];
-        encode_view(&a, &tank, &me, Some(&other), &mut v);
+        encode_view(&a, &tank, &me, &[other], &mut v);
         let near = &v[72..144];
         let (i, _) = near
             .iter()
@@ -601,6 +613,35 @@ mod tests {
         // The wall straight ahead is 50 cm away; behind too.
         assert!((v[36] - (1.0 - 50.0 / 141.421_36)).abs() < 2e-2);
         assert!(v[..72].iter().all(|w| (0.0..=1.0).contains(w)));
+    }
+
+    #[test]
+    fn a_group_is_seen_as_the_nearest_agent_per_bin() {
+        let a = ConvNetArch::default();
+        let tank = Tank::new(&fishprobe_sim::TankParams::default());
+        let me = AgentState::at(0.0, 0.0, 0.0);
+        let ahead_far = AgentState::at(20.0, 0.1, 0.0);
+        let ahead_near = AgentState::at(10.0, 0.05, std::f32::consts::FRAC_PI_2);
+        let left = AgentState::at(-0.5, 15.0, std::f32::consts::PI / 4.0);
+        let view = |others: &[AgentState]| {
+            let mut v = vec![0.0; a.view_len()];
+            encode_view(&a, &tank, &me, others, &mut v);
+            v
+        };
+        // The nearer of two agents in the same bin wins it, in either order.
+        let both = view(&[ahead_far, ahead_near, left]);
+        assert_eq!(both, view(&[left, ahead_near, ahead_far]));
+        assert_eq!(both[72 + 36], view(&[ahead_near])[72 + 36]);
+        assert!((both[144 + 36] - 0.5).abs() < 1e-6);
+        // An agent in another bin (90° left: bin 54) is marked too.
+        assert!((both[72 + 54] - (1.0 - 15.008_33 / 141.421_36)).abs() < 1e-4);
+        assert!((both[144 + 54] - 0.25).abs() < 1e-6);
+        // Exactly two bins are occupied; no agents, none.
+        assert_eq!(both[72..144].iter().filter(|&&x| x > 0.0).count(), 2);
+        assert!(view(&[])[72..].iter().all(|&x| x == 0.0));
+        // An untracked (NaN) agent marks nothing and takes no bin from a tracked one.
+        let nan = AgentState::at(f32::NAN, f32::NAN, 0.0);
+        assert_eq!(view(&[nan, ahead_near]), view(&[ahead_near]));
     }
 
     #[test]

@@ -122,12 +122,22 @@ impl Force {
         Ok(Self { p })
     }
 
-    /// Social force on the fish (cm/frame²); `vf` its speed in cm/frame.
-    fn social(&self, v: &FishView, e: [f32; 2], vf: f32) -> [f32; 2] {
+    /// Social force on the fish (cm/frame²); `vf` its speed in cm/frame, `dt` the frame
+    /// duration (s). The force is averaged over the partners within the interaction range
+    /// (Klamser et al. 2021), so a group pulls no harder than one partner.
+    fn social(
+        &self,
+        me: &AgentState,
+        others: &[AgentState],
+        dt: f32,
+        e: [f32; 2],
+        vf: f32,
+    ) -> [f32; 2] {
         let p = &self.p;
         let mut f = [0.0f32; 2];
-        for o in v.others() {
-            let (dx, dy) = (o.x - v.me.x, o.y - v.me.y);
+        let mut n = 0u32;
+        for o in others {
+            let (dx, dy) = (o.x - me.x, o.y - me.y);
             let d = (dx * dx + dy * dy).sqrt();
             if d >= p.interaction_range_cm || d < 1e-6 {
                 continue;
@@ -135,9 +145,14 @@ impl Force {
             let k =
                 p.distance_regulation * (p.distance_slope * (d - p.preferred_distance_cm)).tanh();
             // The other's velocity in cm per frame.
-            let (ux, uy) = (o.vx * v.dt, o.vy * v.dt);
+            let (ux, uy) = (o.vx * dt, o.vy * dt);
             f[0] += k * dx / d + p.alignment * (ux - vf * e[0]);
             f[1] += k * dy / d + p.alignment * (uy - vf * e[1]);
+            n += 1;
+        }
+        if n > 1 {
+            let n = n as f32;
+            f = [f[0] / n, f[1] / n];
         }
         f
     }
@@ -186,14 +201,34 @@ impl FishModel for Force {
     }
 
     fn decide(&self, v: &FishView, _: &[f32], mind: &mut FishMind, rng: &mut SimRng) -> FishMotion {
+        self.step_among(&v.me, v.others(), Some(&v.tank), v.dt, mind, rng)
+    }
+}
+
+impl Force {
+    /// One frame of a fish at `me` among `others` (any number), with the tank's walls or, with
+    /// `tank = None`, in open water: what [`FishModel::decide`] does with a view, for groups
+    /// larger than a view holds (the collective-state validation, [`crate::collective`]).
+    pub fn step_among(
+        &self,
+        me: &AgentState,
+        others: &[AgentState],
+        tank: Option<&Tank>,
+        dt: f32,
+        mind: &mut FishMind,
+        rng: &mut SimRng,
+    ) -> FishMotion {
         let p = &self.p;
-        let (s, c) = v.me.heading.sin_cos();
+        let (s, c) = me.heading.sin_cos();
         let e = [c, s];
-        let vf = mind.speed * v.dt;
-        let social = self.social(v, e, vf);
-        let (rep, att) = self.walls(&v.tank, &v.me, e);
+        let vf = mind.speed * dt;
+        let social = self.social(me, others, dt, e, vf);
+        let (rep, att) = match tank {
+            Some(t) => self.walls(t, me, e),
+            None => ([0.0; 2], [0.0; 2]),
+        };
         let f = [social[0] + rep[0], social[1] + rep[1]];
-        let (sigma_v, sigma_phi) = p.noise_sigmas(v.dt);
+        let (sigma_v, sigma_phi) = p.noise_sigmas(dt);
         let xi: f32 = StandardNormal.sample(rng);
         let xi2: f32 = StandardNormal.sample(rng);
         let v_new = (vf
@@ -205,11 +240,11 @@ impl FishModel for Force {
         // ê⊥ = (-sin θ, cos θ); attraction enters the heading only.
         let lateral = -(f[0] + att[0]) * s + (f[1] + att[1]) * c;
         let dtheta = (lateral + sigma_phi * xi2) / (v_new + p.rotational_friction);
-        mind.speed = v_new / v.dt;
-        mind.turn_rate = dtheta / v.dt;
+        mind.speed = v_new / dt;
+        mind.turn_rate = dtheta / dt;
         FishMotion {
-            heading: v.me.heading + dtheta,
-            speed: v_new / v.dt,
+            heading: me.heading + dtheta,
+            speed: v_new / dt,
         }
     }
 }

@@ -2,10 +2,11 @@
 //! guppy better than the four candidate models — not a candidate itself.
 //!
 //! It swims in bursts and glides: at each kick it picks a new direction (persistence, walls,
-//! the closest other agent, noise) and a speed, then glides with exponentially decaying speed
+//! the other agents, noise) and a speed, then glides with exponentially decaying speed
 //! until the next kick. It sometimes pauses. Near a wall it turns along it (thigmotaxis); away
-//! from walls it drifts back toward the nearest one. Its attraction to the closest other agent
-//! (the robot in the lab) differs between individuals and declines over a long trial. Each
+//! from walls it drifts back toward the nearest one. Its attraction to the other agents
+//! (the robot in the lab; in a group, averaged over the agents within its social range, with
+//! repulsion from any too close taking priority) differs between individuals and declines over a long trial. Each
 //! episode draws an individual — sociability, boldness, speed — from population distributions
 //! (`begin_episode`). The defaults were calibrated against the real pair recordings of the
 //! training split (docs/validation.md, "The virtual guppy").
@@ -171,25 +172,51 @@ impl Guppy {
             dx -= nearest.1 * w;
             dy -= nearest.2 * w;
         }
-        // The closest other agent.
-        if let Some((o, d)) = v.closest_other() {
-            if d > 1e-3 && d < p.social_range_cm {
-                let (ux, uy) = ((o.x - me.x) / d, (o.y - me.y) / d);
-                if d < p.repulsion_cm {
-                    dx -= ux;
-                    dy -= uy;
-                } else {
-                    let engagement = p.engagement_floor
-                        + (1.0 - p.engagement_floor) * (-v.time_s / p.engagement_tau_s).exp();
-                    let a = p.attraction * mind.traits[SOCIABILITY] * engagement;
-                    dx += ux * a;
-                    dy += uy * a;
-                    let al = p.alignment * mind.traits[SOCIABILITY] * engagement;
-                    let (os, oc) = o.heading.sin_cos();
-                    dx += oc * al;
-                    dy += os * al;
-                }
+        // The other agents within the social range: repulsion from those too close has
+        // priority; otherwise attraction and alignment, averaged over the agents in range (in a
+        // group; with one other agent this is the pair model the defaults were calibrated on).
+        let (mut rep, mut att, mut ali) = ([0.0f32; 2], [0.0f32; 2], [0.0f32; 2]);
+        let (mut n_rep, mut n_att) = (0u32, 0u32);
+        for o in v.others() {
+            let d = me.distance_to(o);
+            if !(d > 1e-3 && d < p.social_range_cm) {
+                continue;
             }
+            let (ux, uy) = ((o.x - me.x) / d, (o.y - me.y) / d);
+            if d < p.repulsion_cm {
+                rep[0] += ux;
+                rep[1] += uy;
+                n_rep += 1;
+            } else {
+                let (os, oc) = o.heading.sin_cos();
+                att[0] += ux;
+                att[1] += uy;
+                ali[0] += oc;
+                ali[1] += os;
+                n_att += 1;
+            }
+        }
+        let mean = |v: [f32; 2], n: u32| {
+            if n > 1 {
+                [v[0] / n as f32, v[1] / n as f32]
+            } else {
+                v
+            }
+        };
+        if n_rep > 0 {
+            let r = mean(rep, n_rep);
+            dx -= r[0];
+            dy -= r[1];
+        } else if n_att > 0 {
+            let (u, o) = (mean(att, n_att), mean(ali, n_att));
+            let engagement = p.engagement_floor
+                + (1.0 - p.engagement_floor) * (-v.time_s / p.engagement_tau_s).exp();
+            let a = p.attraction * mind.traits[SOCIABILITY] * engagement;
+            dx += u[0] * a;
+            dy += u[1] * a;
+            let al = p.alignment * mind.traits[SOCIABILITY] * engagement;
+            dx += o[0] * al;
+            dy += o[1] * al;
         }
         let base = if dx * dx + dy * dy > 1e-12 {
             dy.atan2(dx)

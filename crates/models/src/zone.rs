@@ -4,7 +4,9 @@
 //! heads into them and pull it back when it heads away nearby, which makes it follow walls.
 
 use fishprobe_sim::params::{check, ConfigError};
-use fishprobe_sim::{wrap_angle, FishMind, FishModel, FishMotion, FishView, SimRng, Tank};
+use fishprobe_sim::{
+    wrap_angle, AgentState, FishMind, FishModel, FishMotion, FishView, SimRng, Tank,
+};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 use std::f32::consts::TAU;
@@ -153,13 +155,14 @@ impl Zone {
         })
     }
 
-    /// The social direction (unit vector, or the own heading when nothing is perceived).
-    fn social(&self, v: &FishView, c: f32, s: f32) -> [f32; 2] {
+    /// The social direction (unit vector, or the own heading when nothing is perceived):
+    /// Couzin's sums over every agent in each zone, repulsion with priority.
+    fn social(&self, me: &AgentState, others: &[AgentState], c: f32, s: f32) -> [f32; 2] {
         let [r_rep, r_ori, r_att] = self.radii;
         let (mut rep, mut ori, mut att) = ([0.0f32; 2], [0.0f32; 2], [0.0f32; 2]);
         let (mut n_rep, mut n_ori, mut n_att) = (0, 0, 0);
-        for o in v.others() {
-            let (dx, dy) = (o.x - v.me.x, o.y - v.me.y);
+        for o in others {
+            let (dx, dy) = (o.x - me.x, o.y - me.y);
             let d = (dx * dx + dy * dy).sqrt();
             if d < 1e-6 || (dx * c + dy * s) / d < self.cos_half_fov {
                 continue;
@@ -252,27 +255,47 @@ impl FishModel for Zone {
     }
 
     fn decide(&self, v: &FishView, _: &[f32], mind: &mut FishMind, rng: &mut SimRng) -> FishMotion {
+        self.step_among(&v.me, v.others(), Some(&v.tank), v.dt, mind, rng)
+    }
+}
+
+impl Zone {
+    /// One frame of a fish at `me` among `others` (any number), with the tank's walls or, with
+    /// `tank = None`, in open water: what [`FishModel::decide`] does with a view, for groups
+    /// larger than a view holds (the collective-state validation, [`crate::collective`]).
+    pub fn step_among(
+        &self,
+        me: &AgentState,
+        others: &[AgentState],
+        tank: Option<&Tank>,
+        dt: f32,
+        mind: &mut FishMind,
+        rng: &mut SimRng,
+    ) -> FishMotion {
         let p = &self.p;
-        let (s, c) = v.me.heading.sin_cos();
-        let social = self.social(v, c, s);
-        let wall = self.walls(&v.tank, v.me.x, v.me.y, c, s);
+        let (s, c) = me.heading.sin_cos();
+        let social = self.social(me, others, c, s);
+        let wall = match tank {
+            Some(t) => self.walls(t, me.x, me.y, c, s),
+            None => [0.0, 0.0],
+        };
         let desired = [social[0] + wall[0], social[1] + wall[1]];
         let mut target = if desired[0].abs() + desired[1].abs() > 1e-9 {
             desired[1].atan2(desired[0])
         } else {
-            v.me.heading
+            me.heading
         };
         let noise: f32 = StandardNormal.sample(rng);
         target += p.turn_noise_rad * noise;
-        let max_step = p.max_turn_rate_rad_s * v.dt;
-        let step = wrap_angle(target - v.me.heading).clamp(-max_step, max_step);
-        let rate = p.smoothing * step / v.dt + (1.0 - p.smoothing) * mind.turn_rate;
+        let max_step = p.max_turn_rate_rad_s * dt;
+        let step = wrap_angle(target - me.heading).clamp(-max_step, max_step);
+        let rate = p.smoothing * step / dt + (1.0 - p.smoothing) * mind.turn_rate;
         mind.turn_rate = rate;
         let speed_noise: f32 = StandardNormal.sample(rng);
         let speed = (p.speed_cm_s + p.speed_noise_cm_s * speed_noise).max(0.0);
         mind.speed = speed;
         FishMotion {
-            heading: v.me.heading + rate * v.dt,
+            heading: me.heading + rate * dt,
             speed,
         }
     }

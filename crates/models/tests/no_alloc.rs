@@ -33,10 +33,12 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn stepping_does_not_allocate() {
-    for name in ModelSpec::NAMES {
+    // One fish (the paper) and a group of eight (issue 22).
+    for (name, fish_count) in ModelSpec::NAMES.iter().flat_map(|n| [(n, 1), (n, 8)]) {
         let model = ModelSpec::by_name(name).unwrap().build().unwrap();
         let cfg = EnvConfig {
             mode: TaskMode::Evaluation,
+            fish_count,
             ..EnvConfig::default()
         };
         let mut env = TankEnv::new(cfg, model).unwrap();
@@ -51,6 +53,9 @@ fn stepping_does_not_allocate() {
         }
         COUNTING.with(|c| c.set(false));
         let n = COUNT.with(Cell::get);
-        assert_eq!(n, 0, "{name}: {n} allocations in 600 steps (15,000 frames)");
+        assert_eq!(
+            n, 0,
+            "{name} with {fish_count} fish: {n} allocations in 600 steps (15,000 frames)"
+        );
     }
 }

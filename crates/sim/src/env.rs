@@ -7,7 +7,7 @@
 
 use crate::agent::AgentState;
 use crate::error::SimError;
-use crate::fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_OTHERS};
+use crate::fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_FISH};
 use crate::geometry::{Tank, TankParams};
 use crate::observation::{ObservationEncoder, ObservationParams, Scene};
 use crate::params::{check, ConfigError};
@@ -26,7 +26,8 @@ crate::documented_params! {
         pub frame_rate_hz: f32 = 25.0; "Hz",
         /// Frames per policy action (paper: the policy acts at 1 Hz, so 25).
         pub frames_per_action: u32 = 25; "frames",
-        /// Number of fish (paper: 1). The goal counts when any fish enters it.
+        /// Number of fish, 1 to `MAX_FISH` = 16, the robot not counted (paper: 1). With
+        /// more than one, `task.group_goal` says when the group has reached a goal.
         pub fish_count: u32 = 1; "1",
         /// Training or evaluation task.
         pub mode: TaskMode = TaskMode::Training; "-",
@@ -85,12 +86,12 @@ impl EnvConfig {
                 ),
             ));
         }
-        if !(1..=MAX_OTHERS as u32).contains(&self.fish_count) {
+        if !(1..=MAX_FISH as u32).contains(&self.fish_count) {
             return Err(ConfigError::new(
                 "",
                 "fish_count",
                 self.fish_count,
-                &format!("must lie in [1, {MAX_OTHERS}]"),
+                &format!("must lie in [1, {MAX_FISH}]"),
             ));
         }
         self.tank.validate("tank")?;

@@ -11,8 +11,15 @@ use crate::agent::AgentState;
 use crate::geometry::Tank;
 use crate::rng::SimRng;
 
-/// The largest number of other agents one fish perceives (the robot and up to six fish).
-pub const MAX_OTHERS: usize = 7;
+/// The largest number of fish in one tank (`EnvConfig::fish_count`; issue 22 asks for at
+/// least 8). A fish's view is a fixed array (no allocation per frame, and views are copied
+/// into batches for batched inference), so this bounds its size.
+pub const MAX_FISH: usize = 16;
+
+/// The largest number of other agents one fish perceives: the robot and the other
+/// [`MAX_FISH`]` - 1` fish. Beyond it (only in a [`crate::Sandbox`] with scripted agents) a fish
+/// perceives the leading agents and then the nearest fish.
+pub const MAX_OTHERS: usize = MAX_FISH;
 
 /// Everything a fish perceives at the start of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -39,7 +46,8 @@ impl FishView {
     }
 
     /// The view of fish `i` of `fish`, seeing first the `leading` agents (the robot, or
-    /// scripted agents), then the other fish, up to [`MAX_OTHERS`].
+    /// scripted agents), then the other fish, up to [`MAX_OTHERS`] agents in all; when there
+    /// are more (only possible in a [`crate::Sandbox`] with scripted agents), the nearest fish.
     #[inline]
     pub fn build(
         i: usize,
@@ -49,23 +57,50 @@ impl FishView {
         dt: f32,
         time_s: f32,
     ) -> Self {
+        let me = fish[i];
         let mut v = FishView {
-            me: fish[i],
+            me,
             tank,
             dt,
             time_s,
             ..FishView::default()
         };
-        let others = leading.iter().chain(
-            fish.iter()
-                .enumerate()
-                .filter(|(j, _)| *j != i)
-                .map(|(_, f)| f),
-        );
-        let mut n = 0;
-        for (slot, o) in v.others.iter_mut().zip(others) {
-            *slot = *o;
-            n += 1;
+        let lead = leading.len().min(MAX_OTHERS);
+        v.others[..lead].copy_from_slice(&leading[..lead]);
+        let room = MAX_OTHERS - lead;
+        let mut n = lead;
+        if fish.len() - 1 <= room {
+            for (j, f) in fish.iter().enumerate() {
+                if j != i {
+                    v.others[n] = *f;
+                    n += 1;
+                }
+            }
+        } else {
+            // Keep the `room` nearest fish, sorted by distance (insertion into the tail).
+            let mut dist = [f32::INFINITY; MAX_OTHERS];
+            for (j, f) in fish.iter().enumerate() {
+                if j == i {
+                    continue;
+                }
+                let d = me.distance_to(f);
+                let mut k = n.min(lead + room);
+                if k == lead + room {
+                    if d >= dist[k - 1] {
+                        continue;
+                    }
+                    k -= 1;
+                } else {
+                    n += 1;
+                }
+                while k > lead && dist[k - 1] > d {
+                    dist[k] = dist[k - 1];
+                    v.others[k] = v.others[k - 1];
+                    k -= 1;
+                }
+                dist[k] = d;
+                v.others[k] = *f;
+            }
         }
         v.n_others = n as u8;
         v
@@ -153,4 +188,37 @@ pub fn apply_motion(tank: &Tank, s: &mut AgentState, m: FishMotion, dt: f32) -> 
     s.x = nx;
     s.y = ny;
     contact
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_view_holds_the_leading_agents_then_the_other_fish_or_the_nearest_of_them() {
+        let tank = Tank::default();
+        let robot = AgentState::at(-40.0, -40.0, 0.0);
+        let fish: Vec<AgentState> = (0..4)
+            .map(|i| AgentState::at(i as f32 * 3.0, 0.0, 0.0))
+            .collect();
+        let v = FishView::build(1, &fish, &[robot], tank, 0.04, 0.0);
+        assert_eq!(v.others(), &[robot, fish[0], fish[2], fish[3]]);
+        assert_eq!(v.me, fish[1]);
+        // More fish than a view holds: the leading agents, then the nearest fish by distance.
+        let many: Vec<AgentState> = (0..40)
+            .map(|i| AgentState::at(40.0 - 2.0 * i as f32, 1.0, 0.0))
+            .collect();
+        let me = 20; // at x = 0
+        let v = FishView::build(me, &many, &[robot], tank, 0.04, 0.0);
+        assert_eq!(usize::from(v.n_others), MAX_OTHERS);
+        assert_eq!(v.others()[0], robot);
+        let d: Vec<f32> = v.others()[1..]
+            .iter()
+            .map(|o| o.distance_to(&many[me]))
+            .collect();
+        assert!(d.windows(2).all(|w| w[0] <= w[1]), "{d:?}");
+        // The 15 nearest of fish 2 cm apart on a line: up to 8 ahead or behind, 16 cm.
+        assert!(d.iter().all(|&x| x <= 16.0 + 1e-4), "{d:?}");
+        assert!(!v.others()[1..].contains(&many[me]));
+    }
 }

@@ -36,6 +36,7 @@ pub mod env;
 pub mod error;
 pub mod fish;
 pub mod geometry;
+pub mod group;
 pub mod observation;
 pub mod params;
 pub mod rng;
@@ -56,13 +57,14 @@ pub use env::{
     TankEnv, Trajectory, Transition,
 };
 pub use error::SimError;
-pub use fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_OTHERS};
+pub use fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_FISH, MAX_OTHERS};
 pub use geometry::{wrap_angle, Tank, TankParams};
+pub use group::{group_order, robot_to_group, GroupOrder};
 pub use observation::{ObservationEncoder, ObservationParams, Scene};
 pub use params::{ConfigError, DocumentedParams, FieldDoc};
 pub use rng::{derive_seed, stream, SimRng};
 pub use robot::{Robot, RobotParams};
 pub use sandbox::Sandbox;
 pub use script::{RobotScript, ScriptParams};
-pub use task::{GoalEvent, GoalReacher, GoalTracker, TaskMode, TaskParams};
+pub use task::{GoalEvent, GoalReacher, GoalTracker, GroupGoal, TaskMode, TaskParams};
 pub use vector::{AutoresetMode, VecEnv};

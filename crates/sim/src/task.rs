@@ -42,6 +42,14 @@ crate::documented_params! {
         /// methods: "each time the robot reached it") or `either`. Evaluation always counts the
         /// fish. A reading of the fidelity sweep (issue 20).
         pub training_goal_reached_by: GoalReacher = GoalReacher::Fish; "-",
+        /// When a *group* (`fish_count` > 1) has reached a goal: `any` fish inside it (choice,
+        /// and what one fish means), the group's `centroid` inside it, or a `fraction` of the
+        /// fish (`group_goal_fraction`, rounded up) inside it at once. The paper has pairs only
+        /// (issue 22); with one fish the three are the same.
+        pub group_goal: GroupGoal = GroupGoal::Any; "-",
+        /// With `group_goal = fraction`: the share of the fish that must be inside the goal at
+        /// once, in (0, 1] (choice: 0.5, a majority for odd groups).
+        pub group_goal_fraction: f32 = 0.5; "1",
         /// Penalty subtracted once per action when the robot came near a wall (paper: 0.1).
         pub wall_penalty: f32 = 0.1; "1",
         /// Robot-to-wall distance below which the wall penalty applies (paper: 3 cm).
@@ -62,7 +70,47 @@ pub enum GoalReacher {
     Either,
 }
 
+/// When a group of fish has reached a goal ([`TaskParams::group_goal`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GroupGoal {
+    /// Any fish inside the goal.
+    #[default]
+    Any,
+    /// The centroid of the fish inside the goal.
+    Centroid,
+    /// At least `ceil(group_goal_fraction · fish)` fish inside the goal at once.
+    Fraction,
+}
+
 impl TaskParams {
+    /// Whether the fish, as a group, are inside the goal of radius `goal_radius_cm` at `g`.
+    #[inline]
+    pub fn group_inside(&self, fish: &[AgentState], g: [f32; 2]) -> bool {
+        let r2 = self.goal_radius_cm * self.goal_radius_cm;
+        let d2 = |x: f32, y: f32| (x - g[0]) * (x - g[0]) + (y - g[1]) * (y - g[1]);
+        match self.group_goal {
+            GroupGoal::Any => fish.iter().any(|a| d2(a.x, a.y) < r2),
+            GroupGoal::Centroid => {
+                if fish.is_empty() {
+                    return false;
+                }
+                let n = fish.len() as f32;
+                let (sx, sy) = fish.iter().fold((0.0, 0.0), |(x, y), a| (x + a.x, y + a.y));
+                d2(sx / n, sy / n) < r2
+            }
+            GroupGoal::Fraction => {
+                let need = self.fish_needed(fish.len());
+                fish.iter().filter(|a| d2(a.x, a.y) < r2).count() >= need
+            }
+        }
+    }
+
+    /// How many of `n` fish must be inside a goal with `group_goal = fraction` (at least 1).
+    pub fn fish_needed(&self, n: usize) -> usize {
+        ((self.group_goal_fraction * n as f32).ceil() as usize).clamp(1, n.max(1))
+    }
+
     /// Checks the ranges against the tank; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str, tank: &Tank) -> Result<(), ConfigError> {
         check::positive(prefix, "goal_radius_cm", self.goal_radius_cm)?;
@@ -102,6 +150,14 @@ impl TaskParams {
             tank.margin,
             lim * 0.9,
         )?;
+        if !(self.group_goal_fraction > 0.0 && self.group_goal_fraction <= 1.0) {
+            return Err(ConfigError::new(
+                prefix,
+                "group_goal_fraction",
+                self.group_goal_fraction,
+                "must lie in (0, 1]: the share of the fish that must be inside the goal",
+            ));
+        }
         check::finite(prefix, "goal_reward", self.goal_reward)?;
         check::finite(prefix, "wall_penalty", self.wall_penalty)?;
         check::non_negative(
@@ -187,7 +243,7 @@ impl GoalTracker {
         let r2 = p.goal_radius_cm * p.goal_radius_cm;
         let [gx, gy] = self.active;
         let within = |a: &AgentState| (a.x - gx) * (a.x - gx) + (a.y - gy) * (a.y - gy) < r2;
-        let by_fish = || fish.iter().any(within);
+        let by_fish = || p.group_inside(fish, self.active);
         let by_robot = || robot.is_some_and(within);
         let inside = match (mode, p.training_goal_reached_by) {
             (TaskMode::Evaluation, _) | (TaskMode::Training, GoalReacher::Fish) => by_fish(),
@@ -310,6 +366,53 @@ mod tests {
         let text = r#"{"training_goal_reached_by": "either"}"#;
         let p: TaskParams = serde_json::from_str(text).unwrap();
         assert_eq!(p.training_goal_reached_by, GoalReacher::Either);
+    }
+
+    #[test]
+    fn a_group_reaches_a_goal_by_any_fish_its_centroid_or_a_fraction() {
+        let g = [0.0, 0.0];
+        // Four fish: one inside the goal (r = 5 cm), three 8 cm away on one side; centroid at
+        // x = 6 (outside). Then two inside: centroid x = 4 (inside), fraction 0.5 met.
+        let one_in = [
+            AgentState::at(0.0, 0.0, 0.0),
+            AgentState::at(8.0, 0.0, 0.0),
+            AgentState::at(8.0, 1.0, 0.0),
+            AgentState::at(8.0, -1.0, 0.0),
+        ];
+        let mut two_in = one_in;
+        two_in[1] = AgentState::at(1.0, 0.0, 0.0);
+        let with = |group_goal, group_goal_fraction| TaskParams {
+            group_goal,
+            group_goal_fraction,
+            ..TaskParams::default()
+        };
+        let cases = [
+            (with(GroupGoal::Any, 0.5), true, true),
+            (with(GroupGoal::Centroid, 0.5), false, true),
+            (with(GroupGoal::Fraction, 0.5), false, true),
+            (with(GroupGoal::Fraction, 0.25), true, true),
+            (with(GroupGoal::Fraction, 0.75), false, false),
+        ];
+        for (p, one, two) in cases {
+            assert_eq!(p.group_inside(&one_in, g), one, "{p:?}");
+            assert_eq!(p.group_inside(&two_in, g), two, "{p:?}");
+        }
+        // One fish: all three rules agree.
+        for rule in [GroupGoal::Any, GroupGoal::Centroid, GroupGoal::Fraction] {
+            let p = with(rule, 0.5);
+            assert!(p.group_inside(&one_in[..1], g));
+            assert!(!p.group_inside(&one_in[1..2], g));
+        }
+        assert_eq!(with(GroupGoal::Fraction, 0.5).fish_needed(3), 2);
+        assert_eq!(with(GroupGoal::Fraction, 0.01).fish_needed(8), 1);
+        // Out of range: a clear error naming the field.
+        let tank = Tank::default();
+        for bad in [0.0, -0.5, 1.5, f32::NAN] {
+            let e = with(GroupGoal::Fraction, bad).validate("task", &tank);
+            assert!(e.unwrap_err().to_string().contains("group_goal_fraction"));
+        }
+        let p: TaskParams = serde_json::from_str(r#"{"group_goal": "centroid"}"#).unwrap();
+        assert_eq!(p.group_goal, GroupGoal::Centroid);
     }
 
     #[test]
