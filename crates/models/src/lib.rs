@@ -24,6 +24,7 @@
 
 #![warn(missing_docs)]
 
+pub mod collective;
 pub mod convnet;
 pub mod follow;
 pub mod force;

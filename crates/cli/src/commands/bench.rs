@@ -73,6 +73,9 @@ enum BenchWhat {
         /// Environments in the all-cores run (default: 32 per core).
         #[arg(long)]
         envs: Option<usize>,
+        /// Fish per tank (`fish_count`; groups, issue 22).
+        #[arg(long, default_value_t = 1)]
+        fish: u32,
     },
 }
 
@@ -82,9 +85,11 @@ struct SimBench {
     model: String,
     threads: usize,
     envs: usize,
+    fish: u32,
     policy_steps_per_s: f64,
     frames_per_s: f64,
     frames_per_s_per_core: f64,
+    fish_frames_per_s_per_core: f64,
 }
 
 #[derive(Debug, Serialize)]
@@ -119,7 +124,8 @@ pub fn run(a: BenchArgs) -> Result<()> {
             json,
             seconds,
             envs,
-        } => bench_sim(json, seconds, envs),
+            fish,
+        } => bench_sim(json, seconds, envs, fish),
         BenchWhat::Train {
             json,
             iterations,
@@ -213,7 +219,7 @@ fn walk_count(dir: &std::path::Path) -> usize {
         .sum()
 }
 
-fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {
+fn bench_sim(json: bool, seconds: f64, envs: Option<usize>, fish: u32) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0 && seconds <= 3600.0) {
         anyhow::bail!("--seconds must lie in (0, 3600], got {seconds}");
     }
@@ -225,7 +231,11 @@ fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {
     }
     let m = machine();
     let n_envs = envs.unwrap_or(32 * m.cores).max(1);
-    let cfg = EnvConfig::default();
+    let cfg = EnvConfig {
+        fish_count: fish,
+        ..EnvConfig::default()
+    };
+    cfg.validate().context("--fish")?;
     let frames_per_action = f64::from(cfg.frames_per_action);
     let mut rows = Vec::new();
     for name in ModelSpec::RULE_BASED {
@@ -246,7 +256,7 @@ fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {
             Ok(64)
         })
         .with_context(|| format!("single-core run of {name}"))?;
-        rows.push(row(name, 1, 1, steps, secs, frames_per_action));
+        rows.push(row(name, 1, 1, steps, secs, frames_per_action, fish));
 
         // All cores: a vector environment on the global thread pool.
         let mut venv = VecEnv::new(cfg.clone(), model, n_envs)?;
@@ -267,49 +277,67 @@ fn bench_sim(json: bool, seconds: f64, envs: Option<usize>) -> Result<()> {
             steps,
             secs,
             frames_per_action,
+            fish,
         ));
     }
     let mut text = String::new();
     if json {
         let out = serde_json::json!({ "bench": "sim", "machine": m, "results": rows,
-            "command": "fishprobe bench sim --json" });
+            "command": format!("fishprobe bench sim --fish {fish} --json") });
         text = serde_json::to_string_pretty(&out)? + "\n";
     } else {
         writeln!(
             text,
-            "fishprobe bench sim — {} cores, {} ({} {}); {:.1} s per measurement",
+            "fishprobe bench sim --fish {fish} — {} cores, {} ({} {}); {:.1} s per measurement",
             m.cores, m.cpu, m.os, m.arch, seconds
         )?;
         writeln!(
             text,
-            "{:<8} {:>7} {:>6} {:>16} {:>14} {:>18}",
-            "model", "threads", "envs", "policy steps/s", "frames/s", "frames/s per core"
+            "{:<8} {:>7} {:>6} {:>16} {:>14} {:>18} {:>23}",
+            "model",
+            "threads",
+            "envs",
+            "policy steps/s",
+            "frames/s",
+            "frames/s per core",
+            "fish-frames/s per core"
         )?;
         for r in &rows {
             writeln!(
                 text,
-                "{:<8} {:>7} {:>6} {:>16.0} {:>14.0} {:>18.0}",
+                "{:<8} {:>7} {:>6} {:>16.0} {:>14.0} {:>18.0} {:>23.0}",
                 r.model,
                 r.threads,
                 r.envs,
                 r.policy_steps_per_s,
                 r.frames_per_s,
-                r.frames_per_s_per_core
+                r.frames_per_s_per_core,
+                r.fish_frames_per_s_per_core
             )?;
         }
     }
     emit(&text)
 }
 
-fn row(model: &str, threads: usize, envs: usize, steps: u64, secs: f64, fpa: f64) -> SimBench {
+fn row(
+    model: &str,
+    threads: usize,
+    envs: usize,
+    steps: u64,
+    secs: f64,
+    fpa: f64,
+    fish: u32,
+) -> SimBench {
     let sps = steps as f64 / secs;
     SimBench {
         model: model.to_string(),
         threads,
         envs,
+        fish,
         policy_steps_per_s: sps,
         frames_per_s: sps * fpa,
         frames_per_s_per_core: sps * fpa / threads as f64,
+        fish_frames_per_s_per_core: sps * fpa * f64::from(fish) / threads as f64,
     }
 }
 

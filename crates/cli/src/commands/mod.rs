@@ -11,6 +11,7 @@ macro_rules! say {
 mod analyze;
 mod assay;
 mod bench;
+mod collective;
 mod compare_offline;
 mod config;
 mod evaluate;
@@ -71,6 +72,9 @@ enum Command {
     /// The fidelity sweep: probes trained under each reading of what the paper leaves open,
     /// scored against the paper's simulation results (issue 20).
     Fidelity(fidelity::FidelityArgs),
+    /// Groups in open water: Couzin's collective states of M_Zone (its phase picture) and
+    /// M_Force's order over alignment (issue 22).
+    Collective(collective::CollectiveArgs),
     /// Export a trained policy as ONNX (observation in, turn angle out).
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
@@ -200,5 +204,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(a) => export::run(a),
         Command::Assay(a) => assay::run(a),
         Command::Fidelity(a) => fidelity::run(a),
+        Command::Collective(a) => collective::run(a),
     }
 }

@@ -2,6 +2,7 @@
 //! when its inputs are absent (the report then says what is missing).
 
 mod approach;
+mod collective;
 mod gap_heatmap;
 mod goals;
 mod goals_over_time;
@@ -11,6 +12,7 @@ mod training;
 mod trajectories;
 
 pub use approach::approach;
+pub use collective::collective_phase;
 pub use gap_heatmap::gap_heatmap;
 pub use goals::goals;
 pub use goals_over_time::goals_over_time;

@@ -1,0 +1,230 @@
+//! `fishprobe collective`: Couzin's phase picture for free groups of M_Zone fish (issue 22),
+//! the validation that the group version of the model shows his four collective states, and
+//! for M_Force the polarisation over its alignment strength (Klamser et al. 2021).
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use fishprobe_models::collective::{
+    couzin_zone, run as run_group, CollectiveParams, CollectiveState, PhaseGrid, Swimmer,
+    COUZIN_TURN_RATE_RAD_S,
+};
+use fishprobe_models::{ForceParams, ZoneParams};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use super::emit;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum GroupModel {
+    /// M_Zone over Couzin's orientation and attraction widths.
+    Zone,
+    /// M_Force over its alignment strength.
+    Force,
+}
+
+#[derive(Debug, Args)]
+pub struct CollectiveArgs {
+    /// The model.
+    #[arg(long, value_enum, default_value_t = GroupModel::Zone)]
+    model: GroupModel,
+    /// Fish per group.
+    #[arg(long, default_value_t = 50)]
+    fish: u32,
+    /// Seeds per cell.
+    #[arg(long, default_value_t = 3)]
+    seeds: u64,
+    /// Simulated seconds per run (the first half is left out as burn-in).
+    #[arg(long, default_value_t = 150.0)]
+    seconds: f32,
+    /// M_Zone: orientation widths Δr_o (cm), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "0,1,2,4,8,12,16,20,30")]
+    orientation: Vec<f32>,
+    /// M_Zone: attraction widths Δr_a (cm), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "4,8,14,20,28,40")]
+    attraction: Vec<f32>,
+    /// M_Zone: maximum turning rate in rad/s, or `couzin` (40°/s) or `paper` (10 rad/s).
+    #[arg(long, default_value = "couzin")]
+    turn_rate: String,
+    /// M_Force: alignment strengths μ_alg, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "0,0.05,0.1,0.2,0.3,0.6")]
+    alignment: Vec<f32>,
+    /// Master seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the picture (collective-phase.svg/.png) and the numbers (collective.json) here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Most runs one invocation may ask for (cells x seeds).
+const MAX_RUNS: usize = 10_000;
+
+pub fn run(a: CollectiveArgs) -> Result<()> {
+    if a.seeds == 0 || a.seeds > 100 {
+        bail!("--seeds must lie in [1, 100], got {}", a.seeds);
+    }
+    let p = CollectiveParams {
+        fish: a.fish,
+        seconds: a.seconds,
+        burn_in_s: a.seconds / 2.0,
+        ..CollectiveParams::default()
+    };
+    p.validate("")
+        .map_err(|e| anyhow::anyhow!("{e}").context("--fish/--seconds"))?;
+    let turn = match a.turn_rate.as_str() {
+        "couzin" => COUZIN_TURN_RATE_RAD_S,
+        "paper" => ZoneParams::default().max_turn_rate_rad_s,
+        x => x
+            .parse::<f32>()
+            .ok()
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .with_context(|| {
+                format!("--turn-rate must be `couzin`, `paper` or a positive number, got `{x}`")
+            })?,
+    };
+    let swimmers: Vec<(Vec<f32>, Swimmer)> = match a.model {
+        GroupModel::Zone => {
+            let mut v = Vec::new();
+            for &ra in &a.attraction {
+                for &ro in &a.orientation {
+                    let zp = ZoneParams {
+                        max_turn_rate_rad_s: turn,
+                        ..couzin_zone(ro, ra)
+                    };
+                    let s = Swimmer::zone(zp)
+                        .map_err(|e| anyhow::anyhow!("{e}"))
+                        .with_context(|| format!("Δr_o = {ro}, Δr_a = {ra}"))?;
+                    v.push((vec![ro, ra], s));
+                }
+            }
+            v
+        }
+        GroupModel::Force => a
+            .alignment
+            .iter()
+            .map(|&al| {
+                let s = Swimmer::force(ForceParams {
+                    alignment: al,
+                    ..ForceParams::default()
+                })
+                .map_err(|e| anyhow::anyhow!("{e}"))
+                .with_context(|| format!("--alignment {al}"))?;
+                Ok((vec![al], s))
+            })
+            .collect::<Result<_>>()?,
+    };
+    let runs = swimmers.len() * a.seeds as usize;
+    if swimmers.is_empty() || runs > MAX_RUNS {
+        bail!("the sweep has {runs} runs; it must have 1 to {MAX_RUNS}");
+    }
+    let bar = ProgressBar::new(runs as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} run {pos}/{len}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let jobs: Vec<(usize, u64)> = (0..swimmers.len())
+        .flat_map(|c| (0..a.seeds).map(move |s| (c, s)))
+        .collect();
+    let results: Vec<CollectiveState> = jobs
+        .par_iter()
+        .map(|&(c, s)| {
+            let r = run_group(&swimmers[c].1, &p, a.seed.wrapping_add(s));
+            bar.inc(1);
+            r.map_err(|e| anyhow::anyhow!("{e}"))
+        })
+        .collect::<Result<_>>()?;
+    bar.finish_and_clear();
+    let cells: Vec<Vec<CollectiveState>> = results
+        .chunks(a.seeds as usize)
+        .map(<[CollectiveState]>::to_vec)
+        .collect();
+    match a.model {
+        GroupModel::Zone => {
+            let grid = PhaseGrid {
+                orientation_cm: a.orientation.clone(),
+                attraction_cm: a.attraction.clone(),
+                cells,
+                repulsion_cm: ZoneParams::default().repulsion_zone_cm,
+                fish: a.fish,
+                max_turn_rate_rad_s: turn,
+            };
+            if let Some(dir) = &a.out {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                let fig = fishprobe_report::figures::collective_phase(&grid);
+                fishprobe_report::write_figure(&fig, dir, 2.0)
+                    .with_context(|| format!("writing the picture into {}", dir.display()))?;
+                fishprobe_io::write_atomically(
+                    &dir.join("collective.json"),
+                    serde_json::to_string_pretty(&grid)?.as_bytes(),
+                )
+                .with_context(|| format!("writing {}", dir.join("collective.json").display()))?;
+            }
+            if a.json {
+                return emit(&(serde_json::to_string_pretty(&grid)? + "\n"));
+            }
+            let mut t = format!(
+                "M_Zone, {} fish in open water, turning rate {:.2} rad/s, {} seeds per cell \
+                 (mean polarisation / milling, state)\n{:>8} {:>8}  {:>6} {:>6}  state\n",
+                a.fish, grid.max_turn_rate_rad_s, a.seeds, "Δr_o cm", "Δr_a cm", "P", "M"
+            );
+            for (ai, ra) in grid.attraction_cm.iter().enumerate() {
+                for (oi, ro) in grid.orientation_cm.iter().enumerate() {
+                    let m = grid.mean(ai, oi);
+                    let _ = writeln!(
+                        t,
+                        "{ro:>8} {ra:>8}  {:>6.2} {:>6.2}  {}",
+                        m.polarisation,
+                        m.milling,
+                        grid.label(ai, oi)
+                    );
+                }
+            }
+            if let Some(dir) = &a.out {
+                let _ = writeln!(t, "picture and numbers in {}", dir.display());
+            }
+            emit(&t)
+        }
+        GroupModel::Force => {
+            let rows: Vec<serde_json::Value> = swimmers
+                .iter()
+                .zip(&cells)
+                .map(|((k, _), c)| serde_json::json!({"alignment": k[0], "runs": c}))
+                .collect();
+            if let Some(dir) = &a.out {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("creating {}", dir.display()))?;
+                fishprobe_io::write_atomically(
+                    &dir.join("collective-force.json"),
+                    serde_json::to_string_pretty(&rows)?.as_bytes(),
+                )?;
+            }
+            if a.json {
+                return emit(&(serde_json::to_string_pretty(&rows)? + "\n"));
+            }
+            let mut t = format!(
+                "M_Force, {} fish in open water, {} seeds (mean polarisation / milling / \
+                 nearest-neighbour distance)\n{:>9}  {:>6} {:>6} {:>8}\n",
+                a.fish, a.seeds, "μ_alg", "P", "M", "NND cm"
+            );
+            for ((k, _), c) in swimmers.iter().zip(&cells) {
+                let n = c.len() as f32;
+                let f = |g: fn(&CollectiveState) -> f32| c.iter().map(g).sum::<f32>() / n;
+                let _ = writeln!(
+                    t,
+                    "{:>9}  {:>6.2} {:>6.2} {:>8.1}",
+                    k[0],
+                    f(|s| s.polarisation),
+                    f(|s| s.milling),
+                    f(|s| s.mean_nnd_cm)
+                );
+            }
+            emit(&t)
+        }
+    }
+}
