@@ -5,7 +5,7 @@
 use crate::config::AnalysisConfig;
 use crate::results::*;
 use crate::study::{StudyFiles, REALITY_ARMS};
-use crate::trial::{load_trial, TrialData, METRICS};
+use crate::trial::{load_trial, TrialData, ALL_METRICS};
 use fishprobe_sim::{stream, SimRng};
 use fishprobe_stats as st;
 use rayon::prelude::*;
@@ -240,7 +240,8 @@ fn metric_gaps(
     if policies.is_empty() {
         return;
     }
-    let cells: Vec<(usize, &String)> = (0..METRICS.len())
+    // The nine pair metrics, and the six group metrics where both arms have groups.
+    let cells: Vec<(usize, &String)> = (0..ALL_METRICS.len())
         .flat_map(|m| policies.iter().map(move |p| (m, *p)))
         .collect();
     let gaps: Vec<Option<(f64, [f64; 2])>> = cells
@@ -248,7 +249,8 @@ fn metric_gaps(
         .map(|&(m, p)| {
             fn samples<'a>(v: &[&'a TrialData], m: usize) -> Vec<&'a [f64]> {
                 v.iter()
-                    .filter_map(|t| t.metrics.as_ref().map(|x| x[m].as_slice()))
+                    .filter_map(|t| t.metrics.as_ref().and_then(|x| x.get(m)))
+                    .map(Vec::as_slice)
                     .filter(|x| !x.is_empty())
                     .collect()
             }
@@ -261,7 +263,7 @@ fn metric_gaps(
                 .flat_map(|a| r.iter().map(move |b| st::wasserstein_sorted(a, b)))
                 .collect();
             let median = st::median(&matrix);
-            let mut g = rng(seed, &format!("metric_gaps/{}/{p}", METRICS[m]));
+            let mut g = rng(seed, &format!("metric_gaps/{}/{p}", ALL_METRICS[m]));
             let mut boot = st::cluster_bootstrap_median(
                 &matrix,
                 s.len(),
@@ -274,7 +276,7 @@ fn metric_gaps(
         })
         .collect();
     let mut rank_sums: BTreeMap<String, (f64, usize)> = BTreeMap::new();
-    for (m, name) in METRICS.iter().enumerate() {
+    for (m, name) in ALL_METRICS.iter().enumerate() {
         let row: Vec<(&String, (f64, [f64; 2]))> = policies
             .iter()
             .enumerate()

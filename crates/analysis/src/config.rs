@@ -36,6 +36,10 @@ fishprobe_sim::documented_params! {
         /// fraction of the best scripted controller's is flagged as a weak probe, whose
         /// strategy reflects the optimiser as much as the model (choice, issue 20: 0.8).
         pub competence_threshold: f64 = 0.8; "1",
+        /// Groups: a fish this close to the robot counts as within its reach for the group
+        /// metric `fish_near_robot` (choice: 15 cm, M_Force's interaction range and near
+        /// M_Zone's outer attraction radius of 18 cm).
+        pub robot_reach_cm: f32 = 15.0; "cm",
     }
 }
 
@@ -78,7 +82,8 @@ impl AnalysisConfig {
                 "must lie in (0, 1)",
             ));
         }
-        check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)
+        check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)?;
+        check::positive("analysis", "robot_reach_cm", self.robot_reach_cm)
     }
 
     /// Small replicate counts for quick looks and tests (the statistics are the same).

@@ -29,7 +29,7 @@ pub use config::AnalysisConfig;
 pub use error::AnalysisError;
 pub use results::Results;
 pub use study::StudyFiles;
-pub use trial::{load_trial, TrialData, METRICS};
+pub use trial::{load_trial, TrialData, ALL_METRICS, GROUP_METRICS, METRICS};
 
 use std::path::Path;
 

@@ -1,6 +1,11 @@
 //! One trial's numbers: goal events, time to goal, goals per minute, and the nine per-frame
 //! metrics of SPEC §8 over the control phase.
 //!
+//! A trial with a group of fish (issue 22) gives the nine pair metrics of every fish with the
+//! robot, pooled (so "per fish" distributions), plus the six group metrics of
+//! [`GROUP_METRICS`] per frame; a fish not tracked in a frame is left out of that frame's
+//! values (and a frame with fewer than two tracked fish has no group values).
+//!
 //! Goal events come from the file's `/fishprobe` group when present; otherwise they are
 //! recomputed from the fish track and the evaluation task (first goal active at the start of
 //! control, a goal reached when the fish is inside its radius, the next one active from that
@@ -26,6 +31,39 @@ pub const METRICS: [&str; 9] = [
     "wall_alignment",
 ];
 
+/// The group metrics (trials with two or more fish), in the order following the nine of
+/// [`METRICS`] in [`TrialData::metrics`]: polarisation (|mean heading|), milling (Couzin's
+/// group angular momentum), mean nearest-neighbour distance (cm), group spread (mean distance
+/// from the centroid, cm), robot-to-centroid distance (cm), and the fraction of the fish within
+/// `AnalysisConfig::robot_reach_cm` of the robot.
+pub const GROUP_METRICS: [&str; 6] = [
+    "polarisation",
+    "milling",
+    "mean_nnd",
+    "group_spread",
+    "robot_centroid_distance",
+    "fish_near_robot",
+];
+
+/// Every metric name, pair metrics first: index `m` of [`TrialData::metrics`] is `ALL_METRICS[m]`.
+pub const ALL_METRICS: [&str; 15] = [
+    "iid",
+    "iid_change",
+    "alignment",
+    "fish_speed",
+    "fish_turn",
+    "fish_goal_distance",
+    "fish_faces_robot",
+    "wall_distance",
+    "wall_alignment",
+    "polarisation",
+    "milling",
+    "mean_nnd",
+    "group_spread",
+    "robot_centroid_distance",
+    "fish_near_robot",
+];
+
 /// What the analysis needs of one trial.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrialData {
@@ -42,23 +80,28 @@ pub struct TrialData {
     /// Goals per minute of control: one bin per complete minute of control the trial has, at
     /// most `AnalysisConfig::minutes` (a shorter trial is not padded with empty minutes).
     pub goals_per_minute: Vec<u32>,
-    /// The nine metrics' per-frame values (finite, sorted ascending), when requested.
+    /// The metrics' per-frame values (finite, sorted ascending), when requested: the nine of
+    /// [`METRICS`] (pooled over the fish of a group), then for a group the six of
+    /// [`GROUP_METRICS`] ([`ALL_METRICS`] names them all).
     pub metrics: Option<Vec<Vec<f64>>>,
+    /// Fish in the trial.
+    pub fish: usize,
 }
 
-/// Robot and one fish of a trial, checked.
-fn agents(t: &TrialFile) -> Result<(&Entity, &Entity), String> {
+/// Robot and fish of a trial, checked: every entity must be tracked in some frame.
+fn agents(t: &TrialFile) -> Result<(&Entity, Vec<&Entity>), String> {
     let robot = t.robot().ok_or("trial without a robot entity")?;
-    let mut fish = t.fish();
-    let f = fish.next().ok_or("trial without a fish entity")?;
-    if fish.next().is_some() {
-        return Err("trial with more than one fish (the task metrics assume one)".into());
+    let fish: Vec<&Entity> = t.fish().collect();
+    if fish.is_empty() {
+        return Err("trial without a fish entity".into());
     }
-    if f.positions
-        .iter()
-        .all(|p| !(p[0].is_finite() && p[1].is_finite()))
-    {
-        return Err(format!("fish track `{}` is all NaN", f.name));
+    for f in &fish {
+        if f.positions
+            .iter()
+            .all(|p| !(p[0].is_finite() && p[1].is_finite()))
+        {
+            return Err(format!("fish track `{}` is all NaN", f.name));
+        }
     }
     if robot
         .positions
@@ -67,14 +110,14 @@ fn agents(t: &TrialFile) -> Result<(&Entity, &Entity), String> {
     {
         return Err(format!("robot track `{}` is all NaN", robot.name));
     }
-    Ok((robot, f))
+    Ok((robot, fish))
 }
 
 /// The goal active during each frame and the frames at which goals were reached (both from
 /// `control_start` on).
 fn goal_timeline(
     t: &TrialFile,
-    fish: &Entity,
+    fish: &[&Entity],
     control_start: usize,
     frames: usize,
     cfg: &AnalysisConfig,
@@ -110,8 +153,13 @@ fn goal_timeline(
     for (i, slot) in active.iter_mut().enumerate().skip(control_start) {
         let g = cfg.goals[k % cfg.goals.len()];
         *slot = g;
-        let p = fish.positions[i];
-        if (p[0] - g[0]).powi(2) + (p[1] - g[1]).powi(2) < r2 {
+        // Without a recorded task a group reaches a goal when any fish does (the default of
+        // `task.group_goal`); a recorded task's goal frames say what its setting counted.
+        let inside = |f: &&Entity| {
+            let p = f.positions[i];
+            (p[0] - g[0]).powi(2) + (p[1] - g[1]).powi(2) < r2
+        };
+        if fish.iter().any(inside) {
             events.push(i);
             k += 1;
         }
@@ -127,14 +175,17 @@ pub fn load_trial(
 ) -> Result<TrialData, String> {
     let t = read_trial(path).map_err(|e| e.to_string())?;
     let (robot, fish) = agents(&t)?;
-    let frames = robot.frames().min(fish.frames());
+    let frames = fish
+        .iter()
+        .map(|f| f.frames())
+        .fold(robot.frames(), usize::min);
     let rate = f64::from(t.frame_rate_hz);
     let control_start = t
         .task
         .as_ref()
         .map_or(0, |k| k.control_start_frame as usize)
         .min(frames);
-    let (active, events) = goal_timeline(&t, fish, control_start, frames, cfg);
+    let (active, events) = goal_timeline(&t, &fish, control_start, frames, cfg);
 
     let control_minutes = ((frames - control_start) as f64 / rate / 60.0 + 1e-9).floor() as usize;
     let mut goals_per_minute = vec![0u32; cfg.minutes.min(control_minutes)];
@@ -148,8 +199,13 @@ pub fn load_trial(
         waits.push((e - activated) as f64 / rate);
         activated = e;
     }
-    let metrics =
-        with_metrics.then(|| per_frame_metrics(&t, robot, fish, &active, control_start, frames));
+    let metrics = with_metrics.then(|| {
+        let mut m = per_frame_metrics(&t, robot, &fish, &active, control_start, frames);
+        if fish.len() >= 2 {
+            m.extend(group_metrics(robot, &fish, control_start, frames, cfg));
+        }
+        m
+    });
     Ok(TrialData {
         path: path.to_path_buf(),
         kind: t.task.as_ref().map(|k| k.kind),
@@ -158,6 +214,7 @@ pub fn load_trial(
         time_to_goal_s: (!waits.is_empty()).then(|| waits.iter().sum::<f64>() / waits.len() as f64),
         goals_per_minute,
         metrics,
+        fish: fish.len(),
     })
 }
 
@@ -175,7 +232,7 @@ fn headings(e: &Entity) -> Vec<f32> {
 fn per_frame_metrics(
     t: &TrialFile,
     robot: &Entity,
-    fish: &Entity,
+    fish: &[&Entity],
     active: &[[f32; 2]],
     start: usize,
     frames: usize,
@@ -186,39 +243,81 @@ fn per_frame_metrics(
         f64::from(t.world_size_cm[1]) / 2.0,
     );
     let hr = headings(robot);
-    let hf = headings(fish);
     let p = |e: &Entity, i: usize| [f64::from(e.positions[i][0]), f64::from(e.positions[i][1])];
-    let iid_at = |i: usize| {
-        let (a, b) = (p(robot, i), p(fish, i));
-        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
-    };
-    let n = frames.saturating_sub(start);
+    let n = frames.saturating_sub(start) * fish.len();
     let mut m: Vec<Vec<f64>> = (0..9).map(|_| Vec::with_capacity(n)).collect();
+    for &fish in fish {
+        let hf = headings(fish);
+        let iid_at = |i: usize| {
+            let (a, b) = (p(robot, i), p(fish, i));
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+        };
+        for i in start..frames {
+            let (r, f) = (p(robot, i), p(fish, i));
+            let (th_r, th_f) = (f64::from(hr[i]), f64::from(hf[i]));
+            let iid = iid_at(i);
+            m[0].push(iid);
+            if i + 1 < frames {
+                m[1].push((iid_at(i + 1) - iid) * rate);
+                let f2 = p(fish, i + 1);
+                m[3].push(((f2[0] - f[0]).powi(2) + (f2[1] - f[1]).powi(2)).sqrt() * rate);
+                m[4].push(f64::from(wrap_angle(hf[i + 1] - hf[i])) * rate);
+            }
+            m[2].push((th_r - th_f).cos());
+            let g = active[i];
+            m[5].push(((f[0] - f64::from(g[0])).powi(2) + (f[1] - f64::from(g[1])).powi(2)).sqrt());
+            if iid > 1e-9 {
+                m[6].push((th_f.cos() * (r[0] - f[0]) + th_f.sin() * (r[1] - f[1])) / iid);
+            }
+            let (dx, dy) = (hx - f[0].abs(), hy - f[1].abs());
+            m[7].push(dx.min(dy));
+            // |ê_f · t|: along a left/right wall t = (0, 1), along a top/bottom wall t = (1, 0).
+            m[8].push(if dx <= dy {
+                th_f.sin().abs()
+            } else {
+                th_f.cos().abs()
+            });
+        }
+    }
+    for v in &mut m {
+        v.retain(|x| x.is_finite());
+        v.sort_unstable_by(f64::total_cmp);
+    }
+    m
+}
+
+/// The six group metrics per frame of a group trial (sorted, finite): frames with fewer than
+/// two tracked fish have none; an untracked fish is left out of its frame.
+fn group_metrics(
+    robot: &Entity,
+    fish: &[&Entity],
+    start: usize,
+    frames: usize,
+    cfg: &AnalysisConfig,
+) -> Vec<Vec<f64>> {
+    use fishprobe_sim::{group_order, robot_to_group, AgentState};
+    let headings: Vec<Vec<f32>> = fish.iter().map(|f| headings(f)).collect();
+    let mut m: Vec<Vec<f64>> = (0..GROUP_METRICS.len())
+        .map(|_| Vec::with_capacity(frames.saturating_sub(start)))
+        .collect();
+    let mut now = vec![AgentState::default(); fish.len()];
     for i in start..frames {
-        let (r, f) = (p(robot, i), p(fish, i));
-        let (th_r, th_f) = (f64::from(hr[i]), f64::from(hf[i]));
-        let iid = iid_at(i);
-        m[0].push(iid);
-        if i + 1 < frames {
-            m[1].push((iid_at(i + 1) - iid) * rate);
-            let f2 = p(fish, i + 1);
-            m[3].push(((f2[0] - f[0]).powi(2) + (f2[1] - f[1]).powi(2)).sqrt() * rate);
-            m[4].push(f64::from(wrap_angle(hf[i + 1] - hf[i])) * rate);
+        for ((a, f), h) in now.iter_mut().zip(fish).zip(&headings) {
+            let [x, y] = f.positions[i];
+            *a = AgentState::at(x, y, h[i]);
         }
-        m[2].push((th_r - th_f).cos());
-        let g = active[i];
-        m[5].push(((f[0] - f64::from(g[0])).powi(2) + (f[1] - f64::from(g[1])).powi(2)).sqrt());
-        if iid > 1e-9 {
-            m[6].push((th_f.cos() * (r[0] - f[0]) + th_f.sin() * (r[1] - f[1])) / iid);
+        if let Some(g) = group_order(&now) {
+            m[0].push(f64::from(g.polarisation));
+            m[1].push(f64::from(g.milling));
+            m[2].push(f64::from(g.mean_nnd_cm));
+            m[3].push(f64::from(g.spread_cm));
+            let [x, y] = robot.positions[i];
+            let r = AgentState::at(x, y, 0.0);
+            if let Some((d, near)) = robot_to_group(&r, &now, cfg.robot_reach_cm) {
+                m[4].push(f64::from(d));
+                m[5].push(f64::from(near));
+            }
         }
-        let (dx, dy) = (hx - f[0].abs(), hy - f[1].abs());
-        m[7].push(dx.min(dy));
-        // |ê_f · t|: along a left/right wall t = (0, 1), along a top/bottom wall t = (1, 0).
-        m[8].push(if dx <= dy {
-            th_f.sin().abs()
-        } else {
-            th_f.cos().abs()
-        });
     }
     for v in &mut m {
         v.retain(|x| x.is_finite());

@@ -100,3 +100,88 @@ fn unusable_trials_say_why() {
     let e = load_trial(&p, &AnalysisConfig::default(), true).unwrap_err();
     assert!(e.contains("all NaN"), "{e}");
 }
+
+#[test]
+fn a_group_trial_gives_per_fish_pair_metrics_and_the_group_metrics() {
+    use fishprobe_analysis::{ALL_METRICS, GROUP_METRICS};
+    // Robot still at the centre; four fish on a ring of 10 cm around (20, 0), each heading
+    // tangentially (a torus); fish 4 is untracked in frame 1.
+    let robot = vec![[0.0, 0.0, 0.0]; 3];
+    let ring = |k: usize| {
+        let a = k as f32 * std::f32::consts::FRAC_PI_2;
+        [
+            20.0 + 10.0 * a.cos(),
+            10.0 * a.sin(),
+            a + std::f32::consts::FRAC_PI_2,
+        ]
+    };
+    let mut fish: Vec<Vec<[f32; 3]>> = (0..4).map(|k| vec![ring(k); 3]).collect();
+    fish[3][1] = [f32::NAN; 3];
+    let dir = std::env::temp_dir().join(format!("fishprobe-analysis-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("group.hdf5");
+    let mut entities = vec![entity("robot", "robot", &robot)];
+    for (k, f) in fish.iter().enumerate() {
+        entities.push(entity(&format!("fish_{}", k + 1), "fish", f));
+    }
+    let t = TrialFile {
+        world_size_cm: [100.0, 100.0],
+        frame_rate_hz: 25.0,
+        entities,
+        attributes: BTreeMap::new(),
+        task: None,
+    };
+    write_trial(&p, &t).unwrap();
+    let cfg = AnalysisConfig::default();
+    let t = load_trial(&p, &cfg, true).unwrap();
+    assert_eq!(t.fish, 4);
+    let m = t.metrics.unwrap();
+    assert_eq!(m.len(), ALL_METRICS.len());
+    let get = |name: &str| &m[ALL_METRICS.iter().position(|x| *x == name).unwrap()];
+    // Pair metrics pooled over the fish: 3 frames x 4 fish less the untracked one.
+    assert_eq!(get("iid").len(), 11);
+    assert!((get("iid")[0] - 10.0).abs() < 1e-4); // fish 3 at (10, 0)
+                                                  // Group metrics per frame; frame 1 has three fish (the fourth untracked).
+    assert_eq!(get("polarisation").len(), 3);
+    assert!(
+        get("milling")[1..].iter().all(|&v| (v - 1.0).abs() < 1e-5),
+        "{m:?}"
+    );
+    assert!(get("group_spread")[1..]
+        .iter()
+        .all(|&v| (v - 10.0).abs() < 1e-4));
+    // The robot is 20 cm from the centroid; only fish 3 (10 cm away) is within 15 cm.
+    assert!(get("robot_centroid_distance")[..2]
+        .iter()
+        .all(|&v| (v - 20.0).abs() < 1e-4));
+    let near = get("fish_near_robot");
+    assert!(
+        (near[0] - 0.25).abs() < 1e-6 && (near[2] - 1.0 / 3.0).abs() < 1e-6,
+        "{near:?}"
+    );
+    assert_eq!(GROUP_METRICS.len(), 6);
+
+    // A pair trial has the nine metrics only, as before.
+    let pair = write("pair.hdf5", &robot, &fish[0], 25.0);
+    let t = load_trial(&pair, &cfg, true).unwrap();
+    assert_eq!((t.fish, t.metrics.unwrap().len()), (1, 9));
+
+    // A fish never tracked is refused by name.
+    let mut lost = fish.clone();
+    lost[2] = vec![[f32::NAN; 3]; 3];
+    let q = dir.join("lost.hdf5");
+    let mut entities = vec![entity("robot", "robot", &robot)];
+    for (k, f) in lost.iter().enumerate() {
+        entities.push(entity(&format!("fish_{}", k + 1), "fish", f));
+    }
+    let tf = TrialFile {
+        world_size_cm: [100.0, 100.0],
+        frame_rate_hz: 25.0,
+        entities,
+        attributes: BTreeMap::new(),
+        task: None,
+    };
+    write_trial(&q, &tf).unwrap();
+    let e = load_trial(&q, &cfg, true).unwrap_err();
+    assert!(e.contains("fish_3") && e.contains("NaN"), "{e}");
+}
