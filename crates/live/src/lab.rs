@@ -74,7 +74,7 @@ pub struct LabTrial {
     pub goals_reached: u32,
     /// Frames sent.
     pub frames_sent: u64,
-    /// Frames in which the fish was reported lost.
+    /// Frames in which a fish was reported lost (summed over the fish of a group).
     pub frames_lost: u64,
     /// Stop commands received.
     pub stops: u64,
@@ -126,13 +126,22 @@ pub fn run_trial(
     };
     conn.write_all(to_line(&hello).as_bytes()).map_err(net)?;
     let wait = Duration::from_secs_f32(cfg.command_timeout_s);
-    let (habituation, release, control) = match rx.recv_timeout(wait) {
+    let (habituation, release, control, n_fish) = match rx.recv_timeout(wait) {
         Ok(Ok(ServerMsg::Welcome {
             habituation_s,
             release_s,
             control_s,
+            fish_count,
             ..
-        })) => (habituation_s, release_s, control_s),
+        })) => {
+            if !(1..=fishprobe_sim::MAX_FISH as u32).contains(&fish_count) {
+                return Err(LiveError::Net(format!(
+                    "the bridge asks for {fish_count} fish; the virtual lab holds 1 to {}",
+                    fishprobe_sim::MAX_FISH
+                )));
+            }
+            (habituation_s, release_s, control_s, fish_count as usize)
+        }
         Ok(Ok(ServerMsg::Error { reason })) => return Err(LiveError::Refused(reason)),
         Ok(Ok(other)) => return Err(LiveError::Net(format!("expected welcome, got {other:?}"))),
         Ok(Err(e)) => return Err(LiveError::Net(e)),
@@ -141,23 +150,40 @@ pub fn run_trial(
     let tank = Tank::new(&TankParams::default());
     let rp = RobotParams::default();
     let dt = 1.0 / cfg.tracking_hz;
-    let mut rng_fish = stream(seed, "lab/fish", 0);
+    // One stream per fish: fish 0 draws what the one fish of a pair trial drew.
+    let mut rng_fish: Vec<SimRng> = (0..n_fish as u64)
+        .map(|i| stream(seed, "lab/fish", i))
+        .collect();
     let mut rng_track = stream(seed, "lab/tracking", 0);
     let mut robot = Robot::at(
         0.0,
         0.0,
         rng_track.random_range(-std::f32::consts::PI..std::f32::consts::PI),
     );
-    let mut fish = AgentState::at(
-        cfg.container[0],
-        cfg.container[1],
-        std::f32::consts::FRAC_PI_4,
-    );
+    // The fish wait in the container, a group in a small cluster (choice: 2 cm apart along the
+    // corner's diagonal and across it), each its own individual.
+    let mut fish: Vec<AgentState> = (0..n_fish)
+        .map(|i| {
+            let (along, across) = ((i / 2) as f32 * 2.0, (i % 2) as f32 * 2.0);
+            let dir = [
+                -cfg.container[0].signum() * std::f32::consts::FRAC_1_SQRT_2,
+                -cfg.container[1].signum() * std::f32::consts::FRAC_1_SQRT_2,
+            ];
+            AgentState::at(
+                cfg.container[0] + along * dir[0] - across * dir[1],
+                cfg.container[1] + along * dir[1] + across * dir[0],
+                std::f32::consts::FRAC_PI_4,
+            )
+        })
+        .collect();
     let model = Guppy::new(guppy.clone())?;
-    let mut mind = FishMind::default();
-    model.begin_episode(&fish, &mut mind, &mut rng_fish);
+    let mut minds = vec![FishMind::default(); n_fish];
+    for ((f, m), r) in fish.iter().zip(&mut minds).zip(&mut rng_fish) {
+        model.begin_episode(f, m, r);
+    }
+    let mut motions = vec![fishprobe_sim::FishMotion::default(); n_fish];
+    let mut dropout_left = vec![0.0f32; n_fish];
     let mut stopped = false;
-    let mut dropout_left = 0.0f32;
     let mut out = LabTrial {
         file: String::new(),
         goals_reached: 0,
@@ -213,18 +239,25 @@ pub fn run_trial(
                 robot.advance(&rp, &tank, dt);
             }
             if t >= release {
-                let view =
-                    FishView::build(0, &[fish], &[robot.state], tank, dt, (t - release) as f32);
-                let m = model.decide(&view, &[], &mut mind, &mut rng_fish);
-                apply_motion(&tank, &mut fish, m, dt);
+                // Every fish decides from the same snapshot, then all move.
+                for (i, m) in motions.iter_mut().enumerate() {
+                    let view =
+                        FishView::build(i, &fish, &[robot.state], tank, dt, (t - release) as f32);
+                    *m = model.decide(&view, &[], &mut minds[i], &mut rng_fish[i]);
+                }
+                for (f, m) in fish.iter_mut().zip(&motions) {
+                    apply_motion(&tank, f, *m, dt);
+                }
             }
         }
-        // Tracking: noise, and fish dropouts.
-        if dropout_left > 0.0 {
-            dropout_left -= dt;
-        } else if rng_track.random::<f32>() < cfg.dropouts_per_min / 60.0 * dt {
-            dropout_left = cfg.dropout_min_s
-                + (cfg.dropout_max_s - cfg.dropout_min_s) * rng_track.random::<f32>();
+        // Tracking: noise, and fish dropouts (each fish its own).
+        for left in &mut dropout_left {
+            if *left > 0.0 {
+                *left -= dt;
+            } else if rng_track.random::<f32>() < cfg.dropouts_per_min / 60.0 * dt {
+                *left = cfg.dropout_min_s
+                    + (cfg.dropout_max_s - cfg.dropout_min_s) * rng_track.random::<f32>();
+            }
         }
         let noisy = |s: &AgentState, r: &mut SimRng| Pose {
             x: s.x + cfg.position_noise_cm * normal(r),
@@ -232,18 +265,22 @@ pub fn run_trial(
             heading: wrap_angle(s.heading + cfg.heading_noise_rad * normal(r)),
         };
         let robot_pose = noisy(&robot.state, &mut rng_track);
-        let fish_pose = noisy(&fish, &mut rng_track);
-        let lost = dropout_left > 0.0;
-        if lost {
-            out.frames_lost += 1;
+        let mut poses = Vec::with_capacity(n_fish);
+        for (i, (f, left)) in fish.iter().zip(&dropout_left).enumerate() {
+            let pose = noisy(f, &mut rng_track);
+            let lost = *left > 0.0;
+            if lost {
+                out.frames_lost += 1;
+            }
+            poses.push(FishPose {
+                id: format!("fish_{}", i + 1),
+                pose: (!lost).then_some(pose),
+            });
         }
         let frame = ClientMsg::Frame {
             t,
             robot: Some(robot_pose),
-            fish: vec![FishPose {
-                id: "fish_1".into(),
-                pose: (!lost).then_some(fish_pose),
-            }],
+            fish: poses,
         };
         if conn.write_all(to_line(&frame).as_bytes()).is_err() {
             break;

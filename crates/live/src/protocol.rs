@@ -106,6 +106,10 @@ pub enum ServerMsg {
         control_s: f64,
         /// Commands per second of tracking time.
         command_hz: f64,
+        /// Fish the bridge expects in each frame, in a fixed order (absent: 1, as before
+        /// groups; sent only when more than one).
+        #[serde(default = "one_fish", skip_serializing_if = "is_one_fish")]
+        fish_count: u32,
     },
     /// A robot command. Scheduled ones (`seq` = the second of the trial) come once per
     /// 1 / command_hz of tracking time; unscheduled ones (`seq` null) stop the robot at once.
@@ -164,6 +168,15 @@ pub fn to_line<T: Serialize>(m: &T) -> String {
     });
     s.push('\n');
     s
+}
+
+fn one_fish() -> u32 {
+    1
+}
+
+#[allow(clippy::trivially_copy_pass_by_ref)] // serde's skip_serializing_if passes a reference
+fn is_one_fish(n: &u32) -> bool {
+    *n == 1
 }
 
 #[cfg(test)]

@@ -453,6 +453,7 @@ fn run_trial(
         release_s: cfg.release_s,
         control_s: cfg.control_s,
         command_hz: cfg.command_hz,
+        fish_count: cfg.fish_count,
     };
     let mut alive = send(&mut stream, &welcome).is_ok();
     // The silence stop counts from the last complete, valid frame (or the welcome).

@@ -30,6 +30,11 @@ fishprobe_sim::documented_params! {
         pub file_rate_hz: f32 = 25.0; "Hz",
         /// Longest accepted message (bytes); longer lines are dropped and the robot stopped.
         pub max_message_bytes: usize = 65_536; "bytes",
+        /// Fish in the tank (1 to 16; paper: 1). Each frame lists them in a fixed order; a
+        /// fish missing from the list or with a null pose is untracked in that frame. The
+        /// robot stops when it or every fish is untracked for `stale_s` (choice: in a group
+        /// fish hide behind each other, so one tracked fish suffices).
+        pub fish_count: u32 = 1; "1",
     }
 }
 
@@ -65,6 +70,14 @@ impl LiveConfig {
                 "release_s",
                 self.release_s,
                 "must lie within the habituation",
+            ));
+        }
+        if !(1..=fishprobe_sim::MAX_FISH as u32).contains(&self.fish_count) {
+            return Err(ConfigError::new(
+                "live",
+                "fish_count",
+                self.fish_count,
+                &format!("must lie in [1, {}]", fishprobe_sim::MAX_FISH),
             ));
         }
         check::positive("live", "mill_radius_cm", self.mill_radius_cm)?;
@@ -109,10 +122,12 @@ pub struct Session {
     next_seq: u64,
     last_good: Option<f64>,
     last_robot: Option<Pose>,
-    last_fish: Option<Pose>,
+    /// Per fish, its last tracked pose.
+    last_fish: Vec<Option<Pose>>,
     stopped: Option<String>,
     robot: Vec<[f32; 3]>,
-    fish: Vec<[f32; 3]>,
+    /// Per fish, its pose per stored frame.
+    fish: Vec<Vec<[f32; 3]>>,
     active: Vec<i32>,
     goal_frames: Vec<u64>,
     command_frames: Vec<u64>,
@@ -153,6 +168,7 @@ impl Session {
         let n = encoder.size();
         let mut rng = stream(0, "live-goals", 0);
         let goals = GoalTracker::start(TaskMode::Evaluation, &task, &tank, &[], &mut rng);
+        let n_fish = cfg.fish_count as usize;
         Ok(Self {
             kind: if source == "virtual_lab" {
                 TrialKind::Virtual
@@ -174,10 +190,10 @@ impl Session {
             next_seq: 0,
             last_good: None,
             last_robot: None,
-            last_fish: None,
+            last_fish: vec![None; n_fish],
             stopped: None,
             robot: Vec::new(),
-            fish: Vec::new(),
+            fish: vec![Vec::new(); n_fish],
             active: Vec::new(),
             goal_frames: Vec::new(),
             command_frames: Vec::new(),
@@ -333,27 +349,37 @@ impl Session {
             return out;
         }
         let robot = robot.filter(Pose::is_valid);
-        let fish_pose = fish.first().and_then(|f| f.pose).filter(Pose::is_valid);
-        // The fish counts from its release on; before, only the robot must be tracked.
+        // The fish in the frame's order; those beyond fish_count are not ours to track.
+        let fish_poses: Vec<Option<Pose>> = (0..self.fish.len())
+            .map(|i| fish.get(i).and_then(|f| f.pose).filter(Pose::is_valid))
+            .collect();
+        let any_fish = fish_poses.iter().any(Option::is_some);
+        // The fish count from their release on; before, only the robot must be tracked.
         let need_fish = rel >= self.cfg.release_s;
-        let good = robot.is_some() && (fish_pose.is_some() || !need_fish);
+        let good = robot.is_some() && (any_fish || !need_fish);
         if let Some(r) = robot {
             self.last_robot = Some(r);
         }
-        if let Some(f) = fish_pose {
-            self.last_fish = Some(f);
+        for (last, now) in self.last_fish.iter_mut().zip(&fish_poses) {
+            if now.is_some() {
+                *last = *now;
+            }
         }
         // Store the frame (gaps as NaN; frames skipped by the tracker as NaN too).
         let k = self.frame_index(t) as usize;
         while self.robot.len() < k {
             self.robot.push(LOST);
-            self.fish.push(LOST);
+            for f in &mut self.fish {
+                f.push(LOST);
+            }
             self.active.push(self.active.last().copied().unwrap_or(0));
         }
         if self.robot.len() == k {
             let p = |x: Option<Pose>| x.map_or(LOST, |p| [p.x, p.y, p.heading]);
             self.robot.push(p(robot));
-            self.fish.push(p(fish_pose));
+            for (f, now) in self.fish.iter_mut().zip(&fish_poses) {
+                f.push(p(*now));
+            }
             self.active.push(self.goals.index as i32);
         }
         // Safety.
@@ -378,11 +404,16 @@ impl Session {
                 );
             }
         }
-        // Goals, during control, on every frame with a tracked fish.
-        if phase == Phase::Control {
-            if let Some(f) = fish_pose {
+        // Goals, during control, on every frame with a tracked fish (a group by
+        // `task.group_goal`, over the fish tracked in this frame).
+        if phase == Phase::Control && any_fish {
+            {
                 let mut rng = stream(0, "live-goals", 0);
-                let me = [AgentState::at(f.x, f.y, f.heading)];
+                let me: Vec<AgentState> = fish_poses
+                    .iter()
+                    .flatten()
+                    .map(|f| AgentState::at(f.x, f.y, f.heading))
+                    .collect();
                 if self
                     .goals
                     .check(TaskMode::Evaluation, &self.task, &self.tank, &me, &mut rng)
@@ -442,11 +473,20 @@ impl Session {
     }
 
     fn policy_turn(&mut self) -> f32 {
-        let (Some(r), Some(f)) = (self.last_robot, self.last_fish) else {
+        // Every fish where it was last seen (a fish never seen yet is left out).
+        let fish: Vec<AgentState> = self
+            .last_fish
+            .iter()
+            .flatten()
+            .map(|f| AgentState::at(f.x, f.y, f.heading))
+            .collect();
+        let Some(r) = self.last_robot else {
             return 0.0;
         };
+        if fish.is_empty() {
+            return 0.0;
+        }
         let robot = AgentState::at(r.x, r.y, r.heading);
-        let fish = [AgentState::at(f.x, f.y, f.heading)];
         let scene = Scene {
             tank: &self.tank,
             robot: &robot,
@@ -507,10 +547,13 @@ impl Session {
         TrialFile {
             world_size_cm: [100.0, 100.0],
             frame_rate_hz: self.cfg.file_rate_hz,
-            entities: vec![
-                entity("robot", Category::Robot, "robot", &self.robot),
-                entity("fish_1", Category::Fish, "fish", &self.fish),
-            ],
+            entities: std::iter::once(entity("robot", Category::Robot, "robot", &self.robot))
+                .chain(
+                    self.fish.iter().enumerate().map(|(i, f)| {
+                        entity(&format!("fish_{}", i + 1), Category::Fish, "fish", f)
+                    }),
+                )
+                .collect(),
             attributes,
             task: Some(TaskRecord {
                 kind: self.kind,
@@ -666,5 +709,104 @@ mod tests {
         }
         .validate()
         .is_err());
+    }
+
+    #[test]
+    fn a_group_is_tracked_per_fish_stops_only_when_every_fish_is_lost_and_reaches_goals_by_its_rule(
+    ) {
+        let group = |t: f64, fish: [Option<(f32, f32)>; 3]| ClientMsg::Frame {
+            t,
+            robot: Some(Pose {
+                x: 0.0,
+                y: 0.0,
+                heading: 0.0,
+            }),
+            fish: fish
+                .iter()
+                .enumerate()
+                .map(|(i, f)| FishPose {
+                    id: format!("fish_{}", i + 1),
+                    pose: f.map(|(x, y)| Pose { x, y, heading: 0.0 }),
+                })
+                .collect(),
+        };
+        let cfg = LiveConfig {
+            fish_count: 3,
+            ..short()
+        };
+        let task = TaskParams {
+            group_goal: fishprobe_sim::GroupGoal::Centroid,
+            ..TaskParams::default()
+        };
+        let mut s = Session::new(cfg, task, Box::new(Straight), "virtual_lab").unwrap();
+        let mut stopped = false;
+        for k in 0..300 {
+            let t = 100.0 + f64::from(k) * 0.04;
+            let fish = if k < 150 {
+                // Fish 3 untracked throughout: no stop, one tracked fish suffices.
+                [Some((30.0, 30.0)), Some((31.0, 30.0)), None]
+            } else if k < 200 {
+                // One fish in the first goal, the centroid far off: no goal.
+                [Some((-20.0, -20.0)), Some((30.0, 30.0)), None]
+            } else {
+                // Both tracked fish around the goal: the centroid is inside it.
+                [Some((-22.0, -20.0)), Some((-18.0, -20.0)), None]
+            };
+            for m in s.on_message(group(t, fish)) {
+                if let ServerMsg::Command { stop: true, .. } = m {
+                    stopped = true;
+                }
+            }
+            if k == 199 {
+                assert_eq!(
+                    s.goals_reached(),
+                    0,
+                    "one fish in the goal is not the centroid"
+                );
+            }
+        }
+        assert!(
+            !stopped,
+            "a group with one untracked fish stopped the robot"
+        );
+        assert_eq!(s.goals_reached(), 1);
+        let f = s.trial_file("virtual guppy");
+        let fish: Vec<&Entity> = f.fish().collect();
+        assert_eq!(fish.len(), 3);
+        assert!(fish[2].positions.iter().all(|p| p[0].is_nan()));
+        assert!(fish[1].positions.iter().all(|p| p[0].is_finite()));
+
+        // Every fish lost past the release: the robot stops.
+        let mut s = Session::new(
+            LiveConfig {
+                fish_count: 3,
+                ..short()
+            },
+            TaskParams::default(),
+            Box::new(Straight),
+            "lab",
+        )
+        .unwrap();
+        let mut reason = None;
+        for k in 0..150 {
+            let t = 100.0 + f64::from(k) * 0.04;
+            for m in s.on_message(group(t, [None, None, None])) {
+                if let ServerMsg::Command {
+                    stop: true,
+                    reason: r,
+                    ..
+                } = m
+                {
+                    reason = r;
+                }
+            }
+        }
+        assert!(reason.is_some_and(|r| r.contains("fish not tracked")));
+        let bad = LiveConfig {
+            fish_count: 17,
+            ..short()
+        };
+        let e = Session::new(bad, TaskParams::default(), Box::new(Straight), "lab");
+        assert!(e.err().unwrap().to_string().contains("fish_count"));
     }
 }

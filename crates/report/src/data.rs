@@ -45,13 +45,13 @@ pub struct Track {
     pub path: PathBuf,
     /// Robot positions (cm).
     pub robot: Vec<[f32; 2]>,
-    /// Fish positions (cm).
-    pub fish: Vec<[f32; 2]>,
+    /// Fish positions (cm), per fish (one for a pair, several for a group).
+    pub fish: Vec<Vec<[f32; 2]>>,
     /// The goals of the trial.
     pub goals: Vec<[f32; 2]>,
     /// Goal radius (cm).
     pub goal_radius_cm: f32,
-    /// Fish positions at the frames a goal was reached.
+    /// Fish positions (a group's centroid) at the frames a goal was reached.
     pub reached: Vec<[f32; 2]>,
     /// Frame rate.
     pub rate_hz: f32,
@@ -345,17 +345,36 @@ fn recorded(path: &Path) -> Option<String> {
 fn track(path: &Path, cfg: &ReportConfig) -> Result<Track, String> {
     let t: TrialFile = read_trial(path).map_err(|e| e.to_string())?;
     let robot = t.robot().ok_or("no robot")?;
-    let fish = t.fish().next().ok_or("no fish")?;
+    let fish: Vec<&fishprobe_io::Entity> = t.fish().collect();
+    if fish.is_empty() {
+        return Err("no fish".into());
+    }
     let start = t
         .task
         .as_ref()
         .map_or(0, |k| k.control_start_frame as usize);
-    let frames = robot.frames().min(fish.frames());
+    let frames = fish
+        .iter()
+        .map(|f| f.frames())
+        .fold(robot.frames(), usize::min);
     let end = (start + (f64::from(cfg.trajectory_seconds) * f64::from(t.frame_rate_hz)) as usize)
         .min(frames);
     if start >= end {
         return Err("no frame of control".into());
     }
+    // Where the fish were when a goal was reached: one fish, or a group's tracked centroid.
+    let centroid = |g: usize| {
+        let tracked: Vec<[f32; 2]> = fish
+            .iter()
+            .map(|f| f.positions[g])
+            .filter(|p| p[0].is_finite() && p[1].is_finite())
+            .collect();
+        let n = tracked.len().max(1) as f32;
+        let (x, y) = tracked
+            .iter()
+            .fold((0.0, 0.0), |(x, y), p| (x + p[0], y + p[1]));
+        [x / n, y / n]
+    };
     let (goals, radius, reached) = match &t.task {
         Some(k) => (
             k.goals.clone(),
@@ -364,7 +383,7 @@ fn track(path: &Path, cfg: &ReportConfig) -> Result<Track, String> {
                 .iter()
                 .filter_map(|&g| usize::try_from(g).ok())
                 .filter(|&g| g >= start && g < end)
-                .map(|g| fish.positions[g])
+                .map(centroid)
                 .collect(),
         ),
         None => (Vec::new(), 5.0, Vec::new()),
@@ -372,7 +391,10 @@ fn track(path: &Path, cfg: &ReportConfig) -> Result<Track, String> {
     Ok(Track {
         path: path.to_path_buf(),
         robot: robot.positions[start..end].to_vec(),
-        fish: fish.positions[start..end].to_vec(),
+        fish: fish
+            .iter()
+            .map(|f| f.positions[start..end].to_vec())
+            .collect(),
         goals,
         goal_radius_cm: radius,
         reached,

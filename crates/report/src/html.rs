@@ -5,7 +5,7 @@ use crate::figures::{Figure, METRIC_LABELS};
 use crate::svg::esc;
 use base64::Engine as _;
 use fishprobe_analysis::results::MeanSd;
-use fishprobe_analysis::METRICS;
+use fishprobe_analysis::ALL_METRICS;
 use fishprobe_io::layout::{Arm, StudyLayout, VIRTUAL_LAB};
 use fishprobe_stats::sample::mean;
 use serde_json::Value;
@@ -432,7 +432,7 @@ impl Page<'_> {
             policies.dedup();
             let mut header = vec!["metric".to_string()];
             header.extend(policies.iter().map(|p| format!("π_{p}")));
-            let rows: Vec<Vec<String>> = METRICS
+            let rows: Vec<Vec<String>> = ALL_METRICS
                 .iter()
                 .zip(METRIC_LABELS)
                 .filter_map(|(m, label)| {

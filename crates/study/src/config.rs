@@ -66,6 +66,18 @@ pub struct StudyConfig {
     /// its place (the extra stability seeds are still trained by fishprobe).
     #[serde(default)]
     pub policies: std::collections::BTreeMap<String, String>,
+    /// Fish per tank in training, evaluation, stability, baselines and the virtual lab (paper:
+    /// 1; groups: issue 22, 1 to 16). The approach assay keeps its one motionless fish.
+    #[serde(default = "one_fish")]
+    pub fish_count: u32,
+    /// When a group has reached a goal (`task.group_goal`: any, centroid or fraction, with
+    /// the environment's default fraction of 0.5).
+    #[serde(default)]
+    pub group_goal: fishprobe_sim::GroupGoal,
+}
+
+fn one_fish() -> u32 {
+    1
 }
 
 /// A policy trained elsewhere, named in a study file:
@@ -118,6 +130,8 @@ impl StudyConfig {
             analysis_quick: false,
             convnet_max_epochs: 30,
             policies: std::collections::BTreeMap::new(),
+            fish_count: 1,
+            group_goal: fishprobe_sim::GroupGoal::Any,
         };
         match name {
             "published" => Some(Self {
@@ -171,11 +185,24 @@ impl StudyConfig {
         Some(ppo)
     }
 
+    /// The environment of the study's trials: the defaults with its group settings.
+    pub fn env(&self) -> fishprobe_sim::EnvConfig {
+        let mut env = fishprobe_sim::EnvConfig {
+            fish_count: self.fish_count,
+            ..fishprobe_sim::EnvConfig::default()
+        };
+        env.task.group_goal = self.group_goal;
+        env
+    }
+
     /// Checks the settings before any work starts.
     pub fn validate(&self) -> Result<(), StudyError> {
         let bad = |what: String| Err(StudyError::Input(what));
         if self.models.is_empty() {
             return bad("no models".into());
+        }
+        if let Err(e) = self.env().validate() {
+            return bad(format!("fish_count / group_goal: {e}"));
         }
         for model in self.policies.keys() {
             if !self.models.iter().any(|m| &m.name == model) {
@@ -278,6 +305,10 @@ pub struct StudyFile {
     /// Policies trained elsewhere ([`ExternalPolicy`]).
     #[serde(default)]
     pub policies: Vec<ExternalPolicy>,
+    /// See [`StudyConfig::fish_count`] (groups).
+    pub fish_count: Option<u32>,
+    /// See [`StudyConfig::group_goal`].
+    pub group_goal: Option<fishprobe_sim::GroupGoal>,
 }
 
 impl StudyFile {
@@ -355,6 +386,12 @@ impl StudyFile {
         }
         if let Some(v) = self.virtual_trials {
             c.virtual_trials = v;
+        }
+        if let Some(v) = self.fish_count {
+            c.fish_count = v;
+        }
+        if let Some(v) = self.group_goal {
+            c.group_goal = v;
         }
         for p in self.policies {
             if c.policies.insert(p.model.clone(), p.policy).is_some() {

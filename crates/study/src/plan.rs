@@ -94,6 +94,12 @@ impl StepKind {
             StepKind::Stability { m, k: 0 } => Some(*m),
             _ => None,
         };
+        // Groups (issue 22): only a study with groups records them, so pair studies resume.
+        let c = &study.cfg;
+        if (c.fish_count, c.group_goal) != (1, fishprobe_sim::GroupGoal::Any) {
+            v["groups"] =
+                serde_json::json!({"fish_count": c.fish_count, "group_goal": c.group_goal});
+        }
         if let Some(ext) = runs.and_then(|p| study.external_policy(p)) {
             v["external_policy"] = serde_json::json!({
                 "policy": ext,

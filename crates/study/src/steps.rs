@@ -9,7 +9,7 @@ use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
 use fishprobe_models::GuppyParams;
-use fishprobe_sim::{derive_seed, Controller, EnvConfig};
+use fishprobe_sim::{derive_seed, Controller};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -57,7 +57,7 @@ fn eval_episodes(study: &Study, p: usize, m: usize, out: PathBuf) -> Evaluation 
     let c = &study.cfg;
     Evaluation {
         model: c.models[m].spec.clone(),
-        env: EnvConfig::default(),
+        env: c.env(),
         episodes: study.eval_episodes(p, m),
         minutes: c.episode_minutes,
         seed: derive_seed(
@@ -136,7 +136,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
             })?;
             let spec = RunSpec {
                 ppo,
-                env: EnvConfig::default(),
+                env: c.env(),
                 model: c.models[*m].spec.clone(),
                 seed: derive_seed(c.seed, &format!("train/{}", c.models[*m].name), *k as u64),
                 preset: c.ppo_preset.clone(),
@@ -206,7 +206,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         StepKind::Stability { m, k } => staged(&out, |tmp| {
             let e = Evaluation {
                 model: c.models[*m].spec.clone(),
-                env: EnvConfig::default(),
+                env: c.env(),
                 episodes: c.stability_episodes,
                 minutes: c.episode_minutes,
                 seed: seed(&format!("stability/{}/{k}", c.models[*m].name)),
@@ -287,11 +287,12 @@ fn reality(
     let ctl = policy_of(study, p, 0)?;
     let live = LiveConfig {
         control_s: c.virtual_minutes * 60.0,
+        fish_count: c.fish_count,
         ..LiveConfig::default()
     };
     let opts = ServeOptions {
         live,
-        task: EnvConfig::default().task,
+        task: c.env().task,
         out: tmp.clone(),
         token: None,
         max_trials: Some(c.virtual_trials),

@@ -62,7 +62,7 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
             .collect();
         columns.push(("goals (W)".into(), cells));
     }
-    for (m, label) in METRICS.iter().zip(METRIC_LABELS) {
+    for (m, label) in ALL_METRICS.iter().zip(METRIC_LABELS) {
         let Some(per) = mg.and_then(|x| x.get(*m)) else {
             continue;
         };

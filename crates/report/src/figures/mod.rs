@@ -34,7 +34,7 @@ mod prelude {
     pub(super) use crate::svg::{
         ink_on, legend, series, viridis, Anchor, Axes, Key, Series, Svg, TextStyle, REAL, SIM,
     };
-    pub(super) use fishprobe_analysis::METRICS;
+    pub(super) use fishprobe_analysis::ALL_METRICS;
     pub(super) use fishprobe_stats::sample::{mean, sd};
 }
 
@@ -51,8 +51,9 @@ pub struct Figure {
     pub svg: String,
 }
 
-/// Metric labels with units, in [`fishprobe_analysis::METRICS`] order.
-pub const METRIC_LABELS: [&str; 9] = [
+/// Metric labels with units, in [`fishprobe_analysis::ALL_METRICS`] order: the nine pair
+/// metrics, then the six group metrics (present only in studies with groups).
+pub const METRIC_LABELS: [&str; 15] = [
     "IID (cm)",
     "IID change (cm/s)",
     "alignment (cos)",
@@ -62,6 +63,12 @@ pub const METRIC_LABELS: [&str; 9] = [
     "fish faces robot (cos)",
     "wall distance (cm)",
     "wall alignment (|cos|)",
+    "polarisation",
+    "milling",
+    "mean NND (cm)",
+    "group spread (cm)",
+    "robot-centroid dist. (cm)",
+    "fish near robot (frac.)",
 ];
 
 pub(crate) fn arm_label(d: &StudyData) -> &'static str {

@@ -16,9 +16,13 @@ fn track_panel(svg: &mut Svg, ax: &Axes, t: &Track, look: Series, title: &str) {
         );
     }
     let robot: Vec<(f64, f64)> = t.robot.iter().map(p).collect();
-    let fish: Vec<(f64, f64)> = t.fish.iter().map(p).collect();
     svg.polyline(&robot, "#000000", 1.0, None, 0.55);
-    svg.polyline(&fish, look.color, 1.3, look.dash, 0.9);
+    // A group: every fish, the first drawn as a pair's fish, the others thinner and lighter.
+    for (k, f) in t.fish.iter().enumerate() {
+        let fish: Vec<(f64, f64)> = f.iter().map(p).collect();
+        let (width, opacity) = if k == 0 { (1.3, 0.9) } else { (0.9, 0.55) };
+        svg.polyline(&fish, look.color, width, look.dash, opacity);
+    }
     for r in &t.reached {
         svg.circle(p(r), 4.0, Some("#ffffff"), "#D55E00", 2.0);
     }
