@@ -31,7 +31,8 @@ class LeadToGoalEnv(gym.Env):
             or a Python object with ``decide(views)`` (see :class:`fishprobe.FishModel`).
         mode: ``"training"`` (random goals, 41 s episodes) or ``"evaluation"`` (the fixed goal
             sequence, 900 s).
-        fish_count: number of fish (default: the settings', 1).
+        fish_count: number of fish, 1 to 16 (default: the settings', 1); with a group,
+            ``settings={"task": {"group_goal": "centroid"}}`` says when a goal is reached.
         settings: environment settings as a dict, as the ``env`` table of a settings file
             (``fishprobe config show``); missing fields keep the paper's values.
         render_mode: ``None`` or ``"rgb_array"`` (a top-down picture, uint8 H x W x 3).

@@ -78,6 +78,18 @@ def test_several_fish():
     env = fishprobe.LeadToGoalEnv(model="Zone", fish_count=3)
     _, info = env.reset(seed=0)
     assert info["fish_poses"].shape == (3, 3)
+    # A group of 16 with the centroid rule steps; 17 is refused by name.
+    env = fishprobe.LeadToGoalEnv(model="Zone", fish_count=16,
+                                  settings={"task": {"group_goal": "centroid"}})
+    obs, info = env.reset(seed=1)
+    for _ in range(5):
+        obs, reward, terminated, truncated, info = env.step(np.array([0.2], np.float32))
+    assert info["fish_poses"].shape == (16, 3) and np.isfinite(obs).all()
+    with pytest.raises(ValueError, match="fish_count"):
+        fishprobe.LeadToGoalEnv(model="Zone", fish_count=17)
+    with pytest.raises(ValueError, match="group_goal_fraction"):
+        fishprobe.LeadToGoalEnv(model="Zone", fish_count=4,
+                                settings={"task": {"group_goal_fraction": 0}})
 
 
 def test_render_is_a_top_down_picture():
