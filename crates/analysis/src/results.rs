@@ -668,7 +668,12 @@ impl Results {
             s.push('\n');
         }
         if !self.mean_ranks.is_empty() {
-            s += "## Per-metric gaps: mean rank over the nine metrics (1 = closest to reality)\n\n| policy | mean rank |\n|---|---|\n";
+            let over = if self.metric_gaps.len() > crate::METRICS.len() {
+                "the nine pair and the group metrics"
+            } else {
+                "the nine metrics"
+            };
+            s += &format!("## Per-metric gaps: mean rank over {over} (1 = closest to reality)\n\n| policy | mean rank |\n|---|---|\n");
             for (p, r) in &self.mean_ranks {
                 s += &format!("| {p} | {r:.2} |\n");
             }

@@ -2,6 +2,9 @@
 
 use super::prelude::*;
 
+/// The pair metrics (a study with groups has more columns).
+const METRICS_IN_PAIRS: usize = 9;
+
 /// Fig. 4: sim-to-real gap heatmap, policies × (goals + nine metrics).
 pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
     let r = d.results.as_ref()?;
@@ -165,14 +168,25 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
     Some(Figure {
         name: "gap_heatmap",
         title: "Sim-to-real gap per policy and metric".into(),
-        caption: "Rows: policies (each trained on one candidate model). Columns: the gap in goals \
-                  reached (1-Wasserstein W between sim and real goal counts) and in nine per-frame \
-                  behaviour metrics (median of the per-trial W1 between sim and real distributions). \
-                  Each cell shows the gap, its 95 % bootstrap interval below it and its rank within the \
-                  column (1 = closest to reality, in bold). Colour: the gap min-max normalised within \
-                  the column (dark = small). Right: mean rank over the nine metrics; the model with the \
-                  smallest mean rank taught the policy that transfers best."
-            .into(),
+        caption: {
+            let (metrics, over) = if columns.len() > METRICS_IN_PAIRS + 1 {
+                (
+                    "the nine per-frame behaviour metrics and the six group metrics",
+                    "all metrics",
+                )
+            } else {
+                ("nine per-frame behaviour metrics", "the nine metrics")
+            };
+            format!(
+                "Rows: policies (each trained on one candidate model). Columns: the gap in goals \
+                 reached (1-Wasserstein W between sim and real goal counts) and in {metrics} \
+                 (median of the per-trial W1 between sim and real distributions). \
+                 Each cell shows the gap, its 95 % bootstrap interval below it and its rank within the \
+                 column (1 = closest to reality, in bold). Colour: the gap min-max normalised within \
+                 the column (dark = small). Right: mean rank over {over}; the model with the \
+                 smallest mean rank taught the policy that transfers best."
+            )
+        },
         svg: svg.finish(),
     })
 }
