@@ -5,7 +5,7 @@
 use crate::config::AnalysisConfig;
 use crate::results::*;
 use crate::study::{StudyFiles, REALITY_ARMS};
-use crate::trial::{load_trial, TrialData, ALL_METRICS};
+use crate::trial::{load_trial, TrialData, ALL_METRICS, METRICS};
 use fishprobe_sim::{stream, SimRng};
 use fishprobe_stats as st;
 use rayon::prelude::*;
@@ -160,6 +160,7 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
         }
     }
 
+    groups_check(&sim, &real, &mut skipped);
     goals_and_gaps(&mut res, &sim, &real, cfg, seed);
     metric_gaps(&mut res, &sim, &real, cfg, seed);
     temporal(&mut res, &sim, &real, &mut skipped);
@@ -229,6 +230,56 @@ fn goals_and_gaps(
     }
 }
 
+/// The fish per trial of each arm (sorted, distinct).
+fn fish_counts(trials: &[&TrialData]) -> Vec<usize> {
+    let mut n: Vec<usize> = trials.iter().map(|t| t.fish).collect();
+    n.sort_unstable();
+    n.dedup();
+    n
+}
+
+/// Groups: notes in `skipped` where the arms of a policy hold different numbers of fish (the
+/// group metrics are then not compared: a group of four is not a group of two; the pair
+/// metrics, per fish, still are) and where fish were untracked in group trials (those
+/// fish-frames are left out of the metrics).
+fn groups_check(
+    sim: &BTreeMap<String, Vec<&TrialData>>,
+    real: &BTreeMap<String, Vec<&TrialData>>,
+    skipped: &mut Vec<Skipped>,
+) {
+    for (p, s) in sim {
+        let ns = fish_counts(s);
+        if let Some(r) = real.get(p) {
+            let nr = fish_counts(r);
+            if ns != nr && (ns.iter().chain(&nr).any(|&n| n > 1)) {
+                skipped.push(Skipped {
+                    what: format!("group metrics of {p}"),
+                    reason: format!(
+                        "sim trials hold {ns:?} fish, reality trials {nr:?}: group metrics not \
+                         compared (pair metrics, per fish, are)"
+                    ),
+                });
+            }
+        }
+        for (arm, trials) in [("sim", Some(s)), ("reality", real.get(p))] {
+            let lost: usize = trials
+                .iter()
+                .flat_map(|v| v.iter())
+                .map(|t| t.untracked_fish_frames)
+                .sum();
+            if lost > 0 {
+                skipped.push(Skipped {
+                    what: format!("untracked fish of {p} ({arm})"),
+                    reason: format!(
+                        "{lost} fish-frames of control with a fish untracked, left out of those \
+                         frames' metrics"
+                    ),
+                });
+            }
+        }
+    }
+}
+
 fn metric_gaps(
     res: &mut Results,
     sim: &BTreeMap<String, Vec<&TrialData>>,
@@ -256,6 +307,10 @@ fn metric_gaps(
             }
             let (s, r) = (samples(&sim[p], m), samples(&real[p], m));
             if s.is_empty() || r.is_empty() {
+                return None;
+            }
+            // Group metrics only between arms of the same group size (see `groups_check`).
+            if m >= METRICS.len() && fish_counts(&sim[p]) != fish_counts(&real[p]) {
                 return None;
             }
             let matrix: Vec<f64> = s
@@ -508,11 +563,55 @@ fn stability(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+    fn trial(fish: usize, untracked: usize) -> TrialData {
+        TrialData {
+            path: "t.hdf5".into(),
+            kind: None,
+            policy: None,
+            goals_reached: 0,
+            time_to_goal_s: None,
+            goals_per_minute: Vec::new(),
+            metrics: None,
+            fish,
+            untracked_fish_frames: untracked,
+        }
+    }
+
+    #[test]
+    fn groups_of_other_sizes_and_untracked_fish_are_reported() {
+        let (pair, four, three) = (trial(1, 0), trial(4, 7), trial(3, 0));
+        let arms = |s: Vec<&'static TrialData>, r: Vec<&'static TrialData>| {
+            let sim = BTreeMap::from([("Zone".to_string(), s)]);
+            let real = BTreeMap::from([("Zone".to_string(), r)]);
+            let mut skipped = Vec::new();
+            groups_check(&sim, &real, &mut skipped);
+            skipped
+        };
+        let leak = |t: TrialData| -> &'static TrialData { Box::leak(Box::new(t)) };
+        let (pair, four, three) = (leak(pair), leak(four), leak(three));
+        // Pairs in both arms: nothing to say.
+        assert!(arms(vec![pair], vec![pair]).is_empty());
+        // Four fish in simulation, three in reality: group metrics not compared; the untracked
+        // fish-frames of the sim arm are counted.
+        let s = arms(vec![four], vec![three]);
+        assert_eq!(s.len(), 2, "{s:?}");
+        assert!(
+            s[0].reason.contains("[4]") && s[0].reason.contains("[3]"),
+            "{s:?}"
+        );
+        assert!(s[1].reason.contains("7 fish-frames"), "{s:?}");
+        // Groups in simulation, pairs in reality: said too.
+        assert!(arms(vec![four], vec![pair])[0]
+            .what
+            .contains("group metrics"));
+    }
+
     #[test]
     fn average_ranks_match_scipy_rankdata() {
         // scipy.stats.rankdata([3, 1, 4, 1, 5]) = [3, 1.5, 4, 1.5, 5]
         assert_eq!(
-            super::average_ranks(&[3.0, 1.0, 4.0, 1.0, 5.0]),
+            average_ranks(&[3.0, 1.0, 4.0, 1.0, 5.0]),
             vec![3.0, 1.5, 4.0, 1.5, 5.0]
         );
     }

@@ -86,6 +86,9 @@ pub struct TrialData {
     pub metrics: Option<Vec<Vec<f64>>>,
     /// Fish in the trial.
     pub fish: usize,
+    /// In a group trial, fish-frames of control in which a fish was untracked (left out of
+    /// that frame's metrics); 0 for a pair.
+    pub untracked_fish_frames: usize,
 }
 
 /// Robot and fish of a trial, checked: every entity must be tracked in some frame.
@@ -199,6 +202,18 @@ pub fn load_trial(
         waits.push((e - activated) as f64 / rate);
         activated = e;
     }
+    let untracked_fish_frames = if fish.len() >= 2 {
+        fish.iter()
+            .map(|f| {
+                f.positions[control_start..frames]
+                    .iter()
+                    .filter(|p| !(p[0].is_finite() && p[1].is_finite()))
+                    .count()
+            })
+            .sum()
+    } else {
+        0
+    };
     let metrics = with_metrics.then(|| {
         let mut m = per_frame_metrics(&t, robot, &fish, &active, control_start, frames);
         if fish.len() >= 2 {
@@ -215,6 +230,7 @@ pub fn load_trial(
         goals_per_minute,
         metrics,
         fish: fish.len(),
+        untracked_fish_frames,
     })
 }
 

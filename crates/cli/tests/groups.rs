@@ -157,3 +157,59 @@ fn a_study_with_groups_runs_end_to_end_through_the_virtual_lab() {
     assert!(stderr(&o).contains("fish_count"), "{}", stderr(&o));
     assert!(!bad.exists(), "work started despite a bad group size");
 }
+
+#[test]
+fn a_policy_with_centroid_bins_trains_and_evaluates_with_its_settings_only() {
+    let dir = fresh_dir("centroid-bins");
+    let settings = dir.join("group.toml");
+    std::fs::write(
+        &settings,
+        "[env]\nfish_count = 4\n\n[env.task]\ngroup_goal = \"centroid\"\n\n\
+         [env.observation]\ncentroid_bins = true\n",
+    )
+    .unwrap();
+    let (pol, s) = (dir.join("pol"), settings.to_str().unwrap());
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "Zone",
+        "--preset",
+        "smoke",
+        "--steps",
+        "2048",
+        "--settings",
+        s,
+        "--out",
+        pol.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let eval = |with: bool, out: &str| {
+        let out = dir.join(out);
+        let mut args = vec![
+            "evaluate",
+            "--policy",
+            pol.to_str().unwrap(),
+            "--model",
+            "Zone",
+            "--episodes",
+            "1",
+            "--minutes",
+            "0.2",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if with {
+            args.extend(["--settings", s]);
+        }
+        fishprobe(&args)
+    };
+    let o = eval(true, "ok");
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = eval(false, "bad");
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("216") && stderr(&o).contains("180"),
+        "{}",
+        stderr(&o)
+    );
+}

@@ -16,6 +16,14 @@ crate::documented_params! {
         /// Far plane D of the intensity 1 - d/D (choice, the lab's convention: the tank
         /// diagonal, 141.42 cm).
         pub far_plane_cm: f32 = 141.421_36; "cm",
+        /// Groups (issue 22, a documented extension; choice: off, the paper's 180 values): a
+        /// sixth block of `sectors` bins holding the centroid of the fish (its intensity in the
+        /// sector that holds it), after the five blocks of SPEC §5. The fish bins already hold
+        /// the nearest fish per sector; with the centroid a policy sees where the group is, and
+        /// one architecture serves 1 to 16 fish (with one fish the block repeats the fish's
+        /// bin). A policy trained with it must be evaluated with it; the live bridge and `run`
+        /// use the paper's observation.
+        pub centroid_bins: bool = false; "-",
     }
 }
 
@@ -33,9 +41,9 @@ impl ObservationParams {
         check::positive(prefix, "far_plane_cm", self.far_plane_cm)
     }
 
-    /// Length of the observation vector: 5 blocks of `sectors`.
+    /// Length of the observation vector: 5 blocks of `sectors` (6 with `centroid_bins`).
     pub fn size(&self) -> usize {
-        5 * self.sectors as usize
+        (5 + usize::from(self.centroid_bins)) * self.sectors as usize
     }
 }
 
@@ -60,6 +68,8 @@ pub struct ObservationEncoder {
     far: f32,
     /// (cos, sin) of each ray's offset from the heading.
     rays: Vec<[f32; 2]>,
+    /// Whether a sixth block holds the fish's centroid.
+    centroid: bool,
 }
 
 impl ObservationEncoder {
@@ -78,12 +88,13 @@ impl ObservationEncoder {
             width,
             far: p.far_plane_cm,
             rays,
+            centroid: p.centroid_bins,
         }
     }
 
     /// Observation length.
     pub fn size(&self) -> usize {
-        5 * self.n
+        (5 + usize::from(self.centroid)) * self.n
     }
 
     /// Sectors per block.
@@ -114,7 +125,8 @@ impl ObservationEncoder {
             goal,
         } = scene;
         let n = self.n;
-        debug_assert_eq!(out.len(), 5 * n);
+        debug_assert_eq!(out.len(), self.size());
+        let (out, centroid_block) = out.split_at_mut(5 * n);
         debug_assert_eq!(prev.len(), 2 * n);
         let (sin_h, cos_h) = robot.heading.sin_cos();
         let (walls, rest) = out.split_at_mut(n);
@@ -134,6 +146,14 @@ impl ObservationEncoder {
         }
         previous.copy_from_slice(prev);
         prev.copy_from_slice(current);
+        if self.centroid {
+            centroid_block.fill(0.0);
+            if !fish.is_empty() {
+                let k = fish.len() as f32;
+                let (sx, sy) = fish.iter().fold((0.0, 0.0), |(x, y), f| (x + f.x, y + f.y));
+                self.mark(robot, sx / k, sy / k, sin_h, cos_h, centroid_block);
+            }
+        }
     }
 
     #[inline]
@@ -191,6 +211,46 @@ mod tests {
         enc.encode(scene(&robot), &mut prev, false, &mut out);
         assert!(out[36 + 9] > 0.0);
         assert_eq!(&out[108..180], &before[..]);
+    }
+
+    #[test]
+    fn the_centroid_block_marks_the_groups_centre_and_is_off_by_default() {
+        let tank = Tank::default();
+        let robot = AgentState::at(0.0, 0.0, 0.0);
+        let goal = [0.0, 30.0];
+        // Two fish 10 cm ahead-left and ahead-right: the nearest per sector in the fish bins,
+        // their centroid straight ahead at 10 cm in the sixth block.
+        let fish = [
+            AgentState::at(10.0, 10.0, 0.0),
+            AgentState::at(10.0, -10.0, 0.0),
+        ];
+        let p = ObservationParams {
+            centroid_bins: true,
+            ..ObservationParams::default()
+        };
+        assert_eq!((ObservationParams::default().size(), p.size()), (180, 216));
+        let enc = ObservationEncoder::new(&p);
+        let mut prev = vec![0.0; 72];
+        let mut out = vec![0.0; 216];
+        let scene = Scene {
+            tank: &tank,
+            robot: &robot,
+            fish: &fish,
+            goal,
+        };
+        enc.encode(scene, &mut prev, true, &mut out);
+        let centroid = &out[180..];
+        assert_eq!(centroid.iter().filter(|&&v| v > 0.0).count(), 1);
+        assert!(
+            (centroid[18] - (1.0 - 10.0 / 141.421_36)).abs() < 1e-5,
+            "{centroid:?}"
+        );
+        // The first 180 values are the paper's observation, unchanged by the extension.
+        let plain = ObservationEncoder::new(&ObservationParams::default());
+        let mut prev2 = vec![0.0; 72];
+        let mut out2 = vec![0.0; 180];
+        plain.encode(scene, &mut prev2, true, &mut out2);
+        assert_eq!(&out[..180], &out2[..]);
     }
 
     #[test]
