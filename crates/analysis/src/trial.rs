@@ -46,23 +46,21 @@ pub const GROUP_METRICS: [&str; 6] = [
 ];
 
 /// Every metric name, pair metrics first: index `m` of [`TrialData::metrics`] is `ALL_METRICS[m]`.
-pub const ALL_METRICS: [&str; 15] = [
-    "iid",
-    "iid_change",
-    "alignment",
-    "fish_speed",
-    "fish_turn",
-    "fish_goal_distance",
-    "fish_faces_robot",
-    "wall_distance",
-    "wall_alignment",
-    "polarisation",
-    "milling",
-    "mean_nnd",
-    "group_spread",
-    "robot_centroid_distance",
-    "fish_near_robot",
-];
+pub const ALL_METRICS: [&str; METRICS.len() + GROUP_METRICS.len()] = all_metrics();
+
+const fn all_metrics() -> [&'static str; METRICS.len() + GROUP_METRICS.len()] {
+    let mut out = [""; METRICS.len() + GROUP_METRICS.len()];
+    let mut i = 0;
+    while i < out.len() {
+        out[i] = if i < METRICS.len() {
+            METRICS[i]
+        } else {
+            GROUP_METRICS[i - METRICS.len()]
+        };
+        i += 1;
+    }
+    out
+}
 
 /// What the analysis needs of one trial.
 #[derive(Debug, Clone, PartialEq)]

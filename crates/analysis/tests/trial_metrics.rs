@@ -101,6 +101,26 @@ fn unusable_trials_say_why() {
     assert!(e.contains("all NaN"), "{e}");
 }
 
+/// A trial file of a robot and a group of fish (25 Hz, no task).
+fn write_group(name: &str, robot: &[[f32; 3]], fish: &[Vec<[f32; 3]>]) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fishprobe-analysis-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    let mut entities = vec![entity("robot", "robot", robot)];
+    for (k, f) in fish.iter().enumerate() {
+        entities.push(entity(&format!("fish_{}", k + 1), "fish", f));
+    }
+    let t = TrialFile {
+        world_size_cm: [100.0, 100.0],
+        frame_rate_hz: 25.0,
+        entities,
+        attributes: BTreeMap::new(),
+        task: None,
+    };
+    write_trial(&p, &t).unwrap();
+    p
+}
+
 #[test]
 fn a_group_trial_gives_per_fish_pair_metrics_and_the_group_metrics() {
     use fishprobe_analysis::{ALL_METRICS, GROUP_METRICS};
@@ -117,21 +137,7 @@ fn a_group_trial_gives_per_fish_pair_metrics_and_the_group_metrics() {
     };
     let mut fish: Vec<Vec<[f32; 3]>> = (0..4).map(|k| vec![ring(k); 3]).collect();
     fish[3][1] = [f32::NAN; 3];
-    let dir = std::env::temp_dir().join(format!("fishprobe-analysis-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join("group.hdf5");
-    let mut entities = vec![entity("robot", "robot", &robot)];
-    for (k, f) in fish.iter().enumerate() {
-        entities.push(entity(&format!("fish_{}", k + 1), "fish", f));
-    }
-    let t = TrialFile {
-        world_size_cm: [100.0, 100.0],
-        frame_rate_hz: 25.0,
-        entities,
-        attributes: BTreeMap::new(),
-        task: None,
-    };
-    write_trial(&p, &t).unwrap();
+    let p = write_group("group.hdf5", &robot, &fish);
     let cfg = AnalysisConfig::default();
     let t = load_trial(&p, &cfg, true).unwrap();
     assert_eq!(t.fish, 4);
@@ -169,19 +175,7 @@ fn a_group_trial_gives_per_fish_pair_metrics_and_the_group_metrics() {
     // A fish never tracked is refused by name.
     let mut lost = fish.clone();
     lost[2] = vec![[f32::NAN; 3]; 3];
-    let q = dir.join("lost.hdf5");
-    let mut entities = vec![entity("robot", "robot", &robot)];
-    for (k, f) in lost.iter().enumerate() {
-        entities.push(entity(&format!("fish_{}", k + 1), "fish", f));
-    }
-    let tf = TrialFile {
-        world_size_cm: [100.0, 100.0],
-        frame_rate_hz: 25.0,
-        entities,
-        attributes: BTreeMap::new(),
-        task: None,
-    };
-    write_trial(&q, &tf).unwrap();
+    let q = write_group("lost.hdf5", &robot, &lost);
     let e = load_trial(&q, &cfg, true).unwrap_err();
     assert!(e.contains("fish_3") && e.contains("NaN"), "{e}");
 }
