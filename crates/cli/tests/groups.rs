@@ -213,3 +213,46 @@ fn a_policy_with_centroid_bins_trains_and_evaluates_with_its_settings_only() {
         stderr(&o)
     );
 }
+
+#[test]
+fn the_virtual_lab_runs_a_group_through_its_bridge() {
+    let dir = fresh_dir("lab-group");
+    let out = dir.join("lab");
+    let o = fishprobe(&[
+        "lab",
+        "--policy",
+        "scripted:fetch-and-lead",
+        "--fish",
+        "3",
+        "--group-goal",
+        "centroid",
+        "--minutes",
+        "0.3",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("fish-frames with a fish lost"),
+        "{}",
+        stdout(&o)
+    );
+    let file = out.join("FetchAndLead__VirtualLab/trial_000.hdf5");
+    let o = fishprobe(&["inspect", file.to_str().unwrap()]);
+    let text = stdout(&o);
+    assert!(
+        text.contains("fish_3") && !text.contains("fish_4"),
+        "{text}"
+    );
+    let o = fishprobe(&[
+        "lab",
+        "--policy",
+        "scripted:goal-seeker",
+        "--fish",
+        "17",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("fish_count"), "{}", stderr(&o));
+}

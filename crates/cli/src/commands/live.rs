@@ -55,9 +55,34 @@ struct ServeArgs {
     /// Stop after this many trials (default: serve until interrupted).
     #[arg(long)]
     trials: Option<usize>,
-    /// Trial protocol and safety settings (TOML: the fields of LiveConfig).
+    /// Trial protocol and safety settings (TOML: the fields of LiveConfig; `fish_count = 4`
+    /// for a group).
     #[arg(long)]
     config: Option<PathBuf>,
+    /// With a group: when it has reached a goal (`any` fish, its `centroid`, or a `fraction`
+    /// of one half).
+    #[arg(long, value_enum, default_value_t = GroupGoalArg::Any)]
+    group_goal: GroupGoalArg,
+}
+
+/// `task.group_goal` on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum GroupGoalArg {
+    Any,
+    Centroid,
+    Fraction,
+}
+
+/// The task with a group-goal rule.
+fn task_with(g: GroupGoalArg) -> fishprobe_sim::TaskParams {
+    fishprobe_sim::TaskParams {
+        group_goal: match g {
+            GroupGoalArg::Any => fishprobe_sim::GroupGoal::Any,
+            GroupGoalArg::Centroid => fishprobe_sim::GroupGoal::Centroid,
+            GroupGoalArg::Fraction => fishprobe_sim::GroupGoal::Fraction,
+        },
+        ..fishprobe_sim::TaskParams::default()
+    }
 }
 
 #[derive(Debug, Args)]
@@ -93,6 +118,13 @@ pub struct LabArgs {
     /// Minutes of control per trial (paper: 15).
     #[arg(long)]
     minutes: Option<f64>,
+    /// Virtual guppies per trial, each its own individual (1 to 16; the in-process bridge
+    /// tracks them all; with --connect the bridge's own `fish_count` decides).
+    #[arg(long, default_value_t = 1)]
+    fish: u32,
+    /// With a group: when it has reached a goal (in-process bridge only).
+    #[arg(long, value_enum, default_value_t = GroupGoalArg::Any)]
+    group_goal: GroupGoalArg,
 }
 
 fn pilot_factory(
@@ -149,7 +181,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
     }
     let opts = ServeOptions {
         live: live_config(a.config.as_deref())?,
-        task: fishprobe_sim::TaskParams::default(),
+        task: task_with(a.group_goal),
         out: a.out.clone(),
         token: a.token.clone(),
         max_trials: a.trials,
@@ -249,6 +281,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
         super::check_minutes("--minutes", m)?;
         live.control_s = m * 60.0;
     }
+    live.fish_count = a.fish;
     live.validate()?;
     if a.trials == 0 || a.trials > MAX_LAB_TRIALS {
         bail!(
@@ -265,7 +298,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
             let addr = listener.local_addr()?;
             let opts = ServeOptions {
                 live,
-                task: fishprobe_sim::TaskParams::default(),
+                task: task_with(a.group_goal),
                 out: a.out.clone(),
                 token: None,
                 max_trials: Some(a.trials),
@@ -283,9 +316,14 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
         let seed = fishprobe_sim::derive_seed(a.seed, "lab/trial", k as u64);
         let t =
             run_trial(addr, &lab, &guppy, seed).with_context(|| format!("virtual trial {k}"))?;
+        let lost = if a.fish > 1 {
+            format!("{} fish-frames with a fish lost", t.frames_lost)
+        } else {
+            format!("{} with the fish lost", t.frames_lost)
+        };
         let line = format!(
-            "trial {k}: {} goals, {} frames ({} with the fish lost), {} stops -> {}\n",
-            t.goals_reached, t.frames_sent, t.frames_lost, t.stops, t.file
+            "trial {k}: {} goals, {} frames ({lost}), {} stops -> {}\n",
+            t.goals_reached, t.frames_sent, t.stops, t.file
         );
         say!("{line}");
         for w in &t.warnings {
