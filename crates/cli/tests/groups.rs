@@ -97,7 +97,7 @@ fn a_study_with_groups_runs_end_to_end_through_the_virtual_lab() {
     let cfg = dir.join("groups.toml");
     std::fs::write(
         &cfg,
-        "fish_count = 3\ngroup_goal = \"centroid\"\nepisode_minutes = 1.5\nextra_seeds = 0\n\
+        "fish_count = 3\ngroup_goal = \"centroid\"\ncentroid_bins = true\nepisode_minutes = 1.5\nextra_seeds = 0\n\
          models = [{ name = \"Zone\", spec = { model = \"Zone\" } }, \
          { name = \"Follow\", spec = { model = \"Follow\" } }]\n",
     )

@@ -35,6 +35,10 @@ fishprobe_sim::documented_params! {
         /// robot stops when it or every fish is untracked for `stale_s` (choice: in a group
         /// fish hide behind each other, so one tracked fish suffices).
         pub fish_count: u32 = 1; "1",
+        /// The policy's observation has the group centroid's bins (216 values; see
+        /// `observation.centroid_bins` of the environment settings; choice: off, the paper's
+        /// 180). Must match how the policy was trained.
+        pub centroid_bins: bool = false; "-",
     }
 }
 
@@ -164,7 +168,10 @@ impl Session {
     ) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let tank = Tank::new(&TankParams::default());
-        let encoder = ObservationEncoder::new(&ObservationParams::default());
+        let encoder = ObservationEncoder::new(&ObservationParams {
+            centroid_bins: cfg.centroid_bins,
+            ..ObservationParams::default()
+        });
         let n = encoder.size();
         let mut rng = stream(0, "live-goals", 0);
         let goals = GoalTracker::start(TaskMode::Evaluation, &task, &tank, &[], &mut rng);

@@ -21,8 +21,8 @@ crate::documented_params! {
         /// sector that holds it), after the five blocks of SPEC §5. The fish bins already hold
         /// the nearest fish per sector; with the centroid a policy sees where the group is, and
         /// one architecture serves 1 to 16 fish (with one fish the block repeats the fish's
-        /// bin). A policy trained with it must be evaluated with it; the live bridge and `run`
-        /// use the paper's observation.
+        /// bin). A policy trained with it must be evaluated with it (a study file and the live
+        /// bridge's settings have the same switch).
         pub centroid_bins: bool = false; "-",
     }
 }

@@ -74,6 +74,10 @@ pub struct StudyConfig {
     /// the environment's default fraction of 0.5).
     #[serde(default)]
     pub group_goal: fishprobe_sim::GroupGoal,
+    /// The policies observe the group's centroid too (`observation.centroid_bins`: 216 values
+    /// instead of the paper's 180; groups, issue 22).
+    #[serde(default)]
+    pub centroid_bins: bool,
 }
 
 fn one_fish() -> u32 {
@@ -132,6 +136,7 @@ impl StudyConfig {
             policies: std::collections::BTreeMap::new(),
             fish_count: 1,
             group_goal: fishprobe_sim::GroupGoal::Any,
+            centroid_bins: false,
         };
         match name {
             "published" => Some(Self {
@@ -192,6 +197,7 @@ impl StudyConfig {
             ..fishprobe_sim::EnvConfig::default()
         };
         env.task.group_goal = self.group_goal;
+        env.observation.centroid_bins = self.centroid_bins;
         env
     }
 
@@ -309,6 +315,8 @@ pub struct StudyFile {
     pub fish_count: Option<u32>,
     /// See [`StudyConfig::group_goal`].
     pub group_goal: Option<fishprobe_sim::GroupGoal>,
+    /// See [`StudyConfig::centroid_bins`].
+    pub centroid_bins: Option<bool>,
 }
 
 impl StudyFile {
@@ -392,6 +400,9 @@ impl StudyFile {
         }
         if let Some(v) = self.group_goal {
             c.group_goal = v;
+        }
+        if let Some(v) = self.centroid_bins {
+            c.centroid_bins = v;
         }
         for p in self.policies {
             if c.policies.insert(p.model.clone(), p.policy).is_some() {

@@ -109,7 +109,7 @@ impl Study {
         for (model, arg) in &cfg.policies {
             let c = fishprobe_learn::controller(arg, false)
                 .map_err(|e| StudyError::Input(format!("the policy for `{model}` ({arg}): {e}")))?;
-            c.check_observation(fishprobe_sim::EnvConfig::default().observation.size())
+            c.check_observation(cfg.env().observation.size())
                 .map_err(|e| StudyError::Input(format!("the policy for `{model}`: {e}")))?;
         }
         if let Some(r) = &real {

@@ -194,12 +194,14 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         }),
         // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
         StepKind::Approach { p } => staged(&out, |tmp| {
-            let e = fishprobe_learn::approach_assay(
+            let mut e = fishprobe_learn::approach_assay(
                 c.approach_episodes,
                 c.approach_minutes,
                 seed(&format!("approach/{}", c.models[*p].name)),
                 tmp.to_path_buf(),
             )?;
+            // One still fish, observed as the study's policies observe.
+            e.env.observation.centroid_bins = c.centroid_bins;
             fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
             Ok(())
         }),
@@ -288,6 +290,7 @@ fn reality(
     let live = LiveConfig {
         control_s: c.virtual_minutes * 60.0,
         fish_count: c.fish_count,
+        centroid_bins: c.centroid_bins,
         ..LiveConfig::default()
     };
     let opts = ServeOptions {

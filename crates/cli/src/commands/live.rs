@@ -125,14 +125,23 @@ pub struct LabArgs {
     /// With a group: when it has reached a goal (in-process bridge only).
     #[arg(long, value_enum, default_value_t = GroupGoalArg::Any)]
     group_goal: GroupGoalArg,
+    /// The policy was trained with `observation.centroid_bins` (216 values; in-process
+    /// bridge only).
+    #[arg(long)]
+    centroid_bins: bool,
 }
 
 fn pilot_factory(
     policy: &str,
+    live: &LiveConfig,
 ) -> Result<impl FnMut() -> Result<Box<dyn Controller>, fishprobe_live::LiveError>> {
     // Refuses a policy with non-finite weights (it would only ever stop the robot).
     let c = controller(policy, false).with_context(|| format!("loading policy {policy}"))?;
-    c.check_observation(180)
+    let obs = fishprobe_sim::ObservationParams {
+        centroid_bins: live.centroid_bins,
+        ..fishprobe_sim::ObservationParams::default()
+    };
+    c.check_observation(obs.size())
         .map_err(anyhow::Error::msg)
         .context("the policy's observation size")?;
     Ok(move || Ok(c.boxed_clone()))
@@ -188,7 +197,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         fish_label: "live guppy".into(),
         guard: BridgeGuard::default(),
     };
-    let mut make = pilot_factory(&a.policy)?;
+    let mut make = pilot_factory(&a.policy, &opts.live)?;
     // One bridge per output directory (taken once the inputs are known to be good).
     let _lock = super::lock_out(&a.out, "live serve")?;
     let listener =
@@ -282,6 +291,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
         live.control_s = m * 60.0;
     }
     live.fish_count = a.fish;
+    live.centroid_bins = a.centroid_bins;
     live.validate()?;
     if a.trials == 0 || a.trials > MAX_LAB_TRIALS {
         bail!(
@@ -305,7 +315,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
                 fish_label: "virtual guppy".into(),
                 guard: BridgeGuard::default(),
             };
-            let mut make = pilot_factory(&a.policy)?;
+            let mut make = pilot_factory(&a.policy, &opts.live)?;
             _lock = Some(super::lock_out(&a.out, "lab")?);
             let h = std::thread::spawn(move || serve(&listener, &opts, &mut make, |_| {}));
             (addr, Some(h))
