@@ -256,3 +256,35 @@ fn the_virtual_lab_runs_a_group_through_its_bridge() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("fish_count"), "{}", stderr(&o));
 }
+
+#[test]
+fn simulate_writes_a_group_trial() {
+    let dir = fresh_dir("simulate-group");
+    let settings = dir.join("group.toml");
+    std::fs::write(&settings, "[env]\nfish_count = 5\n").unwrap();
+    let file = dir.join("group.hdf5");
+    let o = fishprobe(&[
+        "simulate",
+        "--model",
+        "Zone",
+        "--settings",
+        settings.to_str().unwrap(),
+        "--minutes",
+        "1.2",
+        "--out",
+        file.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = fishprobe(&["inspect", file.to_str().unwrap()]);
+    assert!(stdout(&o).contains("fish_5"), "{}", stdout(&o));
+    std::fs::write(&settings, "[env]\nfish_count = 0\n").unwrap();
+    let o = fishprobe(&[
+        "simulate",
+        "--settings",
+        settings.to_str().unwrap(),
+        "--out",
+        dir.join("x.hdf5").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("fish_count"), "{}", stderr(&o));
+}
