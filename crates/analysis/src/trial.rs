@@ -213,9 +213,11 @@ pub fn load_trial(
         0
     };
     let metrics = with_metrics.then(|| {
-        let mut m = per_frame_metrics(&t, robot, &fish, &active, control_start, frames);
+        // Each fish's headings once, for the pair and the group metrics.
+        let hf: Vec<Vec<f32>> = fish.iter().map(|f| headings(f)).collect();
+        let mut m = per_frame_metrics(&t, robot, &fish, &hf, &active, control_start, frames);
         if fish.len() >= 2 {
-            m.extend(group_metrics(robot, &fish, control_start, frames, cfg));
+            m.extend(group_metrics(robot, &fish, &hf, control_start, frames, cfg));
         }
         m
     });
@@ -247,6 +249,7 @@ fn per_frame_metrics(
     t: &TrialFile,
     robot: &Entity,
     fish: &[&Entity],
+    fish_headings: &[Vec<f32>],
     active: &[[f32; 2]],
     start: usize,
     frames: usize,
@@ -260,8 +263,7 @@ fn per_frame_metrics(
     let p = |e: &Entity, i: usize| [f64::from(e.positions[i][0]), f64::from(e.positions[i][1])];
     let n = frames.saturating_sub(start) * fish.len();
     let mut m: Vec<Vec<f64>> = (0..9).map(|_| Vec::with_capacity(n)).collect();
-    for &fish in fish {
-        let hf = headings(fish);
+    for (&fish, hf) in fish.iter().zip(fish_headings) {
         let iid_at = |i: usize| {
             let (a, b) = (p(robot, i), p(fish, i));
             ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
@@ -305,18 +307,18 @@ fn per_frame_metrics(
 fn group_metrics(
     robot: &Entity,
     fish: &[&Entity],
+    headings: &[Vec<f32>],
     start: usize,
     frames: usize,
     cfg: &AnalysisConfig,
 ) -> Vec<Vec<f64>> {
     use fishprobe_sim::{group_order, robot_to_group, AgentState};
-    let headings: Vec<Vec<f32>> = fish.iter().map(|f| headings(f)).collect();
     let mut m: Vec<Vec<f64>> = (0..GROUP_METRICS.len())
         .map(|_| Vec::with_capacity(frames.saturating_sub(start)))
         .collect();
     let mut now = vec![AgentState::default(); fish.len()];
     for i in start..frames {
-        for ((a, f), h) in now.iter_mut().zip(fish).zip(&headings) {
+        for ((a, f), h) in now.iter_mut().zip(fish).zip(headings) {
             let [x, y] = f.positions[i];
             *a = AgentState::at(x, y, h[i]);
         }

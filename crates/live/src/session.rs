@@ -414,23 +414,21 @@ impl Session {
         // Goals, during control, on every frame with a tracked fish (a group by
         // `task.group_goal`, over the fish tracked in this frame).
         if phase == Phase::Control && any_fish {
+            let mut rng = stream(0, "live-goals", 0);
+            let me: Vec<AgentState> = fish_poses
+                .iter()
+                .flatten()
+                .map(|f| AgentState::at(f.x, f.y, f.heading))
+                .collect();
+            if self
+                .goals
+                .check(TaskMode::Evaluation, &self.task, &self.tank, &me, &mut rng)
+                .is_some()
             {
-                let mut rng = stream(0, "live-goals", 0);
-                let me: Vec<AgentState> = fish_poses
-                    .iter()
-                    .flatten()
-                    .map(|f| AgentState::at(f.x, f.y, f.heading))
-                    .collect();
-                if self
-                    .goals
-                    .check(TaskMode::Evaluation, &self.task, &self.tank, &me, &mut rng)
-                    .is_some()
-                {
-                    self.goals_reached += 1;
-                    self.goal_frames.push(k as u64);
-                    if let Some(a) = self.active.last_mut() {
-                        *a = self.goals.index as i32;
-                    }
+                self.goals_reached += 1;
+                self.goal_frames.push(k as u64);
+                if let Some(a) = self.active.last_mut() {
+                    *a = self.goals.index as i32;
                 }
             }
         }

@@ -247,17 +247,15 @@ impl PhaseGrid {
     /// The most frequent label among the seeds of a cell (ties: the first seed's).
     pub fn label(&self, a: usize, o: usize) -> &'static str {
         let runs = &self.cells[a * self.orientation_cm.len() + o];
-        let labels: Vec<&str> = runs.iter().map(CollectiveState::label).collect();
-        labels
-            .iter()
-            .copied()
-            .max_by_key(|l| {
-                (
-                    labels.iter().filter(|m| *m == l).count(),
-                    std::cmp::Reverse(labels.iter().position(|m| m == l)),
-                )
-            })
-            .unwrap_or("swarm")
+        let count = |l: &str| runs.iter().filter(|c| c.label() == l).count();
+        let mut best = ("swarm", 0);
+        for l in runs.iter().map(CollectiveState::label) {
+            let k = count(l);
+            if k > best.1 {
+                best = (l, k);
+            }
+        }
+        best.0
     }
 }
 

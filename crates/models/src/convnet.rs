@@ -142,9 +142,10 @@ impl ConvNetArch {
 }
 
 /// The egocentric view of a fish at `me`, with the other agents `others` (position and
-/// heading; none, the pair partner, or a group) into `out` (`3 x bins`, channel-major). Each
-/// bin holds the nearest agent whose bearing falls in it (ties: the first listed), so a group
-/// is seen as the nearest agent per sector and one partner exactly as in the pair recordings.
+/// heading; none, the pair partner, or a group of up to `MAX_OTHERS`, as a view holds) into
+/// `out` (`3 x bins`, channel-major). Each bin holds the nearest agent whose bearing falls in
+/// it (ties: the first listed), so a group is seen as the nearest agent per sector and one
+/// partner exactly as in the pair recordings.
 pub fn encode_view(
     arch: &ConvNetArch,
     tank: &Tank,
@@ -164,22 +165,26 @@ pub fn encode_view(
     }
     near.fill(0.0);
     rel.fill(0.0);
-    // Bin and distance of an agent (None when its position is not finite).
-    let place = |o: &AgentState| {
+    // Bin and distance of each agent, once (None when its position is not finite). A view
+    // holds at most MAX_OTHERS agents; so does this (no allocation per fish and frame).
+    let mut placed = [None::<(usize, f32)>; fishprobe_sim::MAX_OTHERS];
+    for (slot, o) in placed.iter_mut().zip(others) {
         let (dx, dy) = (o.x - me.x, o.y - me.y);
         let d = (dx * dx + dy * dy).sqrt();
-        d.is_finite().then(|| {
+        *slot = d.is_finite().then(|| {
             let bearing = fishprobe_sim::wrap_angle(dy.atan2(dx) - me.heading);
             let i = (((bearing + std::f32::consts::PI) / width) as usize).min(n - 1);
             (i, d)
-        })
-    };
-    for (j, o) in others.iter().enumerate() {
-        let Some((i, d)) = place(o) else { continue };
-        // A nearer agent in the same bin (or an equally near one listed earlier) wins it.
-        let beaten = others.iter().enumerate().any(|(l, q)| {
-            l != j && place(q).is_some_and(|(k, e)| k == i && (e < d || (e == d && l < j)))
         });
+    }
+    let placed = &placed[..others.len().min(fishprobe_sim::MAX_OTHERS)];
+    for (j, (o, p)) in others.iter().zip(placed).enumerate() {
+        let Some((i, d)) = *p else { continue };
+        // A nearer agent in the same bin (or an equally near one listed earlier) wins it.
+        let beaten = placed
+            .iter()
+            .enumerate()
+            .any(|(l, q)| l != j && q.is_some_and(|(k, e)| k == i && (e < d || (e == d && l < j))));
         if !beaten {
             near[i] = (1.0 - d / arch.far_plane_cm).max(0.0);
             rel[i] = fishprobe_sim::wrap_angle(o.heading - me.heading) / std::f32::consts::PI;

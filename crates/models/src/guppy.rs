@@ -6,7 +6,8 @@
 //! until the next kick. It sometimes pauses. Near a wall it turns along it (thigmotaxis); away
 //! from walls it drifts back toward the nearest one. Its attraction to the other agents
 //! (the robot in the lab; in a group, averaged over the agents within its social range, with
-//! repulsion from any too close taking priority) differs between individuals and declines over a long trial. Each
+//! repulsion from any too close taking priority) differs between individuals and declines
+//! over a long trial. Each
 //! episode draws an individual — sociability, boldness, speed — from population distributions
 //! (`begin_episode`). The defaults were calibrated against the real pair recordings of the
 //! training split (docs/validation.md, "The virtual guppy").
