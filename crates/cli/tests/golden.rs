@@ -33,8 +33,11 @@ use std::path::{Path, PathBuf};
 /// with those two keys removed from the text the digest was a3cadde9… again. Then 6c6986d8…
 /// until `observation.centroid_bins` joined the recorded settings (with it cut from the config
 /// JSON: 6c6986d8… again). Then 094b9e0e… until `live.centroid_bins` joined the config of
-/// virtual-lab trial files (with it cut from the text: 094b9e0e… again).
-const GOLDEN: &str = "49ecd88a62ea706f";
+/// virtual-lab trial files (with it cut from the text: 094b9e0e… again). Then 49ecd88a… until
+/// the OOD objective's five `task` settings (`objective`, `ood_weight`, `ood_score_cap`,
+/// `ood_goal_weight`, `ood_score_every_frames`) joined the recorded environment (with them cut
+/// from the config JSON: 49ecd88a… again).
+const GOLDEN: &str = "c5c37960ded2f0e1";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…

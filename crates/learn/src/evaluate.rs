@@ -4,7 +4,7 @@ use crate::error::LearnError;
 use fishprobe_io::{write_trial, TrialFile, TrialKind, TrialMeta};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{
-    derive_seed, stream, ControlInput, Controller, Env, EnvConfig, StartPoses, TankEnv, TaskMode,
+    derive_seed, stream, ControlInput, Controller, Env, EnvConfig, StartPoses, TankEnv,
 };
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -54,8 +54,8 @@ pub fn run_episode(
     k: usize,
     file: &Path,
 ) -> Result<EpisodeResult, LearnError> {
-    let mut cfg = e.env.clone();
-    cfg.mode = TaskMode::Evaluation;
+    // The lead-to-goal task, whatever the policy was trained for (an OOD policy too).
+    let mut cfg = e.env.clone().evaluation();
     let seconds_per_action = cfg.frames_per_action as f32 / cfg.frame_rate_hz;
     cfg.task.evaluation_episode_actions =
         ((e.minutes * 60.0 / seconds_per_action).ceil() as u32).max(1);

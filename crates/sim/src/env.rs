@@ -14,7 +14,8 @@ use crate::params::{check, ConfigError};
 use crate::rng::{stream, SimRng};
 use crate::robot::{Robot, RobotParams};
 use crate::script::{advance_scripted, RobotScript, ScriptParams};
-use crate::task::{GoalEvent, GoalTracker, TaskMode, TaskParams};
+use crate::support::InputSupport;
+use crate::task::{GoalEvent, GoalTracker, Objective, TaskMode, TaskParams};
 use rand::{Rng, RngExt};
 use std::f32::consts::PI;
 use std::sync::Arc;
@@ -100,9 +101,12 @@ impl EnvConfig {
         self.observation.validate("observation")
     }
 
-    /// The same configuration in evaluation mode.
+    /// The same configuration in evaluation mode: the lead-to-goal task, whatever objective
+    /// a policy was trained for (an OOD policy is evaluated by the goals it reaches; what it
+    /// finds is measured by `fishprobe ood-report`).
     pub fn evaluation(mut self) -> Self {
         self.mode = TaskMode::Evaluation;
+        self.task.objective = Objective::Goal;
         self
     }
 }
@@ -152,6 +156,9 @@ pub struct StepInfo {
     pub robot_near_wall: bool,
     /// Frame count since the episode start, at the end of the action.
     pub frame: u32,
+    /// With the OOD objective: the mean support score of the fish's views over the action's
+    /// frames and fish, before the cap (0 otherwise).
+    pub support_score: f32,
 }
 
 /// The result of one `step`.
@@ -270,6 +277,10 @@ pub struct TankEnv {
     views: Vec<FishView>,
     inferred: Vec<f32>,
     acc: StepInfo,
+    /// The fish model's support, scored every frame with the OOD objective.
+    support: Option<Arc<dyn InputSupport>>,
+    /// Sums over the current action: capped scores, uncapped scores, samples.
+    support_acc: (f32, f32, u32),
     summary: EpisodeSummary,
     start_poses: Option<StartPoses>,
     recording: bool,
@@ -306,6 +317,8 @@ impl TankEnv {
             views: vec![FishView::default(); n_fish],
             inferred: vec![0.0; width * n_fish],
             acc: StepInfo::default(),
+            support: None,
+            support_acc: (0.0, 0.0, 0),
             summary: EpisodeSummary::default(),
             start_poses: None,
             recording: false,
@@ -313,6 +326,13 @@ impl TankEnv {
             live: false,
             cfg,
         })
+    }
+
+    /// Gives the environment the fish model's support model, which the OOD objective
+    /// (`task.objective = ood`) scores every frame with; without one, stepping an OOD
+    /// environment is an error.
+    pub fn set_support(&mut self, support: Option<Arc<dyn InputSupport>>) {
+        self.support = support;
     }
 
     /// The validated configuration.
@@ -538,6 +558,11 @@ impl TankEnv {
         if !a.is_finite() {
             return Err(SimError::NonFiniteAction { index: 0, value: a });
         }
+        if self.cfg.task.objective == Objective::Ood && self.support.is_none() {
+            return Err(SimError::NoSupport {
+                model: self.model.name().to_string(),
+            });
+        }
         let turn = a.clamp(-PI, PI);
         self.robot.begin_action(turn);
         if self.recording {
@@ -547,6 +572,7 @@ impl TankEnv {
             });
         }
         self.acc = StepInfo::default();
+        self.support_acc = (0.0, 0.0, 0);
         Ok(())
     }
 
@@ -590,6 +616,17 @@ impl TankEnv {
         };
         if contact {
             self.acc.robot_wall_contacts += 1;
+        }
+        let scored = p.task.objective == Objective::Ood
+            && self.frame.is_multiple_of(p.task.ood_score_every_frames);
+        if let Some(s) = self.support.as_ref().filter(|_| scored) {
+            // What the fish see at the start of this frame (the inputs the model acts on).
+            for v in &self.views {
+                let score = s.score(v);
+                self.support_acc.0 += score.min(p.task.ood_score_cap);
+                self.support_acc.1 += score;
+                self.support_acc.2 += 1;
+            }
         }
         let width = self.model.inference_width();
         let inferred = inferred.unwrap_or(&self.inferred);
@@ -640,7 +677,16 @@ impl TankEnv {
     /// Last part of a step: reward, observation, time limit.
     pub(crate) fn end_action(&mut self, obs: &mut [f32]) -> Transition {
         let t = &self.cfg.task;
-        let mut reward = t.goal_reward * self.acc.goals_reached as f32;
+        let goals = t.goal_reward * self.acc.goals_reached as f32;
+        let mut reward = match t.objective {
+            Objective::Goal => goals,
+            Objective::Ood => {
+                let (capped, raw, n) = self.support_acc;
+                let n = n.max(1) as f32;
+                self.acc.support_score = raw / n;
+                t.ood_weight * capped / n + t.ood_goal_weight * goals
+            }
+        };
         if self.acc.robot_near_wall {
             reward -= t.wall_penalty;
         }
@@ -688,7 +734,13 @@ impl TankEnv {
             return Err(SimError::NeedsReset);
         }
         params.validate("script")?;
+        if self.cfg.task.objective == Objective::Ood && self.support.is_none() {
+            return Err(SimError::NoSupport {
+                model: self.model.name().to_string(),
+            });
+        }
         self.acc = StepInfo::default();
+        self.support_acc = (0.0, 0.0, 0);
         self.run_frames(Some((script, params)))?;
         Ok(self.end_action(obs))
     }

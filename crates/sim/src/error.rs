@@ -35,6 +35,16 @@ pub enum SimError {
     /// `step` was called before `reset`, or after the episode ended.
     #[error("the episode has ended (or never started): call reset before step")]
     NeedsReset,
+    /// The OOD objective needs the fish model's support model, and none was given.
+    #[error(
+        "the OOD objective (task.objective = \"ood\") needs the support model of fish model \
+         `{model}`'s training data, and the environment has none (fit-convnet writes one \
+         beside the weights)"
+    )]
+    NoSupport {
+        /// The model's name.
+        model: String,
+    },
     /// A fish model produced NaN or infinite motion.
     #[error("fish model `{model}` produced a non-finite motion at frame {frame}")]
     NonFiniteModelOutput {

@@ -43,6 +43,7 @@ pub mod rng;
 pub mod robot;
 pub mod sandbox;
 pub mod script;
+pub mod support;
 pub mod task;
 pub mod vector;
 
@@ -66,5 +67,6 @@ pub use rng::{derive_seed, stream, SimRng};
 pub use robot::{Robot, RobotParams};
 pub use sandbox::Sandbox;
 pub use script::{RobotScript, ScriptParams};
-pub use task::{GoalEvent, GoalReacher, GoalTracker, GroupGoal, TaskMode, TaskParams};
+pub use support::InputSupport;
+pub use task::{GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, TaskMode, TaskParams};
 pub use vector::{AutoresetMode, VecEnv};

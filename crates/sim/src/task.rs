@@ -54,7 +54,36 @@ crate::documented_params! {
         pub wall_penalty: f32 = 0.1; "1",
         /// Robot-to-wall distance below which the wall penalty applies (paper: 3 cm).
         pub wall_penalty_distance_cm: f32 = 3.0; "cm",
+        /// What the robot is rewarded for: `goal` (the paper's lead-to-goal task) or `ood`
+        /// (issue 23, the paper's outlook): each second, by how far out of the fish model's
+        /// training support the fish's views were (the model's support file, written by
+        /// `fit-convnet`), plus the wall penalty. Goals are drawn and counted in both.
+        pub objective: Objective = Objective::Goal; "-",
+        /// OOD task: reward per second for a mean support score of 1 (the 95th percentile of
+        /// the training views' scores; 0 at or below their median). Choice: 1, the goal reward.
+        pub ood_weight: f32 = 1.0; "1",
+        /// OOD task: support scores above this count as this (choice: 4): a view far outside
+        /// the data is not worth endless reward, and one glitch cannot dominate a batch.
+        pub ood_score_cap: f32 = 4.0; "1",
+        /// OOD task: the fish's views are scored every this many frames (choice: 5, five
+        /// times a second at 25 Hz: a second's views change little from frame to frame, and
+        /// a score costs about as much as a frame of M_ConvNet; 1: every frame).
+        pub ood_score_every_frames: u32 = 5; "frames",
+        /// OOD task: weight of the goal reward added to the OOD reward, in [0, 10] (choice: 0,
+        /// the pure OOD objective; e.g. 1 for a robot that also keeps leading).
+        pub ood_goal_weight: f32 = 0.0; "1",
     }
+}
+
+/// What the robot is rewarded for ([`TaskParams::objective`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Objective {
+    /// Lead the fish to goals (the paper).
+    #[default]
+    Goal,
+    /// Drive the fish's views out of its model's training support.
+    Ood,
 }
 
 /// Who must enter a training goal for it to count.
@@ -159,6 +188,17 @@ impl TaskParams {
             ));
         }
         check::finite(prefix, "goal_reward", self.goal_reward)?;
+        check::within(prefix, "ood_weight", self.ood_weight, 0.0, 100.0)?;
+        check::within(prefix, "ood_score_cap", self.ood_score_cap, 0.1, 1000.0)?;
+        check::within(prefix, "ood_goal_weight", self.ood_goal_weight, 0.0, 10.0)?;
+        if !(1..=10_000).contains(&self.ood_score_every_frames) {
+            return Err(ConfigError::new(
+                prefix,
+                "ood_score_every_frames",
+                self.ood_score_every_frames,
+                "must lie in [1, 10000]",
+            ));
+        }
         check::finite(prefix, "wall_penalty", self.wall_penalty)?;
         check::non_negative(
             prefix,

@@ -71,6 +71,14 @@ impl VecEnv {
         })
     }
 
+    /// Gives every environment the fish model's support model (see
+    /// [`TankEnv::set_support`]).
+    pub fn set_support(&mut self, support: Option<Arc<dyn crate::InputSupport>>) {
+        for e in &mut self.envs {
+            e.set_support(support.clone());
+        }
+    }
+
     /// Number of environments.
     pub fn num_envs(&self) -> usize {
         self.envs.len()
@@ -163,10 +171,14 @@ impl VecEnv {
         } else {
             self.step_independent(actions);
         }
-        match self.errors.iter_mut().find_map(Option::take) {
-            Some(e) => Err(e),
-            None => Ok(()),
+        // Every slot is cleared: an error left behind would fail the next, good step.
+        let mut first = None;
+        for e in &mut self.errors {
+            if let Some(e) = e.take() {
+                first.get_or_insert(e);
+            }
         }
+        first.map_or(Ok(()), Err)
     }
 
     /// Rule-based models: every environment runs its whole action on one core.
