@@ -33,9 +33,11 @@ pub mod measure;
 pub mod onnx;
 pub mod python;
 pub mod stationary;
+pub mod support;
 pub mod zone;
 
 pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError};
+pub use fishprobe_onnx::sha256_hex;
 pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
 pub use guppy::{Guppy, GuppyParams};
@@ -82,6 +84,18 @@ pub enum ModelError {
     NeedsPython {
         /// The model's class.
         class: String,
+    },
+    /// A support model that cannot be used (issue 23).
+    #[error(transparent)]
+    Support(#[from] support::SupportError),
+    /// The OOD objective asked of a model without training data.
+    #[error(
+        "fish model `{model}` is not data-driven: the OOD objective needs a model fitted on \
+         recordings (ConvNet, or an ONNX model of the view contract) and its support file"
+    )]
+    NotDataDriven {
+        /// The model's name.
+        model: String,
     },
 }
 
@@ -130,10 +144,17 @@ macro_rules! model_registry {
             pub const NAMES: &'static [&'static str] = &[$(<$params as ModelParams>::NAME),*];
 
             /// A model with its default (published) parameters, by name or alias
-            /// (case-insensitive), or `onnx:PATH` for a model brought as an ONNX file.
+            /// (case-insensitive), `onnx:PATH` for a model brought as an ONNX file, or
+            /// `convnet:PATH` for M_ConvNet with weights written by `fit-convnet`.
             pub fn by_name(name: &str) -> Result<Self, ModelError> {
                 if let Some(path) = name.strip_prefix("onnx:") {
                     return Ok(Self::Onnx(OnnxParams::for_file(path)));
+                }
+                if let Some(path) = name.strip_prefix("convnet:") {
+                    // M_ConvNet with weights from `fit-convnet` instead of the shipped ones.
+                    return Ok(Self::ConvNet(ConvNetParams {
+                        weights: path.to_string(),
+                    }));
                 }
                 let lower = name.to_ascii_lowercase();
                 $(
@@ -192,6 +213,54 @@ macro_rules! model_registry {
             }
         }
     };
+}
+
+impl ModelSpec {
+    /// Where the support file of this model lives (`WEIGHTS.support.json` beside a weights or
+    /// ONNX file; `None` for the shipped ConvNet weights, whose support is shipped with them).
+    pub fn support_path(&self) -> Result<Option<std::path::PathBuf>, ModelError> {
+        let beside = |p: &str| {
+            let mut s = std::ffi::OsString::from(p);
+            s.push(".support.json");
+            std::path::PathBuf::from(s)
+        };
+        match self {
+            Self::ConvNet(p) if p.weights.is_empty() => Ok(None),
+            Self::ConvNet(p) => Ok(Some(beside(&p.weights))),
+            Self::Onnx(p) => Ok(Some(beside(&p.path))),
+            _ => Err(ModelError::NotDataDriven {
+                model: self.name().to_string(),
+            }),
+        }
+    }
+
+    /// The support model of this model's training data, checked to belong to its weights
+    /// (by SHA-256). Data-driven models only.
+    pub fn support(&self) -> Result<support::SupportModel, ModelError> {
+        let weights_hash = |path: &str| -> Result<String, ModelError> {
+            let bytes = std::fs::read(path).map_err(|e| {
+                ModelError::Weights(WeightsError {
+                    source_name: path.to_string(),
+                    what: e.to_string(),
+                })
+            })?;
+            Ok(fishprobe_onnx::sha256_hex(&bytes))
+        };
+        match (self, self.support_path()?) {
+            (_, None) => Ok(convnet::shipped_support()?),
+            (Self::ConvNet(p), Some(file)) => {
+                let hash = weights_hash(&p.weights)?;
+                Ok(support::SupportModel::load(&file, &p.weights, &hash)?)
+            }
+            (Self::Onnx(p), Some(file)) => {
+                let hash = weights_hash(&p.path)?;
+                Ok(support::SupportModel::load(&file, &p.path, &hash)?)
+            }
+            _ => Err(ModelError::NotDataDriven {
+                model: self.name().to_string(),
+            }),
+        }
+    }
 }
 
 model_registry! {
