@@ -19,6 +19,7 @@
 use crate::error::LearnError;
 use fishprobe_io::{read_legacy, read_trial, Attr, TrialFile};
 use fishprobe_models::convnet::{encode_view, ConvNet, ConvNetArch, ConvNetWorkspace, CHANNELS};
+use fishprobe_models::support::{SupportConfig, SupportModel};
 use fishprobe_nn::Adam;
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{wrap_angle, AgentState, SimRng, Tank, TankParams};
@@ -45,6 +46,11 @@ fishprobe_sim::documented_params! {
         pub max_epochs: usize = 30; "epochs",
         /// Stop after this many epochs without a better validation NLL (choice).
         pub patience: usize = 3; "epochs",
+        /// Also learn from files of one fish with the robot (`lab`, `evaluate`, live trials):
+        /// the fish's frames, with the robot as its neighbour (the robot's own motion is not a
+        /// fish's). Choice: off, the paper fits fish pairs only; the OOD loop (issue 23) turns
+        /// it on to add what the fish did under a policy.
+        pub robot_as_partner: bool = false; "-",
     }
 }
 
@@ -178,10 +184,19 @@ fn add_file(
             t.world_size_cm[0], t.world_size_cm[1]
         ));
     }
-    let fish: Vec<&fishprobe_io::Entity> = t.fish().collect();
-    if fish.len() != 2 {
-        return Err(format!("{} fish, not a pair", fish.len()));
-    }
+    let mut fish: Vec<&fishprobe_io::Entity> = t.fish().collect();
+    // (learner, neighbour) indices into `fish`.
+    let pairs: &[(usize, usize)] = match (fish.len(), t.robot()) {
+        (2, _) => &[(0, 1), (1, 0)],
+        (1, Some(robot)) if cfg.robot_as_partner => {
+            fish.push(robot);
+            &[(0, 1)]
+        }
+        (1, Some(_)) => {
+            return Err("1 fish with the robot, not a pair (clone.robot_as_partner is off)".into())
+        }
+        (n, _) => return Err(format!("{n} fish, not a pair")),
+    };
     let frames = fish[0].frames().min(fish[1].frames());
     if frames < cfg.min_frames {
         return Err(format!("{frames} frames, shorter than {}", cfg.min_frames));
@@ -200,7 +215,7 @@ fn add_file(
     let len = arch.view_len();
     let mut view = vec![0.0; len];
     let ok = |p: [f32; 2]| p[0].is_finite() && p[1].is_finite();
-    for (me, other) in [(0usize, 1usize), (1, 0)] {
+    for &(me, other) in pairs {
         let (a, b) = (&tracks[me], &tracks[other]);
         d.headings_from_motion += a.from_motion;
         for i in 0..frames.saturating_sub(2) {
@@ -562,6 +577,8 @@ pub struct FitReport {
     pub skipped: Vec<(PathBuf, String)>,
     /// The weights file.
     pub weights: PathBuf,
+    /// The support file of the training views beside it (issue 23).
+    pub support: PathBuf,
     /// The training log (CSV).
     pub log_file: PathBuf,
 }
@@ -661,6 +678,24 @@ pub fn fit_convnet(
             .map_err(|e| LearnError::Run(format!("creating {}: {e}", parent.display())))?;
     }
     fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
+    let support = support_beside(out);
+    let bytes = std::fs::read(out)
+        .map_err(|e| LearnError::Run(format!("reading back {}: {e}", out.display())))?;
+    let provenance = serde_json::json!({
+        "command": command,
+        "training_files": names(&train.files),
+    });
+    let s = build_support(
+        &train,
+        &arch,
+        &SupportConfig::default(),
+        &out.display().to_string(),
+        &fishprobe_models::sha256_hex(&bytes),
+        seed,
+        provenance,
+    )?;
+    s.save(&support)
+        .map_err(fishprobe_models::ModelError::from)?;
     let log_file = out.with_extension("training.csv");
     let mut csv = String::from("epoch,train_nll,val_nll,seconds\n");
     for l in &logs {
@@ -679,6 +714,32 @@ pub fn fit_convnet(
         logs,
         skipped,
         weights: out.to_path_buf(),
+        support,
         log_file,
     })
+}
+
+/// The support file of a weights (or ONNX) file: `FILE.support.json` beside it.
+pub fn support_beside(weights: &Path) -> PathBuf {
+    let mut s = weights.as_os_str().to_owned();
+    s.push(".support.json");
+    PathBuf::from(s)
+}
+
+/// The support model of a training dataset's views (issue 23), for the model `model` whose
+/// weights have SHA-256 `sha256`; seeded by `seed`.
+pub fn build_support(
+    train: &PairDataset,
+    arch: &ConvNetArch,
+    cfg: &SupportConfig,
+    model: &str,
+    sha256: &str,
+    seed: u64,
+    provenance: serde_json::Value,
+) -> Result<SupportModel, LearnError> {
+    let mut rng = fishprobe_sim::stream(seed, "support", 0);
+    let mut s = SupportModel::fit(arch, &train.x, cfg, model, sha256, &mut rng)
+        .map_err(fishprobe_models::ModelError::from)?;
+    s.provenance = provenance;
+    Ok(s)
 }

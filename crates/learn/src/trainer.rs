@@ -13,7 +13,7 @@ use fishprobe_models::ModelSpec;
 use fishprobe_nn::store::{load, save, write_atomic, Tensors};
 use fishprobe_nn::Adam;
 use fishprobe_sim::{
-    derive_seed, stream, EnvConfig, EnvSnapshot, FishModel, SimRng, TaskMode, VecEnv,
+    derive_seed, stream, EnvConfig, EnvSnapshot, FishModel, Objective, SimRng, TaskMode, VecEnv,
 };
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -185,7 +185,12 @@ impl Trainer {
     }
 
     fn build(dir: &Path, spec: RunSpec, model: Arc<dyn FishModel>) -> Result<Self, LearnError> {
-        let venv = VecEnv::new(spec.env.clone(), model, spec.ppo.num_envs)?;
+        let mut venv = VecEnv::new(spec.env.clone(), model, spec.ppo.num_envs)?;
+        if spec.env.task.objective == Objective::Ood {
+            // The OOD reward scores the fish's views against the model's training support.
+            let support = spec.model.support()?;
+            venv.set_support(Some(Arc::new(support)));
+        }
         let obs_dim = venv.obs_dim();
         let policy =
             GaussianPolicy::new(obs_dim, &spec.ppo, &mut stream(spec.seed, "policy-init", 0));
