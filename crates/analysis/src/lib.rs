@@ -20,6 +20,7 @@ pub mod competence;
 pub mod config;
 pub mod error;
 pub mod offline;
+pub mod ood;
 pub mod results;
 pub mod study;
 pub mod trial;

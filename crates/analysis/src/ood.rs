@@ -1,0 +1,436 @@
+//! What an OOD policy finds (issue 23): the support scores of the fish's views in trial
+//! files, their distribution next to the training data's and a lead-to-goal policy's, and a
+//! ranked "data wishlist" of the situations the data lacks that the policy drove the fish into.
+
+use fishprobe_io::{read_trial, TrialFile};
+use fishprobe_models::support::{Situation, SupportModel};
+use fishprobe_sim::{AgentState, Tank, TankParams};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// Support scores and situations of the fish's views in one source (a policy's trials, or
+/// the training recordings), one entry per fish and frame.
+#[derive(Debug, Clone, Default)]
+pub struct SourceScores {
+    /// What the views come from.
+    pub label: String,
+    /// Support scores.
+    pub scores: Vec<f32>,
+    /// Situations.
+    pub situations: Vec<Situation>,
+}
+
+/// One scored view of a fish in a trial.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScoredView {
+    /// Frame.
+    pub frame: usize,
+    /// Which fish (0-based, in the file's order of fish).
+    pub fish: usize,
+    /// Its position (cm).
+    pub position: [f32; 2],
+    /// Support score.
+    pub score: f32,
+    /// What it saw.
+    pub situation: Situation,
+}
+
+/// The fish's views of a trial file: for each frame with the fish tracked, its situation
+/// among the robot and the other fish (agents not tracked in that frame are left out).
+pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
+    let tank = Tank::new(&TankParams {
+        half_size_cm: t.world_size_cm[0] / 2.0,
+        ..TankParams::default()
+    });
+    let mut agents: Vec<(Vec<[f32; 2]>, Vec<f32>)> = Vec::new();
+    if let Some(r) = t.robot() {
+        agents.push((r.positions.clone(), r.headings()));
+    }
+    let first_fish = agents.len();
+    agents.extend(t.fish().map(|f| (f.positions.clone(), f.headings())));
+    let frames = agents.iter().map(|a| a.0.len()).min().unwrap_or(0);
+    let mut out = Vec::with_capacity(frames * (agents.len() - first_fish));
+    let mut others = Vec::with_capacity(agents.len());
+    let state = |a: &(Vec<[f32; 2]>, Vec<f32>), i: usize| {
+        let (p, h) = (a.0[i], a.1[i]);
+        (p[0].is_finite() && p[1].is_finite() && h.is_finite())
+            .then(|| AgentState::at(p[0], p[1], h))
+    };
+    for i in 0..frames {
+        for me in first_fish..agents.len() {
+            let Some(s) = state(&agents[me], i) else {
+                continue;
+            };
+            others.clear();
+            others.extend(
+                (0..agents.len())
+                    .filter(|&j| j != me)
+                    .filter_map(|j| state(&agents[j], i)),
+            );
+            let sit = support.situation(&tank, &s, &others);
+            out.push(ScoredView {
+                frame: i,
+                fish: me - first_fish,
+                position: [s.x, s.y],
+                score: support.score_features(&sit.features()),
+                situation: sit,
+            });
+        }
+    }
+    out
+}
+
+/// The views of every trial file in `files`, as one source.
+pub fn score_trials(
+    support: &SupportModel,
+    label: &str,
+    files: &[PathBuf],
+) -> Result<SourceScores, String> {
+    let parts: Vec<Vec<ScoredView>> = files
+        .par_iter()
+        .map(|f| {
+            read_trial(f)
+                .map(|t| trial_views(support, &t))
+                .map_err(|e| format!("{}: {e}", f.display()))
+        })
+        .collect::<Result<_, _>>()?;
+    let mut s = SourceScores {
+        label: label.into(),
+        ..SourceScores::default()
+    };
+    for v in parts.into_iter().flatten() {
+        s.scores.push(v.score);
+        s.situations.push(v.situation);
+    }
+    Ok(s)
+}
+
+/// Views given as M_ConvNet inputs (`n x view_len`, e.g. a training dataset), at most `max`
+/// of them taken evenly spaced.
+pub fn score_views(support: &SupportModel, label: &str, views: &[f32], max: usize) -> SourceScores {
+    let arch = support.arch();
+    let len = arch.view_len();
+    let n = views.len() / len;
+    let step = n.div_ceil(max.max(1)).max(1);
+    let picked: Vec<(f32, Situation)> = (0..n)
+        .into_par_iter()
+        .step_by(step)
+        .map(|i| {
+            let s = Situation::of_view(&arch, &views[i * len..(i + 1) * len]);
+            (support.score_features(&s.features()), s)
+        })
+        .collect();
+    let (scores, situations) = picked.into_iter().unzip();
+    SourceScores {
+        label: label.into(),
+        scores,
+        situations,
+    }
+}
+
+/// The `q`-quantile (linear interpolation) of `v` (NaN when empty).
+pub fn quantile(v: &[f32], q: f64) -> f64 {
+    let mut v: Vec<f64> = v.iter().map(|&x| f64::from(x)).collect();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let pos = q * (v.len() - 1) as f64;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    v[lo] + (v[hi] - v[lo]) * (pos - lo as f64)
+}
+
+/// Share of `v` at or above `threshold`.
+pub fn share_at_least(v: &[f32], threshold: f64) -> f64 {
+    v.iter().filter(|&&x| f64::from(x) >= threshold).count() as f64 / v.len().max(1) as f64
+}
+
+/// One source's score distribution.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Distribution {
+    /// The source.
+    pub label: String,
+    /// Views scored.
+    pub views: usize,
+    /// Median score.
+    pub median: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Share of views scoring above 1 (beyond the training data's 95th percentile).
+    pub beyond_support: f64,
+}
+
+/// The distribution of a source's scores.
+pub fn distribution(s: &SourceScores) -> Distribution {
+    Distribution {
+        label: s.label.clone(),
+        views: s.scores.len(),
+        median: quantile(&s.scores, 0.5),
+        p95: quantile(&s.scores, 0.95),
+        beyond_support: s.scores.iter().filter(|&&x| x > 1.0).count() as f64
+            / s.scores.len().max(1) as f64,
+    }
+}
+
+/// Coarse classes of a situation, in plain terms: the cells of the wishlist.
+pub fn situation_cell(s: &Situation) -> [&'static str; 4] {
+    let d = s.partner_distance_cm;
+    let partner = if !s.partner_seen {
+        "no partner seen"
+    } else if d < 3.0 {
+        "partner within 3 cm"
+    } else if d < 8.0 {
+        "partner 3-8 cm away"
+    } else if d < 20.0 {
+        "partner 8-20 cm away"
+    } else {
+        "partner over 20 cm away"
+    };
+    let b = s.partner_bearing_rad.to_degrees();
+    let bearing = if !s.partner_seen {
+        "-"
+    } else if b.abs() <= 45.0 {
+        "ahead"
+    } else if b.abs() >= 135.0 {
+        "behind"
+    } else if b > 0.0 {
+        "to the left"
+    } else {
+        "to the right"
+    };
+    let h = s.relative_heading_rad.to_degrees().abs();
+    let heading = if !s.partner_seen {
+        "-"
+    } else if h <= 45.0 {
+        "swimming the same way"
+    } else if h >= 135.0 {
+        "heading the opposite way"
+    } else {
+        "crossing"
+    };
+    let w = s.wall_distance_cm;
+    let wall = if w < 5.0 && s.second_wall_cm < 5.0 {
+        "in a corner (two walls within 5 cm)"
+    } else if w < 2.0 {
+        "wall within 2 cm"
+    } else if w < 5.0 {
+        "wall 2-5 cm away"
+    } else if w < 15.0 {
+        "wall 5-15 cm away"
+    } else {
+        "wall over 15 cm away"
+    };
+    [partner, bearing, heading, wall]
+}
+
+/// One entry of the data wishlist.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct WishItem {
+    /// Rank (1 = record first).
+    pub rank: usize,
+    /// The situation, in plain terms.
+    pub situation: String,
+    /// Share of the OOD policy's views in this situation and beyond the support (score > 1).
+    pub ood_policy_share_beyond: f64,
+    /// Their mean score.
+    pub mean_score: f64,
+    /// Share of the training views in this situation (any score).
+    pub training_share: f64,
+    /// Share of the lead-to-goal policy's views in this situation (any score), if compared.
+    pub goal_policy_share: Option<f64>,
+    /// The ranking value: the OOD policy's share beyond the support times its mean score.
+    pub priority: f64,
+}
+
+/// The situations the OOD policy drove the fish into beyond the support, ranked by how much
+/// out-of-support time (weighted by score, each capped at `cap`) the policy spent in them:
+/// what the lab should record next. At most `n` entries.
+pub fn wishlist(
+    ood: &SourceScores,
+    training: &SourceScores,
+    goal: Option<&SourceScores>,
+    cap: f32,
+    n: usize,
+) -> Vec<WishItem> {
+    use std::collections::BTreeMap;
+    let mut cells: BTreeMap<[&str; 4], (usize, f64)> = BTreeMap::new();
+    for (score, sit) in ood.scores.iter().zip(&ood.situations) {
+        if *score > 1.0 {
+            let e = cells.entry(situation_cell(sit)).or_default();
+            e.0 += 1;
+            e.1 += f64::from(score.min(cap));
+        }
+    }
+    let share = |src: &SourceScores, cell: &[&str; 4]| {
+        src.situations
+            .iter()
+            .filter(|s| &situation_cell(s) == cell)
+            .count() as f64
+            / src.situations.len().max(1) as f64
+    };
+    let total = ood.scores.len().max(1) as f64;
+    let mut items: Vec<WishItem> = cells
+        .into_iter()
+        .map(|(cell, (count, sum))| {
+            let describe = cell
+                .iter()
+                .filter(|c| **c != "-")
+                .copied()
+                .collect::<Vec<_>>()
+                .join(", ");
+            WishItem {
+                rank: 0,
+                situation: describe,
+                ood_policy_share_beyond: count as f64 / total,
+                mean_score: sum / count as f64,
+                training_share: share(training, &cell),
+                goal_policy_share: goal.map(|g| share(g, &cell)),
+                priority: sum / total,
+            }
+        })
+        .collect();
+    items.sort_by(|a, b| b.priority.total_cmp(&a.priority));
+    items.truncate(n);
+    for (i, it) in items.iter_mut().enumerate() {
+        it.rank = i + 1;
+    }
+    items
+}
+
+/// The nine metrics' per-frame values pooled over trial files.
+pub fn pooled_metrics(
+    files: &[PathBuf],
+    cfg: &crate::AnalysisConfig,
+) -> Result<Vec<Vec<f64>>, String> {
+    let mut pooled = vec![Vec::new(); crate::METRICS.len()];
+    for f in files {
+        let t = crate::load_trial(f, cfg, true)?;
+        for (p, v) in pooled.iter_mut().zip(t.metrics.unwrap_or_default()) {
+            p.extend(v);
+        }
+    }
+    for p in &mut pooled {
+        p.sort_by(f64::total_cmp);
+    }
+    Ok(pooled)
+}
+
+/// A model's distance to the real fish over the metrics: the mean over metrics of the
+/// Wasserstein distance between the model's and the real values, each in units of the real
+/// values' standard deviation (metrics without values or spread are left out; NaN if none).
+pub fn metric_gap(model: &[Vec<f64>], real: &[Vec<f64>]) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0u32;
+    for (m, r) in model.iter().zip(real) {
+        let sd = fishprobe_stats::sample::sd(r);
+        if let (Ok(w), true) = (fishprobe_stats::wasserstein::wasserstein(m, r), sd > 0.0) {
+            sum += w / sd;
+            n += 1;
+        }
+    }
+    if n > 0 {
+        sum / f64::from(n)
+    } else {
+        f64::NAN
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sit(d: f32, b: f32, h: f32, w: f32) -> Situation {
+        Situation {
+            partner_seen: true,
+            partner_distance_cm: d,
+            partner_bearing_rad: b.to_radians(),
+            relative_heading_rad: h.to_radians(),
+            wall_distance_cm: w,
+            wall_bearing_rad: 0.0,
+            second_wall_cm: 60.0,
+        }
+    }
+
+    #[test]
+    fn the_metric_gap_is_wasserstein_in_real_sds() {
+        // Real {0, 2}: s.d. (n - 1) = sqrt(2); model {1, 3}: W1 = 1. A metric without spread
+        // is left out.
+        let g = metric_gap(
+            &[vec![1.0, 3.0], vec![5.0]],
+            &[vec![0.0, 2.0], vec![4.0, 4.0]],
+        );
+        assert!((g - 1.0 / 2f64.sqrt()).abs() < 1e-12, "{g}");
+        assert!(metric_gap(&[vec![]], &[vec![1.0, 2.0]]).is_nan());
+    }
+
+    #[test]
+    fn quantiles_and_shares_by_hand() {
+        let v = [4.0, 1.0, 3.0, 2.0];
+        assert_eq!(quantile(&v, 0.5), 2.5);
+        assert_eq!(quantile(&v, 0.0), 1.0);
+        assert!((quantile(&v, 0.95) - 3.85).abs() < 1e-12);
+        assert_eq!(share_at_least(&v, 3.0), 0.5);
+        let d = distribution(&SourceScores {
+            label: "x".into(),
+            scores: v.to_vec(),
+            situations: vec![Situation::default(); 4],
+        });
+        assert_eq!(d.beyond_support, 0.75);
+    }
+
+    #[test]
+    fn cells_read_in_plain_terms() {
+        assert_eq!(
+            situation_cell(&sit(2.0, 170.0, 180.0, 1.0)),
+            [
+                "partner within 3 cm",
+                "behind",
+                "heading the opposite way",
+                "wall within 2 cm"
+            ]
+        );
+        let mut corner = sit(2.0, 170.0, 180.0, 1.0);
+        corner.second_wall_cm = 3.0;
+        assert_eq!(
+            situation_cell(&corner)[3],
+            "in a corner (two walls within 5 cm)"
+        );
+        assert_eq!(
+            situation_cell(&sit(10.0, 90.0, 90.0, 30.0)),
+            [
+                "partner 8-20 cm away",
+                "to the left",
+                "crossing",
+                "wall over 15 cm away"
+            ]
+        );
+    }
+
+    #[test]
+    fn the_wishlist_ranks_out_of_support_time_weighted_by_score() {
+        let corner = sit(2.0, 170.0, 180.0, 1.0);
+        let open = sit(10.0, 0.0, 0.0, 30.0);
+        let ood = SourceScores {
+            label: "ood".into(),
+            // Corner: 3 views at 2 (one capped from 9 to 3); open: 1 view at 1.5, 1 in support.
+            scores: vec![2.0, 2.0, 9.0, 1.5, 0.5],
+            situations: vec![corner, corner, corner, open, open],
+        };
+        let training = SourceScores {
+            label: "train".into(),
+            scores: vec![0.0; 4],
+            situations: vec![open, open, open, corner],
+        };
+        let w = wishlist(&ood, &training, None, 3.0, 10);
+        assert_eq!(w.len(), 2);
+        assert_eq!(w[0].rank, 1);
+        assert!(w[0].situation.contains("partner within 3 cm"), "{w:?}");
+        assert!((w[0].ood_policy_share_beyond - 0.6).abs() < 1e-12);
+        assert!((w[0].mean_score - 7.0 / 3.0).abs() < 1e-12);
+        assert!((w[0].priority - 7.0 / 5.0).abs() < 1e-12);
+        assert!((w[0].training_share - 0.25).abs() < 1e-12);
+        assert!((w[1].priority - 0.3).abs() < 1e-12);
+        assert_eq!(w[1].goal_policy_share, None);
+    }
+}
