@@ -22,10 +22,13 @@ mod import_legacy;
 mod inspect;
 mod live;
 mod models;
+mod ood_loop;
+mod ood_report;
 mod reference;
 mod report;
 mod run;
 mod simulate;
+mod support;
 pub(crate) mod synth;
 mod train;
 
@@ -75,6 +78,15 @@ enum Command {
     /// Groups in open water: Couzin's collective states of M_Zone (its phase picture) and
     /// M_Force's order over alignment (issue 22).
     Collective(collective::CollectiveArgs),
+    /// What an OOD policy (`train --task ood`) drives the fish into: support scores next to
+    /// the training data's and a lead-to-goal policy's, example episodes, a data wishlist.
+    OodReport(ood_report::OodReportArgs),
+    /// The OOD idea tested in silico: fit M_ConvNet on narrow virtual-guppy data, add data
+    /// recorded under an OOD or a lead-to-goal policy, and compare the refitted models' gaps.
+    OodLoop(ood_loop::OodLoopArgs),
+    /// The support model of a data-driven fish model's training recordings (what the OOD
+    /// objective scores against), with its check on held-out and unseen situations.
+    Support(support::SupportArgs),
     /// Export a trained policy as ONNX (observation in, turn angle out).
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
@@ -205,5 +217,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Assay(a) => assay::run(a),
         Command::Fidelity(a) => fidelity::run(a),
         Command::Collective(a) => collective::run(a),
+        Command::Support(a) => support::run(a),
+        Command::OodReport(a) => ood_report::run(a),
+        Command::OodLoop(a) => ood_loop::run(a),
     }
 }

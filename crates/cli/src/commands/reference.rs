@@ -68,7 +68,11 @@ pub fn reference() -> String {
         "`env.robot`",
         "The robot and its low-level controller.",
     );
-    section::<s::TaskParams>(&mut o, "`env.task`", "The lead-to-goal task.");
+    section::<s::TaskParams>(
+        &mut o,
+        "`env.task`",
+        "The lead-to-goal task, or the OOD objective (`fishprobe train --task ood`).",
+    );
     section::<s::ObservationParams>(&mut o, "`env.observation`", "The policy's observation.");
     o.push_str("## Fish models (`fish` section, study files' `spec`)\n\n");
     section::<m::FollowParams>(&mut o, "`model = \"Follow\"`", "M_Follow.");
@@ -100,6 +104,16 @@ pub fn reference() -> String {
         &mut o,
         "M_ConvNet fitting (`fishprobe fit-convnet --config FILE`)",
         "Behavioural cloning of the pair recordings.",
+    );
+    section::<fishprobe_models::support::SupportConfig>(
+        &mut o,
+        "Support model (`fishprobe support`; `fit-convnet` writes one with these defaults)",
+        "How the OOD objective's support of a model's training views is estimated.",
+    );
+    section::<super::ood_loop::OodLoopConfig>(
+        &mut o,
+        "The in-silico OOD loop (`fishprobe ood-loop --config FILE`)",
+        "Budget and design of the closed loop with the virtual guppy as the real fish.",
     );
     o.push_str("## Analysis and report\n\n");
     section::<fishprobe_analysis::AnalysisConfig>(

@@ -4,6 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
+use fishprobe_sim::Objective;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
@@ -40,6 +41,16 @@ pub struct TrainArgs {
     /// params.json's `ppo`, e.g. `num_sgd_iter = 10`).
     #[arg(long)]
     ppo: Option<PathBuf>,
+    /// What the robot is rewarded for: `goal` (lead the fish to goals, the paper's task) or
+    /// `ood` (drive the fish's views out of its model's training support, issue 23; needs a
+    /// data-driven model and its support file). Default: the settings file's
+    /// `env.task.objective` (goal).
+    #[arg(long, value_parser = ["goal", "ood"])]
+    task: Option<String>,
+    /// With `--task ood`: weight of the goal reward added to the OOD reward (0 to 10;
+    /// default 0, or the settings file's `env.task.ood_goal_weight`).
+    #[arg(long)]
+    ood_goal_weight: Option<f32>,
     /// Threads (default: all cores). Results do not depend on it.
     #[arg(long)]
     jobs: Option<usize>,
@@ -49,8 +60,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
     // One writer per run directory: a second `train` (or a `--resume`) into it is refused.
     let _lock = super::lock_out(&a.out, "train")?;
     let mut trainer = if a.resume && a.out.join("params.json").exists() {
-        if a.model.is_some() || a.settings.is_some() || a.steps.is_some() || a.ppo.is_some() {
-            say!("note: --resume continues the run as params.json records it; --model, --settings, --steps and --ppo are ignored");
+        if a.model.is_some()
+            || a.settings.is_some()
+            || a.steps.is_some()
+            || a.ppo.is_some()
+            || a.task.is_some()
+            || a.ood_goal_weight.is_some()
+        {
+            say!("note: --resume continues the run as params.json records it; --model, --settings, --steps, --ppo, --task and --ood-goal-weight are ignored");
         }
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
@@ -76,6 +93,18 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 bail!("--model is required (or a --settings file naming the fish)")
             }
             None => {}
+        }
+        if let Some(t) = &a.task {
+            settings.env.task.objective = match t.as_str() {
+                "ood" => Objective::Ood,
+                _ => Objective::Goal,
+            };
+        }
+        if let Some(w) = a.ood_goal_weight {
+            if settings.env.task.objective != Objective::Ood {
+                bail!("--ood-goal-weight applies to --task ood only");
+            }
+            settings.env.task.ood_goal_weight = w;
         }
         let spec = RunSpec {
             ppo,

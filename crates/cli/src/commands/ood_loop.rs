@@ -1,0 +1,445 @@
+//! `fishprobe ood-loop`: the OOD idea tested in silico with a known truth (issue 23, item 4).
+//!
+//! The virtual guppy plays the real fish. Per seed: record it with a robot in a narrow set of
+//! situations (a scripted robot shuttling between two goals); fit M_ConvNet on that (with its
+//! support); train an OOD policy and a lead-to-goal policy against that model with the same
+//! budget; record the virtual guppy under each policy (the same episodes and minutes); refit
+//! M_ConvNet on the narrow data plus each policy's data; and measure each model's sim-to-real
+//! gap to the virtual guppy with a probe neither policy is (the nine metrics' Wasserstein
+//! distances in units of the guppy's spread, and the goals a scripted fetch-and-lead robot
+//! reaches). The virtual guppy is recorded in-process, by the same simulation the virtual lab
+//! (`fishprobe lab`) serves over the bridge: the bridge adds transport, not behaviour.
+//!
+//! Every stage leaves its files in the output directory and is skipped when they are there, so
+//! an interrupted loop resumes.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_analysis::ood::{metric_gap, pooled_metrics, quantile, score_trials, share_at_least};
+use fishprobe_analysis::{load_trial, AnalysisConfig};
+use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress};
+use fishprobe_learn::{Evaluation, PpoConfig, RunSpec, Trainer};
+use fishprobe_models::ModelSpec;
+use fishprobe_sim::{EnvConfig, Objective};
+use std::path::{Path, PathBuf};
+
+use super::emit;
+
+fishprobe_sim::documented_params! {
+    /// The closed loop's budget and design (defaults: the run in docs/validation.md).
+    pub struct OodLoopConfig {
+        /// The robot of the narrow recordings (choice: the goal-seeker, which shuttles between
+        /// the two evaluation goals and ignores the fish, so the data holds a robot on one
+        /// diagonal and a fish that comes and goes).
+        pub narrow_controller: String = "scripted:goal-seeker".into(); "-",
+        /// Narrow episodes the first model is fitted on (choice: 12).
+        pub narrow_episodes: usize = 12; "episodes",
+        /// Held-out narrow episodes for early stopping of every fit (choice: 3).
+        pub validation_episodes: usize = 3; "episodes",
+        /// Episodes recorded under each policy and added to the data (choice: 6: half the
+        /// narrow data again).
+        pub new_episodes: usize = 6; "episodes",
+        /// Minutes per recorded episode (choice: 3).
+        pub episode_minutes: f32 = 3.0; "min",
+        /// PPO preset of both policies (choice: `quick`).
+        pub ppo_preset: String = "quick".into(); "-",
+        /// Environment steps of each policy (choice: 200,000, the quick preset's).
+        pub train_steps: u64 = 200_000; "steps",
+        /// Most epochs of each M_ConvNet fit (choice: 15).
+        pub fit_max_epochs: usize = 15; "epochs",
+        /// The probe that measures each model's gap (choice: `scripted:fetch-and-lead`,
+        /// which neither policy is and which interacts with the fish closely).
+        pub gap_probe: String = "scripted:fetch-and-lead".into(); "-",
+        /// Gap episodes per model and for the virtual guppy (choice: 6).
+        pub gap_episodes: usize = 6; "episodes",
+        /// Minutes per gap episode (choice: 5).
+        pub gap_minutes: f32 = 5.0; "min",
+    }
+}
+
+impl OodLoopConfig {
+    fn validate(&self) -> Result<()> {
+        for (f, v, hi) in [
+            ("narrow_episodes", self.narrow_episodes, 1000),
+            ("validation_episodes", self.validation_episodes, 1000),
+            ("new_episodes", self.new_episodes, 1000),
+            ("gap_episodes", self.gap_episodes, 1000),
+            ("fit_max_epochs", self.fit_max_epochs, 1000),
+        ] {
+            if !(1..=hi).contains(&v) {
+                bail!("ood-loop setting `{f}` = {v}: must lie in [1, {hi}]");
+            }
+        }
+        if !(1..=1_000_000_000).contains(&self.train_steps) {
+            bail!(
+                "ood-loop setting `train_steps` = {}: must lie in [1, 1e9]",
+                self.train_steps
+            );
+        }
+        super::check_minutes("episode_minutes", f64::from(self.episode_minutes))?;
+        super::check_minutes("gap_minutes", f64::from(self.gap_minutes))?;
+        if PpoConfig::preset(&self.ppo_preset).is_none() {
+            bail!(
+                "ood-loop setting `ppo_preset` = {}: not a preset",
+                self.ppo_preset
+            );
+        }
+        Ok(())
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct OodLoopArgs {
+    /// Output directory (one subdirectory per seed; loop.json and loop.md at the end).
+    #[arg(long)]
+    out: PathBuf,
+    /// Seeds (each a whole loop).
+    #[arg(long, num_args = 1.., default_values_t = [0u64, 1, 2])]
+    seeds: Vec<u64>,
+    /// Settings (TOML, the fields of OodLoopConfig).
+    #[arg(long)]
+    config: Option<PathBuf>,
+}
+
+/// One model's gap to the virtual guppy.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+struct Gap {
+    /// Mean over the nine metrics of W1(model, guppy) / s.d.(guppy).
+    metrics: f64,
+    /// |goals(model) - goals(guppy)| / goals(guppy), goals per episode of the probe.
+    goals: f64,
+    /// Goals per episode of the probe against the model.
+    goals_per_episode: f64,
+}
+
+/// One seed's outcome.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SeedResult {
+    seed: u64,
+    guppy_goals_per_episode: f64,
+    narrow: Gap,
+    after_goal_data: Gap,
+    after_ood_data: Gap,
+    /// Share of the guppy's views under the OOD policy at or beyond the lead-to-goal
+    /// policy's 95th-percentile support score (narrow model's support).
+    ood_share_beyond_goal_p95: f64,
+    /// Goals per episode of each policy with the guppy.
+    ood_policy_goals: f64,
+    goal_policy_goals: f64,
+}
+
+fn trial_files(dir: &Path) -> Vec<PathBuf> {
+    fishprobe_io::trial_files(dir)
+}
+
+/// Records `episodes` of `controller` with `model` into `dir` (skipped when done).
+fn record(
+    controller: &str,
+    model: &ModelSpec,
+    episodes: usize,
+    minutes: f32,
+    seed: u64,
+    dir: &Path,
+) -> Result<(Vec<PathBuf>, f64)> {
+    let c = fishprobe_learn::controller(controller, false)
+        .with_context(|| format!("loading {controller}"))?;
+    let done = dir.join("summary.csv").exists();
+    let e = Evaluation {
+        model: model.clone(),
+        env: EnvConfig::default(),
+        episodes,
+        minutes,
+        seed,
+        start: None,
+        out: dir.to_path_buf(),
+        prefix: "trial".into(),
+    };
+    if !done {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        fishprobe_learn::evaluate(c.as_ref(), &e)?;
+    }
+    let files = trial_files(dir);
+    let cfg = AnalysisConfig::default();
+    let goals: Vec<f64> = files
+        .iter()
+        .map(|f| load_trial(f, &cfg, false).map(|t| f64::from(t.goals_reached)))
+        .collect::<Result<_, _>>()
+        .map_err(anyhow::Error::msg)?;
+    Ok((files, goals.iter().sum::<f64>() / goals.len().max(1) as f64))
+}
+
+/// Fits M_ConvNet on `data` into `dir/convnet.safetensors` (skipped when done).
+fn fit(
+    data: &[PathBuf],
+    validation: &Path,
+    dir: &Path,
+    epochs: usize,
+    seed: u64,
+) -> Result<ModelSpec> {
+    let weights = dir.join("convnet.safetensors");
+    if !fishprobe_learn::bc::support_beside(&weights).exists() {
+        std::fs::create_dir_all(dir)?;
+        let cfg = CloneConfig {
+            robot_as_partner: true,
+            max_epochs: epochs,
+            ..CloneConfig::default()
+        };
+        let quiet = |_: FitProgress<'_>| {};
+        fit_convnet(
+            data,
+            &[validation.to_path_buf()],
+            &weights,
+            &cfg,
+            seed,
+            false,
+            "fishprobe ood-loop",
+            &quiet,
+        )
+        .with_context(|| format!("fitting {}", weights.display()))?;
+    }
+    Ok(ModelSpec::by_name(&format!(
+        "convnet:{}",
+        weights.display()
+    ))?)
+}
+
+/// Trains a policy against `model` in `dir` (resumed or skipped when done).
+fn train(
+    model: &ModelSpec,
+    objective: Objective,
+    cfg: &OodLoopConfig,
+    seed: u64,
+    dir: &Path,
+) -> Result<String> {
+    let policy = dir.join("policy.safetensors");
+    if !policy.exists() {
+        let mut t = if dir.join("params.json").exists() {
+            Trainer::resume(dir)?
+        } else {
+            let mut ppo = PpoConfig::preset(&cfg.ppo_preset).context("preset checked")?;
+            ppo.total_timesteps = cfg.train_steps;
+            let mut env = EnvConfig::default();
+            env.task.objective = objective;
+            Trainer::create(
+                dir,
+                RunSpec {
+                    ppo,
+                    env,
+                    model: model.clone(),
+                    seed,
+                    preset: cfg.ppo_preset.clone(),
+                    program_version: env!("CARGO_PKG_VERSION").into(),
+                },
+            )?
+        };
+        while !t.done() {
+            t.iterate()?;
+        }
+        t.finish()?;
+    }
+    Ok(dir.display().to_string())
+}
+
+fn gap(model: &[Vec<f64>], guppy: &[Vec<f64>], goals: f64, guppy_goals: f64) -> Gap {
+    Gap {
+        metrics: metric_gap(model, guppy),
+        goals: (goals - guppy_goals).abs() / guppy_goals.max(1e-9),
+        goals_per_episode: goals,
+    }
+}
+
+fn metric_values(files: &[PathBuf]) -> Result<Vec<Vec<f64>>> {
+    pooled_metrics(files, &AnalysisConfig::default()).map_err(anyhow::Error::msg)
+}
+
+fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
+    let dir = root.join(format!("seed-{seed}"));
+    let guppy = ModelSpec::by_name("Guppy")?;
+    let step = |what: &str| say!("seed {seed}: {what}");
+    step("recording the virtual guppy in narrow situations");
+    let (narrow, _) = record(
+        &cfg.narrow_controller,
+        &guppy,
+        cfg.narrow_episodes,
+        cfg.episode_minutes,
+        seed,
+        &dir.join("data/narrow"),
+    )?;
+    let validation = dir.join("data/validation");
+    record(
+        &cfg.narrow_controller,
+        &guppy,
+        cfg.validation_episodes,
+        cfg.episode_minutes,
+        seed.wrapping_add(1_000_003),
+        &validation,
+    )?;
+    step("fitting M_ConvNet on the narrow data");
+    let m0 = fit(
+        &narrow,
+        &validation,
+        &dir.join("model-narrow"),
+        cfg.fit_max_epochs,
+        seed,
+    )?;
+    step("training the OOD and the lead-to-goal policy against it");
+    let p_ood = train(&m0, Objective::Ood, cfg, seed, &dir.join("policy-ood"))?;
+    let p_goal = train(&m0, Objective::Goal, cfg, seed, &dir.join("policy-goal"))?;
+    step("recording the virtual guppy under each policy");
+    let new_seed = seed.wrapping_add(2_000_003);
+    let (ood_data, ood_goals) = record(
+        &p_ood,
+        &guppy,
+        cfg.new_episodes,
+        cfg.episode_minutes,
+        new_seed,
+        &dir.join("data/under-ood"),
+    )?;
+    let (goal_data, goal_goals) = record(
+        &p_goal,
+        &guppy,
+        cfg.new_episodes,
+        cfg.episode_minutes,
+        new_seed,
+        &dir.join("data/under-goal"),
+    )?;
+    let support = m0.support()?;
+    let ood_scores = score_trials(&support, "ood", &ood_data).map_err(anyhow::Error::msg)?;
+    let goal_scores = score_trials(&support, "goal", &goal_data).map_err(anyhow::Error::msg)?;
+    let goal_p95 = quantile(&goal_scores.scores, 0.95);
+    step("refitting M_ConvNet with each policy's data");
+    let with = |extra: &[PathBuf]| narrow.iter().chain(extra).cloned().collect::<Vec<_>>();
+    let m_ood = fit(
+        &with(&ood_data),
+        &validation,
+        &dir.join("model-ood"),
+        cfg.fit_max_epochs,
+        seed,
+    )?;
+    let m_goal = fit(
+        &with(&goal_data),
+        &validation,
+        &dir.join("model-goal"),
+        cfg.fit_max_epochs,
+        seed,
+    )?;
+    step("measuring each model's gap to the virtual guppy");
+    let gap_seed = seed.wrapping_add(3_000_017);
+    let probe = |model: &ModelSpec, name: &str| {
+        record(
+            &cfg.gap_probe,
+            model,
+            cfg.gap_episodes,
+            cfg.gap_minutes,
+            gap_seed,
+            &dir.join("gap").join(name),
+        )
+    };
+    let (g_files, g_goals) = probe(&guppy, "guppy")?;
+    let g_metrics = metric_values(&g_files)?;
+    let mut gaps = Vec::new();
+    for (m, name) in [
+        (&m0, "narrow"),
+        (&m_goal, "after-goal"),
+        (&m_ood, "after-ood"),
+    ] {
+        let (files, goals) = probe(m, name)?;
+        gaps.push(gap(&metric_values(&files)?, &g_metrics, goals, g_goals));
+    }
+    Ok(SeedResult {
+        seed,
+        guppy_goals_per_episode: g_goals,
+        narrow: gaps[0],
+        after_goal_data: gaps[1],
+        after_ood_data: gaps[2],
+        ood_share_beyond_goal_p95: share_at_least(&ood_scores.scores, goal_p95),
+        ood_policy_goals: ood_goals,
+        goal_policy_goals: goal_goals,
+    })
+}
+
+pub fn run(a: OodLoopArgs) -> Result<()> {
+    let cfg: OodLoopConfig = match &a.config {
+        Some(p) => toml::from_str(
+            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("settings {}", p.display()))?,
+        None => OodLoopConfig::default(),
+    };
+    cfg.validate()?;
+    if a.seeds.is_empty() || a.seeds.len() > 100 {
+        bail!("--seeds takes 1 to 100 seeds, got {}", a.seeds.len());
+    }
+    let _lock = super::lock_out(&a.out, "ood-loop")?;
+    let settings = serde_json::to_string_pretty(&cfg)? + "\n";
+    let recorded = a.out.join("settings.json");
+    match std::fs::read_to_string(&recorded) {
+        Ok(old) if old != settings => bail!(
+            "{} holds a loop with other settings ({}); use another --out",
+            a.out.display(),
+            recorded.display()
+        ),
+        Ok(_) => {}
+        Err(_) => fishprobe_io::write_atomically(&recorded, settings.as_bytes())?,
+    }
+    let mut results = Vec::new();
+    for &seed in &a.seeds {
+        let r = one_seed(&cfg, seed, &a.out).with_context(|| format!("seed {seed}"))?;
+        say!(
+            "seed {seed}: metric gap narrow {:.3}, after lead-to-goal data {:.3}, after OOD data {:.3}",
+            r.narrow.metrics,
+            r.after_goal_data.metrics,
+            r.after_ood_data.metrics
+        );
+        results.push(r);
+    }
+    let json = serde_json::to_string_pretty(&serde_json::json!({
+        "settings": cfg,
+        "seeds": results,
+    }))? + "\n";
+    fishprobe_io::write_atomically(&a.out.join("loop.json"), json.as_bytes())?;
+    let md = markdown(&results);
+    fishprobe_io::write_atomically(&a.out.join("loop.md"), md.as_bytes())?;
+    emit(&md)
+}
+
+fn markdown(r: &[SeedResult]) -> String {
+    let mut t = String::from(
+        "| seed | metric gap: narrow model | + lead-to-goal data | + OOD data | goal gap: narrow | + lead-to-goal data | + OOD data | OOD views beyond lead-to-goal p95 |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for s in r {
+        t += &format!(
+            "| {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {:.2} | {:.1} % |\n",
+            s.seed,
+            s.narrow.metrics,
+            s.after_goal_data.metrics,
+            s.after_ood_data.metrics,
+            s.narrow.goals,
+            s.after_goal_data.goals,
+            s.after_ood_data.goals,
+            100.0 * s.ood_share_beyond_goal_p95
+        );
+    }
+    let n = r.len().max(1) as f64;
+    let mean = |f: fn(&SeedResult) -> f64| r.iter().map(f).sum::<f64>() / n;
+    let better = r
+        .iter()
+        .filter(|s| s.after_ood_data.metrics < s.after_goal_data.metrics)
+        .count();
+    t += &format!(
+        "| mean | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {:.2} | {:.1} % |\n\n\
+         Metric gap: the nine metrics' Wasserstein distances between the model's and the \
+         virtual guppy's trials with the gap probe, each in units of the guppy's s.d., \
+         averaged. Goal gap: |goals(model) - goals(guppy)| / goals(guppy). The OOD data left \
+         a smaller metric gap than the lead-to-goal data in {better} of {} seeds.\n",
+        mean(|s| s.narrow.metrics),
+        mean(|s| s.after_goal_data.metrics),
+        mean(|s| s.after_ood_data.metrics),
+        mean(|s| s.narrow.goals),
+        mean(|s| s.after_goal_data.goals),
+        mean(|s| s.after_ood_data.goals),
+        100.0 * mean(|s| s.ood_share_beyond_goal_p95),
+        r.len()
+    );
+    t
+}

@@ -1,0 +1,293 @@
+//! `fishprobe support`: the support model of a data-driven fish model's training recordings
+//! (issue 23), validated on held-out recordings and on situations the data lacks, with the
+//! two estimators compared.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use fishprobe_learn::bc::{build_support, load_pairs, CloneConfig, PairDataset};
+use fishprobe_models::convnet::{shipped_sha256, ConvNetArch};
+use fishprobe_models::support::{auc, synthetic_views, Estimator, SupportConfig, SupportModel};
+use fishprobe_models::ModelSpec;
+use fishprobe_sim::{Tank, TankParams};
+use rayon::prelude::*;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use super::emit;
+
+#[derive(Debug, Args)]
+pub struct SupportArgs {
+    /// The model: `ConvNet` (shipped weights), a ConvNet weights file (`--model
+    /// convnet:FILE`) or `onnx:FILE` (a model of the view contract).
+    #[arg(long, default_value = "ConvNet")]
+    model: String,
+    /// The model's training recordings (pair files; with --robot-as-partner also files of
+    /// one fish with the robot). Default: guppy-pairs/legacy/train of the shared data.
+    #[arg(long, num_args = 1..)]
+    data: Vec<PathBuf>,
+    /// Held-out recordings for the check. Default: guppy-pairs/legacy/validation.
+    #[arg(long, num_args = 1..)]
+    validation: Vec<PathBuf>,
+    /// Estimator written to the file (`knn` or `gmm`); both are compared.
+    #[arg(long, default_value = "knn")]
+    estimator: Estimator,
+    /// Learn from files of one fish with the robot too (the fish's frames, the robot as
+    /// its neighbour).
+    #[arg(long)]
+    robot_as_partner: bool,
+    /// The support file to write. Default: beside the weights (`FILE.support.json`); the
+    /// shipped ConvNet needs an explicit path.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Seed of the reference and calibration draws.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Synthetic views per kind of unseen situation in the check.
+    #[arg(long, default_value_t = 2000)]
+    synthetic: usize,
+    /// Print the check as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+fn shared(sub: &str) -> Result<Vec<PathBuf>> {
+    let d = fishprobe_io::shared_data_dir()
+        .context("no recordings given and no shared data found (set FISHPROBE_DATA)")?;
+    Ok(vec![d.join("guppy-pairs/legacy").join(sub)])
+}
+
+/// The model spec a `--model` names, and the SHA-256 of its weights.
+fn model_of(name: &str) -> Result<(ModelSpec, String)> {
+    let spec = ModelSpec::by_name(name)?;
+    let hash = match &spec {
+        ModelSpec::ConvNet(p) if p.weights.is_empty() => shipped_sha256(),
+        ModelSpec::ConvNet(p) => fishprobe_models::sha256_hex(
+            &std::fs::read(&p.weights).with_context(|| format!("reading {}", p.weights))?,
+        ),
+        ModelSpec::Onnx(p) => fishprobe_models::sha256_hex(
+            &std::fs::read(&p.path).with_context(|| format!("reading {}", p.path))?,
+        ),
+        other => bail!(
+            "`{}` is not data-driven: a support model belongs to a model fitted on recordings \
+             (ConvNet, convnet:FILE, onnx:FILE)",
+            other.name()
+        ),
+    };
+    // The model must load: a support for a file that is no model helps no one.
+    spec.build()?;
+    Ok((spec, hash))
+}
+
+/// One estimator's check.
+#[derive(Debug, serde::Serialize)]
+struct Check {
+    estimator: Estimator,
+    build_s: f64,
+    score_us_per_view: f64,
+    held_out_views: usize,
+    held_out_within_1: f64,
+    held_out_median_score: f32,
+    unseen: Vec<Unseen>,
+}
+
+#[derive(Debug, serde::Serialize)]
+struct Unseen {
+    kind: &'static str,
+    views: usize,
+    beyond_1: f64,
+    median_score: f32,
+    auc: f64,
+}
+
+fn scores(s: &SupportModel, views: &[f32], len: usize) -> Vec<f32> {
+    views
+        .par_chunks(len * 1024)
+        .flat_map_iter(|c| {
+            c.chunks_exact(len)
+                .map(|v| s.score_view(v))
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+fn median(v: &[f32]) -> f32 {
+    let mut v = v.to_vec();
+    v.sort_by(f32::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f32::NAN)
+}
+
+fn check(
+    s: &SupportModel,
+    build_s: f64,
+    val: &PairDataset,
+    unseen: &[(&'static str, Vec<f32>)],
+    len: usize,
+) -> Check {
+    let t = Instant::now();
+    let inside = scores(s, &val.x, len);
+    let per_view = t.elapsed().as_secs_f64() * 1e6 / inside.len().max(1) as f64
+        * rayon::current_num_threads() as f64;
+    let frac = |v: &[f32]| v.iter().filter(|&&x| x > 1.0).count() as f64 / v.len().max(1) as f64;
+    Check {
+        estimator: s.config.estimator,
+        build_s,
+        score_us_per_view: per_view,
+        held_out_views: inside.len(),
+        held_out_within_1: 1.0 - frac(&inside),
+        held_out_median_score: median(&inside),
+        unseen: unseen
+            .iter()
+            .map(|(kind, v)| {
+                let out = scores(s, v, len);
+                Unseen {
+                    kind,
+                    views: out.len(),
+                    beyond_1: frac(&out),
+                    median_score: median(&out),
+                    auc: auc(&inside, &out),
+                }
+            })
+            .collect(),
+    }
+}
+
+pub fn run(a: SupportArgs) -> Result<()> {
+    if a.synthetic == 0 || a.synthetic > 1_000_000 {
+        bail!("--synthetic must lie in [1, 1000000], got {}", a.synthetic);
+    }
+    let (spec, hash) = model_of(&a.model)?;
+    let out = match (&a.out, spec.support_path()?) {
+        (Some(p), _) => p.clone(),
+        (None, Some(p)) => p,
+        (None, None) => bail!(
+            "the shipped ConvNet's support is shipped with it; give --out to build another \
+             (e.g. crates/models/assets/convnet.support.json)"
+        ),
+    };
+    let _lock = super::lock_out_file(&out, "support")?;
+    let data = if a.data.is_empty() {
+        shared("train")?
+    } else {
+        a.data.clone()
+    };
+    let validation = if a.validation.is_empty() {
+        shared("validation")?
+    } else {
+        a.validation.clone()
+    };
+    let arch = ConvNetArch::default();
+    let clone = CloneConfig {
+        robot_as_partner: a.robot_as_partner,
+        ..CloneConfig::default()
+    };
+    let train = load_pairs(&data, &arch, &clone).context("loading the training recordings")?;
+    let val = load_pairs(&validation, &arch, &clone).context("loading the held-out recordings")?;
+    if let Some(f) = train.files.iter().find(|f| val.files.contains(f)) {
+        bail!("{} is both training and held-out data", f.display());
+    }
+    for (f, why) in train.skipped.iter().chain(&val.skipped) {
+        say!("warning: skipped {}: {why}", f.display());
+    }
+    let command: Vec<String> = std::iter::once("fishprobe".to_string())
+        .chain(std::env::args().skip(1))
+        .collect();
+    let names = |v: &[PathBuf]| -> Vec<String> {
+        v.iter()
+            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect()
+    };
+    let provenance = serde_json::json!({
+        "command": command.join(" "),
+        "training_files": names(&train.files),
+        "validation_files": names(&val.files),
+    });
+    let tank = Tank::new(&TankParams::default());
+    let mut rng = fishprobe_sim::stream(a.seed, "support/synthetic", 0);
+    let unseen = synthetic_views(&arch, &tank, a.synthetic, &mut rng);
+    let mut checks = Vec::new();
+    let mut chosen = None;
+    for est in [Estimator::Knn, Estimator::Gmm] {
+        let cfg = SupportConfig {
+            estimator: est,
+            ..SupportConfig::default()
+        };
+        let t = Instant::now();
+        let s = build_support(
+            &train,
+            &arch,
+            &cfg,
+            &spec_label(&spec),
+            &hash,
+            a.seed,
+            provenance.clone(),
+        )?;
+        let c = check(
+            &s,
+            t.elapsed().as_secs_f64(),
+            &val,
+            &unseen,
+            arch.view_len(),
+        );
+        if est == a.estimator {
+            chosen = Some(s);
+        }
+        checks.push(c);
+    }
+    let mut s = chosen.context("the chosen estimator was built")?;
+    let chosen_check = checks.iter().find(|c| c.estimator == a.estimator);
+    if let serde_json::Value::Object(m) = &mut s.provenance {
+        m.insert("check".into(), serde_json::to_value(chosen_check)?);
+    }
+    s.save(&out)?;
+    let text = if a.json {
+        serde_json::to_string_pretty(&serde_json::json!({
+            "model": spec_label(&spec),
+            "training_views": train.len(),
+            "support_file": out,
+            "estimator": a.estimator,
+            "checks": checks,
+        }))? + "\n"
+    } else {
+        let mut t = format!(
+            "support of {} from {} training views ({} files); checked on {} held-out views \
+             ({} files) and {} synthetic views per unseen situation\n\n",
+            spec_label(&spec),
+            train.len(),
+            train.files.len(),
+            val.len(),
+            val.files.len(),
+            a.synthetic
+        );
+        t += "| estimator | held-out views with score <= 1 | held-out median score |";
+        for (kind, _) in &unseen {
+            t += &format!(" {kind}: AUC / share > 1 |");
+        }
+        t += " build (s) | score (µs per view and core) |\n|---|---|---|";
+        t += &"---|".repeat(unseen.len());
+        t += "---|---|\n";
+        for c in &checks {
+            t += &format!(
+                "| {:?} | {:.1} % | {:.2} |",
+                c.estimator,
+                100.0 * c.held_out_within_1,
+                c.held_out_median_score
+            );
+            for u in &c.unseen {
+                t += &format!(" {:.3} / {:.1} % |", u.auc, 100.0 * u.beyond_1);
+            }
+            t += &format!(" {:.1} | {:.1} |\n", c.build_s, c.score_us_per_view);
+        }
+        t += &format!("\nwrote {} ({:?})\n", out.display(), a.estimator);
+        t
+    };
+    emit(&text)
+}
+
+fn spec_label(spec: &ModelSpec) -> String {
+    match spec {
+        ModelSpec::ConvNet(p) if p.weights.is_empty() => "ConvNet (shipped weights)".into(),
+        ModelSpec::ConvNet(p) => format!("convnet:{}", p.weights),
+        ModelSpec::Onnx(p) => format!("onnx:{}", p.path),
+        other => other.name().to_string(),
+    }
+}

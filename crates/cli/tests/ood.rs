@@ -1,0 +1,232 @@
+//! The OOD objective from the command line (issue 23): the in-silico loop with tiny budgets
+//! (narrow virtual-guppy data, M_ConvNet and its support, an OOD and a lead-to-goal policy,
+//! refits, gaps), the report of what the OOD policy finds, the support command, and the
+//! refusals: a model that is not data-driven, a missing support file, a support file of other
+//! weights, settings out of range.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir, stderr, stdout};
+use std::path::Path;
+
+const TINY: &str = r#"
+narrow_episodes = 2
+validation_episodes = 1
+new_episodes = 1
+episode_minutes = 0.5
+ppo_preset = "smoke"
+train_steps = 1500
+fit_max_epochs = 1
+gap_episodes = 1
+gap_minutes = 0.5
+"#;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_input() {
+    let dir = fresh_dir("ood");
+    let cfg = dir.join("tiny.toml");
+    std::fs::write(&cfg, TINY).unwrap();
+    let out = dir.join("loop");
+    let o = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    assert!(text.contains("| 5 |") && text.contains("seeds"), "{text}");
+    let j: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("loop.json")).unwrap()).unwrap();
+    let seed = &j["seeds"][0];
+    for k in ["narrow", "after_goal_data", "after_ood_data"] {
+        let g = seed[k]["metrics"].as_f64().unwrap();
+        assert!(g.is_finite() && g >= 0.0, "{k}: {g}");
+    }
+    let seed_dir = out.join("seed-5");
+    let weights = seed_dir.join("model-narrow/convnet.safetensors");
+    let support = seed_dir.join("model-narrow/convnet.safetensors.support.json");
+    assert!(
+        support.is_file(),
+        "fit-convnet writes the support beside the weights"
+    );
+    // The loop resumes: a second call finds every stage done and prints the same table.
+    let o2 = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg),
+    ]);
+    assert!(o2.status.success(), "{}", stderr(&o2));
+    assert_eq!(stdout(&o2), text);
+    // Other settings into the same directory: refused.
+    std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
+    let o = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
+
+    // What the OOD policy finds.
+    let report = dir.join("report");
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&seed_dir.join("policy-ood")),
+        "--compare",
+        s(&seed_dir.join("policy-goal")),
+        "--data",
+        s(&seed_dir.join("data/narrow")),
+        "--episodes",
+        "2",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&report),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("Data wishlist"), "{}", stdout(&o));
+    for f in [
+        "report.md",
+        "ood.json",
+        "ood-scores.png",
+        "ood-trajectories.png",
+    ] {
+        assert!(report.join(f).is_file(), "{f} missing");
+    }
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(report.join("ood.json")).unwrap()).unwrap();
+    // Training recordings, the OOD policy, the lead-to-goal policy.
+    assert_eq!(r["distributions"].as_array().unwrap().len(), 3);
+    let share = r["ood_share_beyond_goal_p95"].as_f64().unwrap();
+    assert!((0.0..=1.0).contains(&share), "{share}");
+
+    // The support command: both estimators checked, the chosen one written.
+    let other = dir.join("support.json");
+    let o = fishprobe(&[
+        "support",
+        "--model",
+        &format!("convnet:{}", s(&weights)),
+        "--data",
+        s(&seed_dir.join("data/narrow")),
+        "--validation",
+        s(&seed_dir.join("data/validation")),
+        "--robot-as-partner",
+        "--synthetic",
+        "50",
+        "--estimator",
+        "gmm",
+        "--out",
+        s(&other),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let t = stdout(&o);
+    assert!(t.contains("| Knn |") && t.contains("| Gmm |"), "{t}");
+    assert!(t.contains("pressed into a corner"), "{t}");
+    let f: serde_json::Value = serde_json::from_slice(&std::fs::read(&other).unwrap()).unwrap();
+    assert_eq!(f["config"]["estimator"], "gmm");
+
+    // Refusals.
+    let train = |model: &str, extra: &[&str]| {
+        let mut args = vec![
+            "train", "--model", model, "--task", "ood", "--preset", "smoke", "--steps", "500",
+        ];
+        args.extend_from_slice(extra);
+        let run = dir.join(format!("run-{}", extra.len()));
+        let run = run.to_str().unwrap().to_string();
+        args.extend_from_slice(&["--out", &run]);
+        fishprobe(&args)
+    };
+    let o = train("Zone", &[]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not data-driven"), "{}", stderr(&o));
+    // Weights without a support file beside them.
+    let bare = dir.join("bare.safetensors");
+    std::fs::copy(&weights, &bare).unwrap();
+    std::fs::copy(
+        seed_dir.join("model-narrow/convnet.safetensors.json"),
+        dir.join("bare.safetensors.json"),
+    )
+    .unwrap();
+    let o = train(&format!("convnet:{}", s(&bare)), &[]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("no support file") && e.contains("fit-convnet"),
+        "{e}"
+    );
+    // Another model's support file: refused by hash.
+    std::fs::copy(
+        seed_dir.join("model-ood/convnet.safetensors.support.json"),
+        dir.join("bare.safetensors.support.json"),
+    )
+    .unwrap();
+    let o = train(&format!("convnet:{}", s(&bare)), &[]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("was built for the model with SHA-256"),
+        "{}",
+        stderr(&o)
+    );
+    // Settings out of range.
+    let o = train(
+        &format!("convnet:{}", s(&weights)),
+        &["--ood-goal-weight", "20"],
+    );
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("task.ood_goal_weight"),
+        "{}",
+        stderr(&o)
+    );
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "Zone",
+        "--ood-goal-weight",
+        "1",
+        "--out",
+        s(&dir.join("x")),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--task ood only"), "{}", stderr(&o));
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        "scripted:goal-seeker",
+        "--out",
+        s(&dir.join("y")),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--model is required"), "{}", stderr(&o));
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        "scripted:goal-seeker",
+        "--model",
+        "Follow",
+        "--out",
+        s(&dir.join("y")),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("not data-driven"), "{}", stderr(&o));
+    std::fs::remove_dir_all(&dir).ok();
+}
