@@ -1002,11 +1002,17 @@ mod tests {
 
     #[test]
     fn the_shipped_convnet_has_its_support_and_other_models_have_none() {
-        let s = crate::ModelSpec::by_name("ConvNet").unwrap().support().unwrap();
+        let s = crate::ModelSpec::by_name("ConvNet")
+            .unwrap()
+            .support()
+            .unwrap();
         assert_eq!(s.model_sha256, crate::convnet::shipped_sha256());
         assert_eq!(s.config.estimator, Estimator::Knn);
         assert!(s.points.len() >= 1000, "{}", s.points.len());
-        let e = crate::ModelSpec::by_name("Zone").unwrap().support().unwrap_err();
+        let e = crate::ModelSpec::by_name("Zone")
+            .unwrap()
+            .support()
+            .unwrap_err();
         assert!(e.to_string().contains("not data-driven"), "{e}");
         let e = crate::ModelSpec::by_name("convnet:/nonexistent/w.safetensors")
             .unwrap()

@@ -134,11 +134,11 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
         first_files.push(files[0].clone());
         let label = if k == 0 {
-            format!("OOD policy ({})", c.describe())
+            "OOD policy"
         } else {
-            format!("lead-to-goal policy ({})", c.describe())
+            "lead-to-goal policy"
         };
-        sources.push(score_trials(&support, &label, &files).map_err(anyhow::Error::msg)?);
+        sources.push(score_trials(&support, label, &files).map_err(anyhow::Error::msg)?);
     }
     let data = if !a.data.is_empty() {
         a.data.clone()
@@ -165,8 +165,8 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     let goal_p95 = quantile(&sources[1].scores, 0.95);
     let report = OodReport {
         model: model.name().to_string(),
-        ood_policy: ood_c.describe(),
-        goal_policy: goal_c.describe(),
+        ood_policy: format!("{} ({})", a.policy, ood_c.describe()),
+        goal_policy: format!("{} ({})", a.compare, goal_c.describe()),
         episodes: a.episodes,
         minutes: a.minutes,
         seed: a.seed,

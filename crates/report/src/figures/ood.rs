@@ -6,7 +6,7 @@ use super::prelude::*;
 /// The empirical distribution (ECDF) of each source's support scores, on [0, `cap`] (higher
 /// scores drawn at `cap`), with the training data's 95th percentile (score 1) marked.
 pub fn ood_scores(sources: &[(String, Vec<f32>)], cap: f32) -> Figure {
-    let mut svg = Svg::new(640.0, 400.0);
+    let mut svg = Svg::new(700.0, 400.0);
     let ax = Axes::new(
         (70.0, 40.0, 380.0, 290.0),
         (0.0, f64::from(cap)),
@@ -75,7 +75,7 @@ pub struct ScoredEpisode {
 pub fn ood_trajectories(episodes: &[ScoredEpisode], cap: f32) -> Figure {
     let side = 240.0;
     let n = episodes.len().max(1) as f64;
-    let mut svg = Svg::new(40.0 + n * (side + 30.0), side + 130.0);
+    let mut svg = Svg::new((40.0 + n * (side + 30.0)).max(560.0), side + 140.0);
     for (i, e) in episodes.iter().enumerate() {
         let ax = Axes::new(
             (30.0 + i as f64 * (side + 30.0), 40.0, side, side),
@@ -90,7 +90,7 @@ pub fn ood_trajectories(episodes: &[ScoredEpisode], cap: f32) -> Figure {
             .filter(|v| v[0].is_finite() && v[1].is_finite())
             .map(p)
             .collect();
-        svg.polyline(&robot, "#000000", 0.8, None, 0.35);
+        svg.polyline(&robot, "#555555", 1.0, None, 0.6);
         // Every 5th frame is dense enough at 25 Hz and keeps the file small.
         for (pos, s) in e.fish.iter().step_by(5) {
             if pos[0].is_finite() && pos[1].is_finite() {
@@ -107,8 +107,8 @@ pub fn ood_trajectories(episodes: &[ScoredEpisode], cap: f32) -> Figure {
     }
     colour_bar(&mut svg, (30.0, side + 70.0), "score 0", &format!("{cap}+"));
     svg.text(
-        250.0,
-        side + 80.0,
+        30.0,
+        side + 120.0,
         "fish path coloured by the support score of its view; robot in grey",
         TextStyle::new(11.0, Anchor::Start),
     );
