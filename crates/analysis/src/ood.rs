@@ -129,16 +129,10 @@ pub fn score_views(support: &SupportModel, label: &str, views: &[f32], max: usiz
     }
 }
 
-/// The `q`-quantile (linear interpolation) of `v` (NaN when empty).
+/// The `q`-quantile (linear interpolation, like `numpy.quantile`) of `v` (NaN when empty).
 pub fn quantile(v: &[f32], q: f64) -> f64 {
-    let mut v: Vec<f64> = v.iter().map(|&x| f64::from(x)).collect();
-    v.sort_by(f64::total_cmp);
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let pos = q * (v.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    v[lo] + (v[hi] - v[lo]) * (pos - lo as f64)
+    let v: Vec<f64> = v.iter().map(|&x| f64::from(x)).collect();
+    fishprobe_stats::sample::quantile_sorted(&fishprobe_stats::sample::sorted(&v), q)
 }
 
 /// Share of `v` at or above `threshold`.

@@ -155,9 +155,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         args.extend_from_slice(&["--out", &run]);
         fishprobe(&args)
     };
-    let o = train("Zone", &[]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("not data-driven"), "{}", stderr(&o));
+    // A command that fails, saying `why`.
+    let refused = |o: std::process::Output, why: &str| {
+        assert!(!o.status.success(), "{why}: it ran");
+        assert!(stderr(&o).contains(why), "{}", stderr(&o));
+    };
+    refused(train("Zone", &[]), "not data-driven");
     // Weights without a support file beside them.
     let bare = dir.join("bare.safetensors");
     std::fs::copy(&weights, &bare).unwrap();
@@ -166,67 +169,60 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         dir.join("bare.safetensors.json"),
     )
     .unwrap();
-    let o = train(&format!("convnet:{}", s(&bare)), &[]);
-    assert!(!o.status.success());
-    let e = stderr(&o);
-    assert!(
-        e.contains("no support file") && e.contains("fit-convnet"),
-        "{e}"
-    );
+    let bare_model = format!("convnet:{}", s(&bare));
+    let o = train(&bare_model, &[]);
+    assert!(stderr(&o).contains("fit-convnet"), "{}", stderr(&o));
+    refused(o, "no support file");
     // Another model's support file: refused by hash.
     std::fs::copy(
         seed_dir.join("model-ood/convnet.safetensors.support.json"),
         dir.join("bare.safetensors.support.json"),
     )
     .unwrap();
-    let o = train(&format!("convnet:{}", s(&bare)), &[]);
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("was built for the model with SHA-256"),
-        "{}",
-        stderr(&o)
+    refused(
+        train(&bare_model, &[]),
+        "was built for the model with SHA-256",
     );
     // Settings out of range.
-    let o = train(
-        &format!("convnet:{}", s(&weights)),
-        &["--ood-goal-weight", "20"],
+    let good = format!("convnet:{}", s(&weights));
+    refused(
+        train(&good, &["--ood-goal-weight", "20"]),
+        "task.ood_goal_weight",
     );
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("task.ood_goal_weight"),
-        "{}",
-        stderr(&o)
+    let x = dir.join("x");
+    refused(
+        fishprobe(&[
+            "train",
+            "--model",
+            "Zone",
+            "--ood-goal-weight",
+            "1",
+            "--out",
+            s(&x),
+        ]),
+        "--task ood only",
     );
-    let o = fishprobe(&[
-        "train",
-        "--model",
-        "Zone",
-        "--ood-goal-weight",
-        "1",
-        "--out",
-        s(&dir.join("x")),
-    ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("--task ood only"), "{}", stderr(&o));
-    let o = fishprobe(&[
-        "ood-report",
-        "--policy",
-        "scripted:goal-seeker",
-        "--out",
-        s(&dir.join("y")),
-    ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("--model is required"), "{}", stderr(&o));
-    let o = fishprobe(&[
-        "ood-report",
-        "--policy",
-        "scripted:goal-seeker",
-        "--model",
-        "Follow",
-        "--out",
-        s(&dir.join("y")),
-    ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("not data-driven"), "{}", stderr(&o));
+    refused(
+        fishprobe(&[
+            "ood-report",
+            "--policy",
+            "scripted:goal-seeker",
+            "--out",
+            s(&x),
+        ]),
+        "--model is required",
+    );
+    refused(
+        fishprobe(&[
+            "ood-report",
+            "--policy",
+            "scripted:goal-seeker",
+            "--model",
+            "Follow",
+            "--out",
+            s(&x),
+        ]),
+        "not data-driven",
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -40,9 +40,13 @@ pub struct FitConvnetArgs {
     jobs: Option<usize>,
 }
 
-fn shared(sub: &str) -> Result<Vec<PathBuf>> {
+/// The recordings given, or else the shared guppy pairs' `sub` split (`train`, `validation`).
+pub(super) fn pairs_or_shared(given: &[PathBuf], sub: &str) -> Result<Vec<PathBuf>> {
+    if !given.is_empty() {
+        return Ok(given.to_vec());
+    }
     let d = fishprobe_io::shared_data_dir()
-        .context("no --data given and no shared data found (set FISHPROBE_DATA)")?;
+        .context("no recordings given and no shared data found (set FISHPROBE_DATA)")?;
     Ok(vec![d.join("guppy-pairs/legacy").join(sub)])
 }
 
@@ -59,16 +63,8 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
     }
     cfg.validate()?;
     let _lock = super::lock_out_file(&a.out, "fit-convnet")?;
-    let data = if a.data.is_empty() {
-        shared("train")?
-    } else {
-        a.data.clone()
-    };
-    let validation = if a.validation.is_empty() {
-        shared("validation")?
-    } else {
-        a.validation.clone()
-    };
+    let data = pairs_or_shared(&a.data, "train")?;
+    let validation = pairs_or_shared(&a.validation, "validation")?;
     // The command as a user types it (the binary's own path says nothing).
     let command: Vec<String> = std::iter::once("fishprobe".to_string())
         .chain(std::env::args().skip(1))

@@ -50,12 +50,6 @@ pub struct SupportArgs {
     json: bool,
 }
 
-fn shared(sub: &str) -> Result<Vec<PathBuf>> {
-    let d = fishprobe_io::shared_data_dir()
-        .context("no recordings given and no shared data found (set FISHPROBE_DATA)")?;
-    Ok(vec![d.join("guppy-pairs/legacy").join(sub)])
-}
-
 /// The model spec a `--model` names, and the SHA-256 of its weights.
 fn model_of(name: &str) -> Result<(ModelSpec, String)> {
     let spec = ModelSpec::by_name(name)?;
@@ -165,16 +159,8 @@ pub fn run(a: SupportArgs) -> Result<()> {
         ),
     };
     let _lock = super::lock_out_file(&out, "support")?;
-    let data = if a.data.is_empty() {
-        shared("train")?
-    } else {
-        a.data.clone()
-    };
-    let validation = if a.validation.is_empty() {
-        shared("validation")?
-    } else {
-        a.validation.clone()
-    };
+    let data = super::fit_convnet::pairs_or_shared(&a.data, "train")?;
+    let validation = super::fit_convnet::pairs_or_shared(&a.validation, "validation")?;
     let arch = ConvNetArch::default();
     let clone = CloneConfig {
         robot_as_partner: a.robot_as_partner,
