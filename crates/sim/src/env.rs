@@ -15,7 +15,7 @@ use crate::rng::{stream, SimRng};
 use crate::robot::{Robot, RobotParams};
 use crate::script::{advance_scripted, RobotScript, ScriptParams};
 use crate::support::InputSupport;
-use crate::task::{GoalEvent, GoalTracker, Objective, TaskMode, TaskParams};
+use crate::task::{GoalEvent, GoalTracker, Objective, TaskMode, TaskParams, TrainingStart};
 use rand::{Rng, RngExt};
 use std::f32::consts::PI;
 use std::sync::Arc;
@@ -453,6 +453,28 @@ impl TankEnv {
         AgentState::at(x, y, h)
     }
 
+    /// `training_start = lab`: the robot near the centre, each fish in a corner drawn for it,
+    /// headings uniform (as a live trial after habituation).
+    fn lab_start(&mut self) {
+        let spread = self.cfg.task.lab_start_spread_cm;
+        let lim = self.tank.half - self.cfg.task.start_wall_clearance_cm;
+        let r = &mut self.task_rng;
+        let (x, y) = (
+            r.random_range(-0.5..=0.5) * spread,
+            r.random_range(-0.5..=0.5) * spread,
+        );
+        self.robot = Robot::at(x, y, r.random_range(-PI..PI));
+        for f in &mut self.fish {
+            let (sx, sy) = (
+                if r.random::<bool>() { 1.0 } else { -1.0 },
+                if r.random::<bool>() { 1.0 } else { -1.0 },
+            );
+            let x = sx * (lim - r.random_range(0.0..=spread));
+            let y = sy * (lim - r.random_range(0.0..=spread));
+            *f = AgentState::at(x, y, r.random_range(-PI..PI));
+        }
+    }
+
     fn reset_state(&mut self, seed: Option<u64>) {
         if let Some(s) = seed {
             self.reset_rng = stream(s, "episodes", 0);
@@ -467,6 +489,10 @@ impl TankEnv {
             for (f, q) in self.fish.iter_mut().zip(&p.fish) {
                 *f = AgentState::at(q[0], q[1], q[2]);
             }
+        } else if self.cfg.mode == TaskMode::Training
+            && self.cfg.task.training_start == TrainingStart::Lab
+        {
+            self.lab_start();
         } else {
             let r = self.random_pose();
             self.robot = Robot::at(r.x, r.y, r.heading);

@@ -68,5 +68,7 @@ pub use robot::{Robot, RobotParams};
 pub use sandbox::Sandbox;
 pub use script::{RobotScript, ScriptParams};
 pub use support::InputSupport;
-pub use task::{GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, TaskMode, TaskParams};
+pub use task::{
+    GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, TaskMode, TaskParams, TrainingStart,
+};
 pub use vector::{AutoresetMode, VecEnv};

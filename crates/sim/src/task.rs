@@ -35,6 +35,16 @@ crate::documented_params! {
         /// Random start poses are uniform at least this far from the walls, headings uniform
         /// (choice).
         pub start_wall_clearance_cm: f32 = 5.0; "cm",
+        /// Where *training* episodes start: `random` (choice: robot and fish anywhere, see
+        /// `start_wall_clearance_cm`) or `lab`, as the paper's live trials begin after
+        /// habituation: the robot within `lab_start_spread_cm` of the centre, each fish in a
+        /// corner (one drawn per fish), within `lab_start_spread_cm` of the corner's start
+        /// point; headings uniform. A reading of issue 20's fidelity sweep. Evaluation
+        /// episodes always start at random poses (SPEC §4).
+        pub training_start: TrainingStart = TrainingStart::Random; "-",
+        /// With `training_start = lab`: the side of the squares the robot (at the centre) and
+        /// the fish (in a corner) start in (choice: 10 cm).
+        pub lab_start_spread_cm: f32 = 10.0; "cm",
         /// Reward per goal reached (paper: +1).
         pub goal_reward: f32 = 1.0; "1",
         /// Who reaching a *training* goal counts (and re-draws it): `fish` (choice: the task is
@@ -84,6 +94,17 @@ pub enum Objective {
     Goal,
     /// Drive the fish's views out of its model's training support.
     Ood,
+}
+
+/// Where training episodes start ([`TaskParams::training_start`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrainingStart {
+    /// Robot and fish at uniform random poses (fishprobe's default).
+    #[default]
+    Random,
+    /// Robot near the centre, fish in corners, as a live trial after habituation.
+    Lab,
 }
 
 /// Who must enter a training goal for it to count.
@@ -178,6 +199,13 @@ impl TaskParams {
             self.start_wall_clearance_cm,
             tank.margin,
             lim * 0.9,
+        )?;
+        check::within(
+            prefix,
+            "lab_start_spread_cm",
+            self.lab_start_spread_cm,
+            0.0,
+            lim * 0.8,
         )?;
         if !(self.group_goal_fraction > 0.0 && self.group_goal_fraction <= 1.0) {
             return Err(ConfigError::new(
