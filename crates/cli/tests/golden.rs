@@ -36,16 +36,20 @@ use std::path::{Path, PathBuf};
 /// virtual-lab trial files (with it cut from the text: 094b9e0e… again). Then 49ecd88a… until
 /// the OOD objective's five `task` settings (`objective`, `ood_weight`, `ood_score_cap`,
 /// `ood_goal_weight`, `ood_score_every_frames`) joined the recorded environment (with them cut
-/// from the config JSON: 49ecd88a… again).
-const GOLDEN: &str = "c5c37960ded2f0e1";
+/// from the config JSON: 49ecd88a… again). Then c5c37960… until M_ConvNet stayed off the walls
+/// (issue 20, item 4: weights refitted on headings smoothed over 5 frames, and the sampler's
+/// wall redraws; every trial with an M_ConvNet fish or policy changed, and so results.json),
+/// with `task.training_start` and `task.lab_start_spread_cm` joining the recorded settings.
+const GOLDEN: &str = "725e6c5be77b3b01";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
 /// after the NB2 change (the temporal table's intervals and p-values); then the table of
 /// candidate models with their origin was added to "What was run" (issue 18); dc5c7f10… until
 /// the "Probe competence" section and summary table (issue 20); dcd6df67… until M_Follow's
-/// default speed became 4 cm/s (its trials, and so the figures, changed).
-const GOLDEN_REPORT: &str = "1f4529659d804787";
+/// default speed became 4 cm/s (its trials, and so the figures, changed); 1f452965… until
+/// M_ConvNet stayed off the walls (issue 20, item 4: its trials, and so the figures, changed).
+const GOLDEN_REPORT: &str = "5f7b3f9675cf8005";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {

@@ -154,6 +154,7 @@ macro_rules! model_registry {
                     // M_ConvNet with weights from `fit-convnet` instead of the shipped ones.
                     return Ok(Self::ConvNet(ConvNetParams {
                         weights: path.to_string(),
+                        ..ConvNetParams::default()
                     }));
                 }
                 let lower = name.to_ascii_lowercase();

@@ -23,6 +23,10 @@ fishprobe_sim::documented_params! {
         /// every trial file traces its fish to the exact file; a file that no longer matches is
         /// refused. Empty: not checked.
         pub sha256: String = String::new(); "-",
+        /// Redraws of a (v, ω) whose step would cross the wall margin, as
+        /// [`crate::ConvNetParams::wall_redraws`] (the same decision: 16; 0 for the plain
+        /// sampling).
+        pub wall_redraws: u32 = 16; "draws",
     }
 }
 
@@ -36,6 +40,7 @@ impl OnnxParams {
         Self {
             path: path.to_string(),
             sha256,
+            ..Self::default()
         }
     }
 }
@@ -79,6 +84,8 @@ fn arch_from(meta: &BTreeMap<String, String>) -> Result<ConvNetArch, String> {
 #[derive(Debug)]
 pub struct OnnxFish {
     arch: ConvNetArch,
+    /// [`OnnxParams::wall_redraws`].
+    wall_redraws: u32,
     /// The network planned for each batch size met so far (planning is done once per size).
     nets: RwLock<HashMap<usize, Arc<OnnxNet>>>,
     base: OnnxNet,
@@ -112,6 +119,7 @@ impl OnnxFish {
         nets.insert(1, Arc::new(base.clone()));
         Ok(Self {
             arch,
+            wall_redraws: p.wall_redraws,
             nets: RwLock::new(nets),
             base,
             scratch: crate::convnet::slots(|| (Vec::new(), Vec::new())),
@@ -180,7 +188,7 @@ impl FishModel for OnnxFish {
                 speed: f32::NAN,
             };
         }
-        sample_motion(&self.arch, view, inferred, mind, rng)
+        sample_motion(&self.arch, view, inferred, self.wall_redraws, mind, rng)
     }
 }
 
@@ -198,7 +206,7 @@ impl crate::ModelParams for OnnxParams {
                 "names the ONNX file",
             ));
         }
-        Ok(())
+        crate::convnet::check_wall_redraws(prefix, self.wall_redraws)
     }
 
     fn build_model(&self) -> Result<Arc<dyn FishModel>, crate::ModelError> {

@@ -21,8 +21,12 @@ pub struct FitConvnetArgs {
     validation: Vec<PathBuf>,
     /// Weights file to write (safetensors; the sidecar FILE.json and the log FILE.training.csv
     /// go beside it).
-    #[arg(long)]
-    out: PathBuf,
+    #[arg(long, required_unless_present = "score")]
+    out: Option<PathBuf>,
+    /// Fit nothing: print the validation NLL of these weights on the validation recordings,
+    /// with the examples made by these settings (compares networks on the same targets).
+    #[arg(long, conflicts_with = "out")]
+    score: Option<PathBuf>,
     /// Master seed (initialisation and shuffling).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -62,9 +66,19 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         cfg.max_epochs = n;
     }
     cfg.validate()?;
-    let _lock = super::lock_out_file(&a.out, "fit-convnet")?;
-    let data = pairs_or_shared(&a.data, "train")?;
     let validation = pairs_or_shared(&a.validation, "validation")?;
+    if let Some(w) = &a.score {
+        let (nll, n) = fishprobe_learn::bc::score_weights(w, &validation, &cfg)
+            .with_context(|| format!("scoring {}", w.display()))?;
+        emit(&format!(
+            "{}: validation NLL {nll:.4} nats per frame over {n} examples\n",
+            w.display()
+        ))?;
+        return Ok(());
+    }
+    let out = a.out.clone().context("--out names the weights file to write")?;
+    let _lock = super::lock_out_file(&out, "fit-convnet")?;
+    let data = pairs_or_shared(&a.data, "train")?;
     // The command as a user types it (the binary's own path says nothing).
     let command: Vec<String> = std::iter::once("fishprobe".to_string())
         .chain(std::env::args().skip(1))
@@ -124,7 +138,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         fit_convnet(
             &data,
             &validation,
-            &a.out,
+            &out,
             &cfg,
             a.seed,
             !a.no_baselines,
