@@ -637,7 +637,13 @@ mod tests {
 
     /// One draw of `sample_motion` for a fish at `(x, y, heading)` whose distribution puts all
     /// its mass on the cell of (v, ω).
-    fn sample_at(pose: [f32; 3], v: f32, w: f32, redraws: u32, seed: u64) -> (FishMotion, AgentState) {
+    fn sample_at(
+        pose: [f32; 3],
+        v: f32,
+        w: f32,
+        redraws: u32,
+        seed: u64,
+    ) -> (FishMotion, AgentState) {
         let arch = ConvNetArch::default();
         let mut p = vec![0.0; arch.cells()];
         p[arch.cell_of(v, w)] = 1.0;
@@ -645,7 +651,14 @@ mod tests {
         let robot = AgentState::at(0.0, 0.0, 0.0);
         let view = FishView::build(0, &[me], &[robot], Tank::default(), 0.04, 0.0);
         let mut rng = fishprobe_sim::stream(seed, "test", 0);
-        let m = sample_motion(&arch, &view, &p, redraws, &mut FishMind::default(), &mut rng);
+        let m = sample_motion(
+            &arch,
+            &view,
+            &p,
+            redraws,
+            &mut FishMind::default(),
+            &mut rng,
+        );
         (m, me)
     }
 
@@ -654,12 +667,15 @@ mod tests {
         use std::f32::consts::FRAC_PI_4;
         let tank = Tank::default();
         let lim = tank.half - tank.margin; // 49 cm: the margin line
-        // At the bottom margin line, heading 45° into the wall (down and right), all mass on
-        // 10 cm/s straight on: every draw crosses the margin.
+                                           // At the bottom margin line, heading 45° into the wall (down and right), all mass on
+                                           // 10 cm/s straight on: every draw crosses the margin.
         let pose = [0.0, -lim, -FRAC_PI_4];
         let (m, me) = sample_at(pose, 10.2, 0.0, 0, 1);
         let step = m.speed * 0.04;
-        assert!(tank.clip(me.x + step * m.heading.cos(), me.y + step * m.heading.sin()).2);
+        assert!(
+            tank.clip(me.x + step * m.heading.cos(), me.y + step * m.heading.sin())
+                .2
+        );
         // With redraws it slides: along the wall (heading 0, rightwards), at the part of its
         // speed along the wall (cos 45° of a speed in the cell [10, 11) cm/s; ω in the cell
         // around 0 turns it by at most 0.01 rad), and the step stays in the water.
@@ -668,7 +684,11 @@ mod tests {
         let along = FRAC_PI_4.cos();
         assert!(m.speed > 9.9 * along && m.speed < 11.1 * along, "{m:?}");
         let step = m.speed * 0.04;
-        assert!(!tank.clip(me.x + step * m.heading.cos(), me.y + step * m.heading.sin()).2);
+        assert!(
+            !tank
+                .clip(me.x + step * m.heading.cos(), me.y + step * m.heading.sin())
+                .2
+        );
         // Nose straight in: next to nothing to slide on (the drawn turn, at most 0.01 rad
         // here, leaves a sliver along the wall), it turns nearly on the spot.
         let (m, _) = sample_at([0.0, -lim, -std::f32::consts::FRAC_PI_2], 10.2, 0.0, 16, 1);
@@ -691,7 +711,11 @@ mod tests {
             ..ConvNetParams::default()
         };
         use crate::ModelParams;
-        assert!(bad.check("ConvNet").unwrap_err().to_string().contains("wall_redraws"));
+        assert!(bad
+            .check("ConvNet")
+            .unwrap_err()
+            .to_string()
+            .contains("wall_redraws"));
     }
 
     #[test]

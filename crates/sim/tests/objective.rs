@@ -10,21 +10,8 @@ use fishprobe_sim::{
 };
 use std::sync::Arc;
 
-/// A fish that stays where it is.
-#[derive(Debug)]
-struct Still;
-
-impl FishModel for Still {
-    fn name(&self) -> &str {
-        "Still"
-    }
-    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
-        FishMotion {
-            heading: v.me.heading,
-            speed: 0.0,
-        }
-    }
-}
+mod common;
+use common::Still;
 
 /// Scores a view by its fish's x coordinate (cm / 10): a known answer per frame.
 #[derive(Debug)]

@@ -4,26 +4,11 @@
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
-use fishprobe_sim::{
-    Env, EnvConfig, FishMind, FishModel, FishMotion, FishView, SimRng, TankEnv, TaskMode,
-    TrainingStart,
-};
+use fishprobe_sim::{Env, EnvConfig, TankEnv, TaskMode, TrainingStart};
 use std::sync::Arc;
 
-#[derive(Debug)]
-struct Still;
-
-impl FishModel for Still {
-    fn name(&self) -> &str {
-        "Still"
-    }
-    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
-        FishMotion {
-            heading: v.me.heading,
-            speed: 0.0,
-        }
-    }
-}
+mod common;
+use common::Still;
 
 fn starts(mode: TaskMode, start: TrainingStart, fish: u32) -> Vec<([f32; 2], Vec<[f32; 2]>)> {
     let mut cfg = EnvConfig::default();
@@ -34,7 +19,8 @@ fn starts(mode: TaskMode, start: TrainingStart, fish: u32) -> Vec<([f32; 2], Vec
     let mut obs = vec![0.0; e.observation_space().dim()];
     (0..200)
         .map(|i| {
-            e.reset(if i == 0 { Some(7) } else { None }, &mut obs).unwrap();
+            e.reset(if i == 0 { Some(7) } else { None }, &mut obs)
+                .unwrap();
             let r = e.robot().state;
             let f = e.fish().iter().map(|f| [f.x, f.y]).collect();
             ([r.x, r.y], f)
@@ -48,7 +34,10 @@ fn lab_starts_put_the_robot_in_the_centre_and_the_fish_in_corners() {
     let s = starts(TaskMode::Training, TrainingStart::Lab, 3);
     let mut corners = std::collections::BTreeSet::new();
     for (robot, fish) in &s {
-        assert!(robot[0].abs() <= 5.0 && robot[1].abs() <= 5.0, "robot {robot:?}");
+        assert!(
+            robot[0].abs() <= 5.0 && robot[1].abs() <= 5.0,
+            "robot {robot:?}"
+        );
         for f in fish {
             for c in f {
                 assert!((35.0..=45.0).contains(&c.abs()), "fish {f:?}");
@@ -67,6 +56,9 @@ fn evaluation_and_the_default_start_anywhere() {
     ] {
         let s = starts(mode, start, 1);
         let central = s.iter().filter(|(_, f)| f[0][0].abs() < 30.0).count();
-        assert!(central > 80, "{mode:?}/{start:?}: {central} of 200 fish starts central");
+        assert!(
+            central > 80,
+            "{mode:?}/{start:?}: {central} of 200 fish starts central"
+        );
     }
 }

@@ -76,7 +76,10 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         ))?;
         return Ok(());
     }
-    let out = a.out.clone().context("--out names the weights file to write")?;
+    let out = a
+        .out
+        .clone()
+        .context("--out names the weights file to write")?;
     let _lock = super::lock_out_file(&out, "fit-convnet")?;
     let data = pairs_or_shared(&a.data, "train")?;
     // The command as a user types it (the binary's own path says nothing).
