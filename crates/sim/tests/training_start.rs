@@ -11,9 +11,11 @@ mod common;
 use common::Still;
 
 fn starts(mode: TaskMode, start: TrainingStart, fish: u32) -> Vec<([f32; 2], Vec<[f32; 2]>)> {
-    let mut cfg = EnvConfig::default();
-    cfg.mode = mode;
-    cfg.fish_count = fish;
+    let mut cfg = EnvConfig {
+        mode,
+        fish_count: fish,
+        ..EnvConfig::default()
+    };
     cfg.task.training_start = start;
     let mut e = TankEnv::new(cfg, Arc::new(Still)).unwrap();
     let mut obs = vec![0.0; e.observation_space().dim()];
