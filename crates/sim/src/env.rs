@@ -475,6 +475,19 @@ impl TankEnv {
         }
     }
 
+    /// Whether this training episode starts lab-style (`training_start`; with `mixed`, one
+    /// draw from the episode's task stream).
+    fn lab_start_drawn(&mut self) -> bool {
+        match self.cfg.task.training_start {
+            TrainingStart::Random => false,
+            TrainingStart::Lab => true,
+            TrainingStart::Mixed => {
+                let share = f64::from(self.cfg.task.lab_start_share);
+                self.task_rng.random_bool(share.clamp(0.0, 1.0))
+            }
+        }
+    }
+
     fn reset_state(&mut self, seed: Option<u64>) {
         if let Some(s) = seed {
             self.reset_rng = stream(s, "episodes", 0);
@@ -489,9 +502,7 @@ impl TankEnv {
             for (f, q) in self.fish.iter_mut().zip(&p.fish) {
                 *f = AgentState::at(q[0], q[1], q[2]);
             }
-        } else if self.cfg.mode == TaskMode::Training
-            && self.cfg.task.training_start == TrainingStart::Lab
-        {
+        } else if self.cfg.mode == TaskMode::Training && self.lab_start_drawn() {
             self.lab_start();
         } else {
             let r = self.random_pose();
@@ -649,7 +660,8 @@ impl TankEnv {
             // What the fish see at the start of this frame (the inputs the model acts on).
             for v in &self.views {
                 let score = s.score(v);
-                self.support_acc.0 += score.min(p.task.ood_score_cap);
+                self.support_acc.0 +=
+                    (score.min(p.task.ood_score_cap) - p.task.ood_score_floor).max(0.0);
                 self.support_acc.1 += score;
                 self.support_acc.2 += 1;
             }

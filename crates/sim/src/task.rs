@@ -39,12 +39,17 @@ crate::documented_params! {
         /// `start_wall_clearance_cm`) or `lab`, as the paper's live trials begin after
         /// habituation: the robot within `lab_start_spread_cm` of the centre, each fish in a
         /// corner (one drawn per fish), within `lab_start_spread_cm` of the corner's start
-        /// point; headings uniform. A reading of issue 20's fidelity sweep. Evaluation
+        /// point; headings uniform; or `mixed`: each episode lab-style with probability
+        /// `lab_start_share`, else random. A reading of issue 20's fidelity sweep. Evaluation
         /// episodes always start at random poses (SPEC §4).
         pub training_start: TrainingStart = TrainingStart::Random; "-",
         /// With `training_start = lab`: the side of the squares the robot (at the centre) and
         /// the fish (in a corner) start in (choice: 10 cm).
         pub lab_start_spread_cm: f32 = 10.0; "cm",
+        /// With `training_start = mixed`: the share of training episodes that start as with
+        /// `lab`, in [0, 1] (choice: 0.5; the rest start at random poses, so that a policy
+        /// learns both to fetch a fish from a corner and to lead one from anywhere).
+        pub lab_start_share: f32 = 0.5; "1",
         /// Reward per goal reached (paper: +1).
         pub goal_reward: f32 = 1.0; "1",
         /// Who reaching a *training* goal counts (and re-draws it): `fish` (choice: the task is
@@ -75,6 +80,11 @@ crate::documented_params! {
         /// OOD task: support scores above this count as this (choice: 4): a view far outside
         /// the data is not worth endless reward, and one glitch cannot dominate a batch.
         pub ood_score_cap: f32 = 4.0; "1",
+        /// OOD task: support scores up to this count as nothing; above it, a view counts by
+        /// how far it lies beyond (`min(score, cap) - floor`). Choice: 0, every view counts
+        /// by its score (0 at the training views' median); 1 rewards only views outside the
+        /// support (beyond the training views' 95th percentile). In [0, cap).
+        pub ood_score_floor: f32 = 0.0; "1",
         /// OOD task: the fish's views are scored every this many frames (choice: 5, five
         /// times a second at 25 Hz: a second's views change little from frame to frame, and
         /// a score costs about as much as a frame of M_ConvNet; 1: every frame).
@@ -105,6 +115,8 @@ pub enum TrainingStart {
     Random,
     /// Robot near the centre, fish in corners, as a live trial after habituation.
     Lab,
+    /// Each episode `Lab` with probability `lab_start_share`, else `Random`.
+    Mixed,
 }
 
 /// Who must enter a training goal for it to count.
@@ -207,6 +219,7 @@ impl TaskParams {
             0.0,
             lim * 0.8,
         )?;
+        check::within(prefix, "lab_start_share", self.lab_start_share, 0.0, 1.0)?;
         if !(self.group_goal_fraction > 0.0 && self.group_goal_fraction <= 1.0) {
             return Err(ConfigError::new(
                 prefix,
@@ -219,6 +232,14 @@ impl TaskParams {
         check::within(prefix, "ood_weight", self.ood_weight, 0.0, 100.0)?;
         check::within(prefix, "ood_score_cap", self.ood_score_cap, 0.1, 1000.0)?;
         check::within(prefix, "ood_goal_weight", self.ood_goal_weight, 0.0, 10.0)?;
+        if !(self.ood_score_floor >= 0.0 && self.ood_score_floor < self.ood_score_cap) {
+            return Err(ConfigError::new(
+                prefix,
+                "ood_score_floor",
+                self.ood_score_floor,
+                "must lie in [0, ood_score_cap): scores above it are rewarded",
+            ));
+        }
         if !(1..=10_000).contains(&self.ood_score_every_frames) {
             return Err(ConfigError::new(
                 prefix,

@@ -55,6 +55,30 @@ fn the_ood_reward_is_the_capped_mean_score_of_the_views() {
 }
 
 #[test]
+fn a_score_floor_rewards_only_how_far_a_view_lies_beyond_it() {
+    // The still fish at x = 30 scores 3 (capped at 2.5); with the floor at 1 each view is
+    // worth 2.5 - 1 = 1.5, at x = 5 (score 0.5, below the floor) nothing.
+    for (x, want) in [(30.0, 1.5), (5.0, 0.0)] {
+        let mut e = env(Objective::Ood);
+        let mut cfg = e.config().clone();
+        cfg.task.ood_score_floor = 1.0;
+        e = TankEnv::new(cfg, Arc::new(Still)).unwrap();
+        e.set_support(Some(Arc::new(ByX)));
+        let mut obs = vec![0.0; e.observation_space().dim()];
+        e.set_start_poses(Some(fishprobe_sim::StartPoses {
+            robot: [0.0, 20.0, 0.0],
+            fish: vec![[x, 0.0, 0.0]],
+        }))
+        .unwrap();
+        e.reset(Some(1), &mut obs).unwrap();
+        let t = e.step(&[0.0], &mut obs).unwrap();
+        assert_eq!(t.info.goals_reached, 0);
+        assert!((t.info.support_score - x / 10.0).abs() < 1e-6, "{:?}", t.info);
+        assert!((t.reward - want).abs() < 1e-6, "x = {x}: {}", t.reward);
+    }
+}
+
+#[test]
 fn the_goal_task_ignores_the_support_and_evaluation_counts_goals() {
     let mut e = env(Objective::Goal);
     e.set_support(Some(Arc::new(ByX)));
@@ -88,12 +112,15 @@ fn the_vector_env_passes_the_support_on_and_settings_are_checked() {
         ("task.ood_score_cap", 0.0),
         ("task.ood_goal_weight", 11.0),
         ("task.ood_score_every_frames", 0.0),
+        ("task.ood_score_floor", 4.0),
+        ("task.ood_score_floor", -0.5),
     ] {
         let mut c = cfg.clone();
         match field {
             "task.ood_weight" => c.task.ood_weight = value,
             "task.ood_score_cap" => c.task.ood_score_cap = value,
             "task.ood_score_every_frames" => c.task.ood_score_every_frames = value as u32,
+            "task.ood_score_floor" => c.task.ood_score_floor = value,
             _ => c.task.ood_goal_weight = value,
         }
         let e = c.validate().unwrap_err();

@@ -64,3 +64,36 @@ fn evaluation_and_the_default_start_anywhere() {
         );
     }
 }
+
+#[test]
+fn mixed_starts_draw_lab_starts_at_the_set_share() {
+    // A lab start has the robot within 5 cm of the centre on both axes and the fish 35-45 cm
+    // out on both; a random start does both with probability (10/90)^2 x (20/90)^2 < 0.1 %.
+    let lab_like = |share: f32| {
+        let mut cfg = EnvConfig::default();
+        cfg.task.training_start = TrainingStart::Mixed;
+        cfg.task.lab_start_share = share;
+        let mut e = TankEnv::new(cfg, Arc::new(Still)).unwrap();
+        let mut obs = vec![0.0; e.observation_space().dim()];
+        (0..400)
+            .filter(|&i| {
+                e.reset(if i == 0 { Some(3) } else { None }, &mut obs)
+                    .unwrap();
+                let r = e.robot().state;
+                let f = e.fish()[0];
+                r.x.abs() <= 5.0
+                    && r.y.abs() <= 5.0
+                    && (35.0..=45.0).contains(&f.x.abs())
+                    && (35.0..=45.0).contains(&f.y.abs())
+            })
+            .count()
+    };
+    assert_eq!(lab_like(0.0), 0);
+    assert_eq!(lab_like(1.0), 400);
+    // Binomial(400, 0.25): mean 100, s.d. 8.7.
+    let n = lab_like(0.25);
+    assert!((70..=130).contains(&n), "{n} of 400 lab starts at share 0.25");
+    let mut cfg = EnvConfig::default();
+    cfg.task.lab_start_share = 1.5;
+    assert_eq!(cfg.validate().unwrap_err().field, "task.lab_start_share");
+}

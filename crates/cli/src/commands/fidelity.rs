@@ -140,6 +140,14 @@ const READINGS: &[Reading] = &[
         ppo: no_ppo,
     },
     Reading {
+        name: "mixed-start",
+        what: "half the training episodes start as `lab-start`, half at random poses (to learn fetching and leading)",
+        models: &[],
+        env: || json!({"task": {"training_start": "mixed", "lab_start_share": 0.5}}),
+        model: none,
+        ppo: no_ppo,
+    },
+    Reading {
         name: "time-limit-terminal",
         what: "the 41-s time limit ends an episode (RLlib 2.0.1 with gym's done flag), no bootstrap from V",
         models: &[],
