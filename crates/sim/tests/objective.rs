@@ -1,5 +1,5 @@
 //! The OOD objective (issue 23): the reward is the capped mean support score of the fish's
-//! views over the action's frames, plus the goal reward's share, minus the wall penalty; an
+//! views over the action's frames (above a floor), plus the goal reward's share, minus the wall penalty; an
 //! OOD environment without a support model refuses to step.
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
@@ -27,6 +27,7 @@ fn env(objective: Objective) -> TankEnv {
     let mut cfg = EnvConfig::default();
     cfg.task.objective = objective;
     cfg.task.ood_score_cap = 2.5;
+    cfg.task.ood_score_floor = 0.0;
     cfg.task.ood_score_every_frames = 1;
     TankEnv::new(cfg, Arc::new(Still)).unwrap()
 }
