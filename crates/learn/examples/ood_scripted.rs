@@ -1,0 +1,107 @@
+//! How far out of M_ConvNet's training support can a *scripted* robot drive the fish (issue 23)?
+//! A ceiling check for the OOD objective: if no simple strategy keeps the fish's views beyond a
+//! score, a trained OOD policy that does not either may be limited by the fish, not by PPO.
+//! docs/validation.md, "The OOD objective", cites it.
+//!
+//! ```sh
+//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD
+//! ```
+//!
+//! Every strategy meets the same training-task episodes (41 s, random starts; master seed 0,
+//! label "ood-scripted"), against the shipped M_ConvNet, every frame scored against its support.
+//! Prints, per strategy, the mean, median and 95th percentile of the per-second mean score and
+//! the share of seconds whose mean score is at least THRESHOLD (default 1.23, the lead-to-goal
+//! policy's 95th percentile per view in validation.md). Each second the robot turns toward:
+//! - `seek`: the active goal (the goal-seeker baseline);
+//! - `chase`: the fish;
+//! - `aheadD`: the point D cm ahead of the fish along its heading (D = 5, 10, 20);
+//! - `behind10`: the point 10 cm behind it; `side8`: 8 cm to its left;
+//! - `flee`: away from the fish;
+//! - `corner`: the corner nearest the fish (45 cm out on both axes);
+//! - `random`: a uniform turn in [-3, 3] rad;
+//! - `pinD`: the point D cm from the fish toward the tank's centre (D = 4, 8), so that the fish
+//!   is between the robot and the walls;
+//! - `wallpin`: 5 cm from the fish along the normal of the fish's nearest wall.
+
+use fishprobe_models::ModelSpec;
+use fishprobe_sim::{derive_seed, stream, wrap_angle, Env, EnvConfig, Objective, TankEnv};
+use rand::RngExt;
+use std::sync::Arc;
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let episodes: u64 = args.first().map_or(Ok(40), |s| s.parse())?;
+    let thr: f32 = args.get(1).map_or(Ok(1.23), |s| s.parse())?;
+    let model = ModelSpec::by_name("ConvNet")?;
+    let support = Arc::new(model.support()?);
+    let mut cfg = EnvConfig::default();
+    cfg.task.objective = Objective::Ood;
+    cfg.task.ood_score_every_frames = 1;
+    cfg.task.ood_score_cap = 100.0;
+    let pilots = [
+        "seek", "chase", "ahead5", "ahead10", "ahead20", "behind10", "side8", "flee", "corner",
+        "random", "pin4", "pin8", "wallpin",
+    ];
+    for name in pilots {
+        let (mut n, mut hi, mut sum) = (0u64, 0u64, 0.0f64);
+        let mut scores = Vec::new();
+        for ep in 0..episodes {
+            let mut env = TankEnv::new(cfg.clone(), model.build()?)?;
+            env.set_support(Some(support.clone()));
+            let mut obs = vec![0.0; env.observation_space().dim()];
+            env.reset(Some(derive_seed(0, "ood-scripted", ep)), &mut obs)?;
+            let mut rng = stream(0, "ood-scripted-actions", ep);
+            loop {
+                let r = env.robot().state;
+                let f = env.fish()[0];
+                let g = env.active_goal();
+                let toward = |t: [f32; 2]| wrap_angle((t[1] - r.y).atan2(t[0] - r.x) - r.heading);
+                let (c, s) = (f.heading.cos(), f.heading.sin());
+                let action = match name {
+                    "seek" => toward(g),
+                    "chase" => toward([f.x, f.y]),
+                    "ahead5" => toward([f.x + 5.0 * c, f.y + 5.0 * s]),
+                    "ahead10" => toward([f.x + 10.0 * c, f.y + 10.0 * s]),
+                    "ahead20" => toward([f.x + 20.0 * c, f.y + 20.0 * s]),
+                    "behind10" => toward([f.x - 10.0 * c, f.y - 10.0 * s]),
+                    "side8" => toward([f.x - 8.0 * s, f.y + 8.0 * c]),
+                    "flee" => toward([2.0 * r.x - f.x, 2.0 * r.y - f.y]),
+                    "corner" => toward([45.0 * f.x.signum(), 45.0 * f.y.signum()]),
+                    "pin4" | "pin8" => {
+                        let d = if name == "pin4" { 4.0 } else { 8.0 };
+                        let n = f.x.hypot(f.y).max(1e-3);
+                        toward([f.x - d * f.x / n, f.y - d * f.y / n])
+                    }
+                    "wallpin" => {
+                        // between the fish and the tank's centre along the nearest wall's normal
+                        let (nx, ny) = if f.x.abs() > f.y.abs() {
+                            (f.x.signum(), 0.0)
+                        } else {
+                            (0.0, f.y.signum())
+                        };
+                        toward([f.x - 5.0 * nx, f.y - 5.0 * ny])
+                    }
+                    _ => rng.random_range(-3.0..3.0),
+                };
+                let t = env.step(&[action], &mut obs)?;
+                let sc = t.info.support_score;
+                n += 1;
+                hi += u64::from(sc >= thr);
+                sum += f64::from(sc);
+                scores.push(sc);
+                if t.truncated {
+                    break;
+                }
+            }
+        }
+        scores.sort_by(f32::total_cmp);
+        println!(
+            "{name:>10}: mean {:.2} median {:.2} p95 {:.2} seconds >= {thr}: {:.1} %",
+            sum / n as f64,
+            scores[scores.len() / 2],
+            scores[scores.len() * 95 / 100],
+            100.0 * hi as f64 / n as f64
+        );
+    }
+    Ok(())
+}
