@@ -74,7 +74,11 @@ fn a_score_floor_rewards_only_how_far_a_view_lies_beyond_it() {
         e.reset(Some(1), &mut obs).unwrap();
         let t = e.step(&[0.0], &mut obs).unwrap();
         assert_eq!(t.info.goals_reached, 0);
-        assert!((t.info.support_score - x / 10.0).abs() < 1e-6, "{:?}", t.info);
+        assert!(
+            (t.info.support_score - x / 10.0).abs() < 1e-6,
+            "{:?}",
+            t.info
+        );
         assert!((t.reward - want).abs() < 1e-6, "x = {x}: {}", t.reward);
     }
 }

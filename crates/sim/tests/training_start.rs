@@ -92,7 +92,10 @@ fn mixed_starts_draw_lab_starts_at_the_set_share() {
     assert_eq!(lab_like(1.0), 400);
     // Binomial(400, 0.25): mean 100, s.d. 8.7.
     let n = lab_like(0.25);
-    assert!((70..=130).contains(&n), "{n} of 400 lab starts at share 0.25");
+    assert!(
+        (70..=130).contains(&n),
+        "{n} of 400 lab starts at share 0.25"
+    );
     let mut cfg = EnvConfig::default();
     cfg.task.lab_start_share = 1.5;
     assert_eq!(cfg.validate().unwrap_err().field, "task.lab_start_share");
