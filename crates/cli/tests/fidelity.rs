@@ -73,6 +73,43 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
         "{}",
         stderr(&o3)
     );
+    // A run of one reading prints its own row, and the files keep every finished cell of the
+    // directory; cells of another seed say so.
+    let o4 = fishprobe(&[
+        "fidelity",
+        "--preset",
+        "smoke",
+        "--readings",
+        "time-limit-terminal",
+        "--models",
+        "Follow",
+        "--episodes",
+        "2",
+        "--approach-episodes",
+        "1",
+        "--seed",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o4.status.success(), "{}", stderr(&o4));
+    assert_eq!(
+        stdout(&o4).matches("| Follow |").count(),
+        1,
+        "{}",
+        stdout(&o4)
+    );
+    let rows: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("scoreboard.json")).unwrap())
+            .unwrap();
+    assert_eq!(rows.len(), 7);
+    assert_eq!(rows[0]["reading"], "time-limit-terminal");
+    let board = std::fs::read_to_string(out.join("scoreboard.md")).unwrap();
+    assert!(
+        board.contains("| baseline (seed 0) | Zone |")
+            && board.contains("| time-limit-terminal | Follow |"),
+        "{board}"
+    );
 }
 
 #[test]

@@ -458,11 +458,14 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             let dir = a.out.join(&r.name).join(&name);
             let row = super::with_jobs(a.jobs, || cell(&a, r, &name, &dir))??;
             rows.push(row);
-            let board = scoreboard(&rows);
+            let all = with_finished_cells(&a, &rows);
+            let board = scoreboard(&all);
             fishprobe_nn::store::write_atomic(
                 &a.out.join("scoreboard.md"),
                 format!(
-                    "# fishprobe fidelity sweep\n\n`fishprobe fidelity --preset {} --episodes {} --seed {}` (fishprobe {})\n\n{board}",
+                    "# fishprobe fidelity sweep\n\nEvery finished cell in this directory; the last \
+                     run: `fishprobe fidelity --preset {} --episodes {} --seed {}` (fishprobe {}). \
+                     A cell made with another seed or episode count says so after its reading.\n\n{board}",
                     a.preset,
                     a.episodes,
                     a.seed,
@@ -472,9 +475,61 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             )?;
             fishprobe_nn::store::write_atomic(
                 &a.out.join("scoreboard.json"),
-                serde_json::to_string_pretty(&rows)?.as_bytes(),
+                serde_json::to_string_pretty(&all)?.as_bytes(),
             )?;
         }
     }
     emit(&scoreboard(&rows))
+}
+
+/// This run's rows, then every other finished cell under `--out` (`READING/MODEL/cell.json`,
+/// from earlier runs with other readings or models), sorted by reading and model, so that the
+/// scoreboard files hold the whole directory. A cell made with another seed or episode count
+/// gets it appended to its reading's name.
+fn with_finished_cells(a: &FidelityArgs, rows: &[Value]) -> Vec<Value> {
+    let key = |v: &Value| {
+        (
+            v["reading"].as_str().unwrap_or("").to_string(),
+            v["model"].as_str().unwrap_or("").to_string(),
+        )
+    };
+    let ours: std::collections::BTreeSet<_> = rows.iter().map(key).collect();
+    let mut others = Vec::new();
+    for reading in std::fs::read_dir(&a.out).into_iter().flatten().flatten() {
+        for model in std::fs::read_dir(reading.path())
+            .into_iter()
+            .flatten()
+            .flatten()
+        {
+            let Ok(text) = std::fs::read_to_string(model.path().join("cell.json")) else {
+                continue;
+            };
+            let Ok(mut v) = serde_json::from_str::<Value>(&text) else {
+                continue;
+            };
+            if !v["reading"].is_string() || ours.contains(&key(&v)) {
+                continue;
+            }
+            let mut notes = Vec::new();
+            let seed = v["settings"]["seed"].as_u64();
+            if seed.is_some_and(|s| s != a.seed) {
+                notes.push(format!("seed {}", seed.unwrap_or_default()));
+            }
+            let episodes = v["settings"]["episodes"].as_u64();
+            if episodes.is_some_and(|e| e != a.episodes as u64) {
+                notes.push(format!("{} episodes", episodes.unwrap_or_default()));
+            }
+            if !notes.is_empty() {
+                let name = format!(
+                    "{} ({})",
+                    v["reading"].as_str().unwrap_or(""),
+                    notes.join(", ")
+                );
+                v["reading"] = Value::String(name);
+            }
+            others.push(v);
+        }
+    }
+    others.sort_by_key(key);
+    rows.iter().cloned().chain(others).collect()
 }
