@@ -510,15 +510,16 @@ fn with_finished_cells(a: &FidelityArgs, rows: &[Value]) -> Vec<Value> {
             if !v["reading"].is_string() || ours.contains(&key(&v)) {
                 continue;
             }
-            let mut notes = Vec::new();
-            let seed = v["settings"]["seed"].as_u64();
-            if seed.is_some_and(|s| s != a.seed) {
-                notes.push(format!("seed {}", seed.unwrap_or_default()));
-            }
-            let episodes = v["settings"]["episodes"].as_u64();
-            if episodes.is_some_and(|e| e != a.episodes as u64) {
-                notes.push(format!("{} episodes", episodes.unwrap_or_default()));
-            }
+            let settings = &v["settings"];
+            let seed = settings["seed"].as_u64().filter(|&s| s != a.seed);
+            let episodes = settings["episodes"]
+                .as_u64()
+                .filter(|&e| e != a.episodes as u64);
+            let notes: Vec<String> = seed
+                .map(|s| format!("seed {s}"))
+                .into_iter()
+                .chain(episodes.map(|e| format!("{e} episodes")))
+                .collect();
             if !notes.is_empty() {
                 let name = format!(
                     "{} ({})",
