@@ -217,6 +217,13 @@ macro_rules! model_registry {
 }
 
 impl ModelSpec {
+    /// Whether the fish is a network learned from recordings that runs every frame (M_ConvNet,
+    /// an ONNX model): its simulation costs about twenty times a rule-based fish's per step,
+    /// which decides training budgets (a study's `learned_fish_budget`).
+    pub fn is_learned(&self) -> bool {
+        matches!(self, Self::ConvNet(_) | Self::Onnx(_))
+    }
+
     /// Where the support file of this model lives (`WEIGHTS.support.json` beside a weights or
     /// ONNX file; `None` for the shipped ConvNet weights, whose support is shipped with them).
     pub fn support_path(&self) -> Result<Option<std::path::PathBuf>, ModelError> {

@@ -33,10 +33,16 @@ pub struct StudyConfig {
     pub ppo_preset: String,
     /// Environment steps per training run (None: the PPO preset's).
     pub train_steps: Option<u64>,
-    /// PPO epochs per batch (None: the PPO preset's: 10 for `paper`, the published 100 for
+    /// PPO epochs per batch (None: the PPO preset's: 2 for `paper`, the published 100 for
     /// `published`; see `fishprobe_learn::PpoConfig::num_sgd_iter` for why they differ).
     #[serde(default)]
     pub ppo_epochs: Option<usize>,
+    /// Steps and epochs of the policies of learned fish (M_ConvNet, ONNX models), in place of
+    /// the budget above (None, every preset: the PPO preset's for such a fish, which for
+    /// `paper` is 832,300 steps at 10 epochs, see `fishprobe_learn::PpoConfig::preset_for`,
+    /// with the study's `train_steps` and `ppo_epochs`).
+    #[serde(default)]
+    pub learned_fish_budget: Option<Budget>,
     /// Training seeds per model beyond the first, for the stability analysis (paper: 5).
     pub extra_seeds: usize,
     /// Minutes per evaluation episode (paper: 15).
@@ -84,6 +90,17 @@ fn one_fish() -> u32 {
     1
 }
 
+/// A training budget that replaces the PPO preset's for some models
+/// ([`StudyConfig::learned_fish_budget`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Budget {
+    /// Environment steps per training run.
+    pub train_steps: u64,
+    /// PPO epochs per batch.
+    pub ppo_epochs: usize,
+}
+
 /// A policy trained elsewhere, named in a study file:
 /// `[[policies]] model = "Zone", policy = "onnx:sb3_zone.onnx"`.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -122,6 +139,7 @@ impl StudyConfig {
             ppo_preset: "paper".into(),
             train_steps: None,
             ppo_epochs: None,
+            learned_fish_budget: None,
             extra_seeds: 5,
             episode_minutes: 15.0,
             sim_trials: 18,
@@ -177,15 +195,20 @@ impl StudyConfig {
         }
     }
 
-    /// The PPO settings of every training run: the PPO preset with the study's overrides of
-    /// steps and epochs (None: an unknown PPO preset).
-    pub fn ppo(&self) -> Option<fishprobe_learn::PpoConfig> {
-        let mut ppo = fishprobe_learn::PpoConfig::preset(&self.ppo_preset)?;
+    /// The PPO settings of the training runs of `model`: the PPO preset for that model with the
+    /// study's overrides of steps and epochs, and for a learned fish its
+    /// [`StudyConfig::learned_fish_budget`] if set (None: an unknown PPO preset).
+    pub fn ppo(&self, model: &ModelSpec) -> Option<fishprobe_learn::PpoConfig> {
+        let mut ppo = fishprobe_learn::PpoConfig::preset_for(&self.ppo_preset, model.is_learned())?;
         if let Some(n) = self.train_steps {
             ppo.total_timesteps = n;
         }
         if let Some(e) = self.ppo_epochs {
             ppo.num_sgd_iter = e;
+        }
+        if let Some(b) = self.learned_fish_budget.filter(|_| model.is_learned()) {
+            ppo.total_timesteps = b.train_steps;
+            ppo.num_sgd_iter = b.ppo_epochs;
         }
         Some(ppo)
     }
@@ -250,6 +273,11 @@ impl StudyConfig {
                 self.ppo_preset
             ));
         }
+        for m in &self.models {
+            if let Some(Err(e)) = self.ppo(&m.spec).map(|p| p.validate()) {
+                return bad(format!("the training budget of model `{}`: {e}", m.name));
+            }
+        }
         for (f, v) in [
             ("ppo_epochs", self.ppo_epochs.unwrap_or(1)),
             ("sim_trials", self.sim_trials),
@@ -298,6 +326,8 @@ pub struct StudyFile {
     pub train_steps: Option<u64>,
     /// See [`StudyConfig::ppo_epochs`].
     pub ppo_epochs: Option<usize>,
+    /// See [`StudyConfig::learned_fish_budget`].
+    pub learned_fish_budget: Option<Budget>,
     /// See [`StudyConfig::extra_seeds`].
     pub extra_seeds: Option<usize>,
     /// See [`StudyConfig::episode_minutes`].
@@ -380,6 +410,9 @@ impl StudyFile {
         if self.ppo_epochs.is_some() {
             c.ppo_epochs = self.ppo_epochs;
         }
+        if self.learned_fish_budget.is_some() {
+            c.learned_fish_budget = self.learned_fish_budget;
+        }
         if let Some(v) = self.extra_seeds {
             c.extra_seeds = v;
         }
@@ -442,6 +475,77 @@ mod tests {
         c2.models.pop();
         c2.models[0].name = "a__b".into();
         assert!(c2.validate().is_err());
+    }
+
+    #[test]
+    fn learned_fish_train_at_their_own_budget_in_the_paper_preset() {
+        let paper = StudyConfig::preset("paper").unwrap();
+        let spec = |n: &str| ModelSpec::by_name(n).unwrap();
+        let zone = paper.ppo(&spec("Zone")).unwrap();
+        assert_eq!((zone.total_timesteps, zone.num_sgd_iter), (6_658_400, 2));
+        let convnet = paper.ppo(&spec("ConvNet")).unwrap();
+        assert_eq!(
+            (convnet.total_timesteps, convnet.num_sgd_iter),
+            (832_300, 10)
+        );
+        // Everything else of the learned fish's PPO is the preset's.
+        assert_eq!(
+            fishprobe_learn::PpoConfig {
+                total_timesteps: zone.total_timesteps,
+                num_sgd_iter: zone.num_sgd_iter,
+                ..convnet
+            },
+            zone
+        );
+        // A file's budget reaches every model; its learned-fish budget only those.
+        let c = toml_like(r#"{"train_steps": 9000}"#)
+            .apply("paper")
+            .unwrap();
+        assert_eq!(c.ppo(&spec("ConvNet")).unwrap().total_timesteps, 9000);
+        let c = toml_like(
+            r#"{"train_steps": 9000, "learned_fish_budget": {"train_steps": 5000, "ppo_epochs": 4}}"#,
+        )
+        .apply("paper")
+        .unwrap();
+        let (z, cn) = (
+            c.ppo(&spec("Zone")).unwrap(),
+            c.ppo(&spec("ConvNet")).unwrap(),
+        );
+        assert_eq!(
+            (z.total_timesteps, cn.total_timesteps, cn.num_sgd_iter),
+            (9000, 5000, 4)
+        );
+        // Other presets train every model alike; `learned_fish_budget` is a file's choice.
+        for p in ["published", "quick", "smoke"] {
+            let c = StudyConfig::preset(p).unwrap();
+            assert_eq!(c.ppo(&spec("ConvNet")), c.ppo(&spec("Follow")), "{p}");
+        }
+        // Budgets out of range are refused before any work, naming the field.
+        for (json, field) in [
+            (
+                r#"{"learned_fish_budget": {"train_steps": 5000, "ppo_epochs": 0}}"#,
+                "model `ConvNet`: invalid configuration: `ppo.num_sgd_iter` = 0",
+            ),
+            (
+                r#"{"learned_fish_budget": {"train_steps": 0, "ppo_epochs": 2}}"#,
+                "model `ConvNet`",
+            ),
+            (
+                r#"{"train_steps": 99000000000000}"#,
+                "model `Follow`: invalid configuration: `ppo.total_timesteps`",
+            ),
+        ] {
+            let e = toml_like(json)
+                .apply("paper")
+                .unwrap()
+                .validate()
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(field), "{json}: {e}");
+        }
+        let bad: Result<StudyFile, _> =
+            serde_json::from_str(r#"{"learned_fish_budget": {"train_steps": 5000}}"#);
+        assert!(bad.is_err());
     }
 
     fn toml_like(json: &str) -> StudyFile {

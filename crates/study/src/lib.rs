@@ -45,7 +45,7 @@ pub mod slurm;
 mod steps;
 mod store;
 
-pub use config::{NamedModel, StudyConfig, StudyFile};
+pub use config::{Budget, NamedModel, StudyConfig, StudyFile};
 pub use error::{StepError, StudyError};
 pub use plan::{Step, StepKind};
 pub use scheduler::Event;

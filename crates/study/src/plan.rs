@@ -120,7 +120,8 @@ impl StepKind {
             // The resolved PPO settings, not the preset's name: a preset whose values change
             // (the `paper` preset's epochs went from 100 to 10) must not pass for the old one.
             StepKind::Train { m, k } => {
-                serde_json::json!({"train": model(*m), "k": k, "seed": c.seed, "ppo": c.ppo()})
+                serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
+                    "ppo": c.ppo(&c.models[*m].spec)})
             }
             StepKind::Eval { p, m } => {
                 serde_json::json!({"eval": [study.name(*p), model(*m)], "seed": c.seed,
@@ -295,9 +296,14 @@ mod tests {
         let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
         let paper = StudyConfig::preset("paper").unwrap();
         let base = plan(paper.clone());
-        // Setting the epochs the preset already has changes nothing.
+        // Setting the epochs the preset already has, and the learned fish's budget the preset
+        // already gives them, changes nothing.
         let mut same = paper.clone();
-        same.ppo_epochs = Some(10);
+        same.ppo_epochs = Some(2);
+        same.learned_fish_budget = Some(crate::config::Budget {
+            train_steps: 832_300,
+            ppo_epochs: 10,
+        });
         for (a, b) in base.iter().zip(&plan(same)) {
             assert_eq!(a.hash, b.hash, "{}", a.id);
         }

@@ -131,7 +131,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
             })
         }
         StepKind::Train { m, k } => {
-            let ppo = c.ppo().ok_or_else(|| {
+            let ppo = c.ppo(&c.models[*m].spec).ok_or_else(|| {
                 StepError::Missing(format!("unknown PPO preset `{}`", c.ppo_preset))
             })?;
             let spec = RunSpec {

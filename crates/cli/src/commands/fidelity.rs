@@ -55,15 +55,18 @@ struct Reading {
     models: &'static [&'static str],
     env: fn() -> Value,
     model: fn() -> Value,
-    ppo: fn(&PpoConfig) -> Value,
+    ppo: fn() -> Value,
 }
 
 fn none() -> Value {
     json!({})
 }
-fn no_ppo(_: &PpoConfig) -> Value {
+fn no_ppo() -> Value {
     json!({})
 }
+
+/// The paper's training steps per policy; the budget readings are multiples of it.
+const PUBLISHED: u64 = PpoConfig::PUBLISHED_TIMESTEPS;
 
 /// The readings of issue 20 (one departure from the defaults each).
 const READINGS: &[Reading] = &[
@@ -153,7 +156,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: none,
         model: none,
-        ppo: |_| json!({"bootstrap_truncated": false}),
+        ppo: || json!({"bootstrap_truncated": false}),
     },
     Reading {
         name: "std-unbounded",
@@ -161,7 +164,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: none,
         model: none,
-        ppo: |_| json!({"log_std_max": null}),
+        ppo: || json!({"log_std_max": null}),
     },
     Reading {
         name: "value-clip-off",
@@ -169,23 +172,79 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: none,
         model: none,
-        ppo: |_| json!({"vf_clip_param": 1.0e9}),
+        ppo: || json!({"vf_clip_param": 1.0e9}),
     },
     Reading {
         name: "budget-4x",
-        what: "four times the training steps",
+        what: "four times the paper's 832,300 training steps",
         models: &[],
         env: none,
         model: none,
-        ppo: |p| json!({"total_timesteps": p.total_timesteps * 4}),
+        ppo: || json!({"total_timesteps": 4 * PUBLISHED}),
+    },
+    Reading {
+        name: "epochs-3",
+        what: "3 epochs per batch (with `budget-4x`: four times the data for 1.2 times the update work of `budget-1x+epochs-10`)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"num_sgd_iter": 3}),
+    },
+    Reading {
+        name: "epochs-5",
+        what: "5 epochs per batch (with `budget-2x`: twice the data for the update work of `budget-1x+epochs-10`)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"num_sgd_iter": 5}),
+    },
+    Reading {
+        name: "budget-1x",
+        what: "the paper's 832,300 training steps (the `paper` preset's before this sweep, with `epochs-10`)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"total_timesteps": PUBLISHED}),
+    },
+    Reading {
+        name: "epochs-10",
+        what: "10 epochs per batch (the `paper` preset's before this sweep, with `budget-1x`)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"num_sgd_iter": 10}),
+    },
+    Reading {
+        name: "budget-2x",
+        what: "twice the paper's 832,300 training steps",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"total_timesteps": 2 * PUBLISHED}),
+    },
+    Reading {
+        name: "budget-8x",
+        what: "eight times the paper's 832,300 training steps (the `paper` preset's since this sweep)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"total_timesteps": 8 * PUBLISHED}),
+    },
+    Reading {
+        name: "epochs-2",
+        what: "2 epochs per batch (the `paper` preset's since this sweep; with `budget-8x`: eight times the data for 1.6 times the update work of `budget-1x+epochs-10`)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"num_sgd_iter": 2}),
     },
     Reading {
         name: "epochs-30",
-        what: "30 epochs per batch (between the preset's 10 and the published 100)",
+        what: "30 epochs per batch (between 10 and the published 100)",
         models: &[],
         env: none,
         model: none,
-        ppo: |_| json!({"num_sgd_iter": 30}),
+        ppo: || json!({"num_sgd_iter": 30}),
     },
 ];
 
@@ -264,15 +323,15 @@ fn with<T: serde::Serialize + serde::de::DeserializeOwned>(base: &T, over: &Valu
 
 /// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
 fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
-    let Some(base_ppo) = PpoConfig::preset(&a.preset) else {
+    let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
+    spec.validate()?;
+    let Some(base_ppo) = PpoConfig::preset_for(&a.preset, spec.is_learned()) else {
         bail!("unknown --preset `{}`", a.preset);
     };
-    let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)(&base_ppo)))?;
+    let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)()))?;
     ppo.validate()?;
     let env: EnvConfig = with(&EnvConfig::default(), &r.merged(|p| (p.env)()))?;
     env.validate()?;
-    let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
-    spec.validate()?;
     // A finished cell is read back only if it was made with these settings (a default that
     // changed since, or another --preset, must not pass for this reading).
     let settings = json!({"ppo": ppo, "env": env, "model": spec, "episodes": a.episodes,

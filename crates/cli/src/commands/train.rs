@@ -71,17 +71,11 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
-        let Some(mut ppo) = PpoConfig::preset(&a.preset) else {
+        if PpoConfig::preset(&a.preset).is_none() {
             bail!(
                 "unknown --preset `{}`: use paper, published, quick or smoke",
                 a.preset
             );
-        };
-        if let Some(p) = &a.ppo {
-            ppo = ppo_overrides(ppo, p)?;
-        }
-        if let Some(s) = a.steps {
-            ppo.total_timesteps = s;
         }
         let mut settings = match &a.settings {
             Some(p) => SimSettings::load(p)?,
@@ -105,6 +99,16 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 bail!("--ood-goal-weight applies to --task ood only");
             }
             settings.env.task.ood_goal_weight = w;
+        }
+        // The preset for this fish (the `paper` preset trains a learned fish's policy at the
+        // published budget), then the overrides.
+        let mut ppo = PpoConfig::preset_for(&a.preset, settings.fish.is_learned())
+            .context("preset checked")?;
+        if let Some(p) = &a.ppo {
+            ppo = ppo_overrides(ppo, p)?;
+        }
+        if let Some(s) = a.steps {
+            ppo.total_timesteps = s;
         }
         let spec = RunSpec {
             ppo,
