@@ -15,15 +15,15 @@ fishprobe_sim::documented_params! {
         /// 832,300, at 2 epochs per batch** ([`PpoConfig::num_sgd_iter`]; the `published` preset
         /// keeps 832,300 at 100). A probe must find what its model allows before its strategy
         /// says anything about the model (issue 20). In the fidelity sweep (docs/validation.md,
-        /// "The fidelity sweep", row `budget-8x+epochs-2`; two seeds) this budget gives every
-        /// rule-based probe at least 0.8 of the best scripted controller's goals (π_Zone
-        /// 0.85 / 0.85, π_Force 1.18 / 1.17, π_Follow 0.96 / 0.96 for seeds 0 / 1) and π_Force the
-        /// paper's approach pattern (closest 0.1 cm, 53.5 % of the time nearer the fish than the
-        /// goal; the paper: 0.35 cm, 56.1 %), where the published budget at 10 epochs gave
-        /// 0.48 and 0.74 and no pattern. It costs about 1.6 times the update work of 832,300
-        /// steps at 10 epochs; a rule-based fish's steps are cheap. A learned fish's are not (its
-        /// network runs every frame), so its policy keeps the previous budget
-        /// ([`PpoConfig::preset_for`], [`PpoConfig::PAPER_LEARNED_FISH`]).
+        /// "The fidelity sweep", rows `budget-8x+epochs-2`) this budget gave π_Force more goals
+        /// than the best scripted controller (1.18 and 1.17 of it, seeds 0 and 1) and the paper's
+        /// approach pattern (closest 0.1 and 0.3 cm, half the time nearer the fish than the goal;
+        /// the paper: 0.35 cm, 56.1 %), π_Zone 0.85 and 0.74 of the best script, π_Follow 0.96,
+        /// where the published steps at 10 epochs gave π_Zone 0.48, π_Force 0.74 and no pattern.
+        /// It costs 1.6 times the update work of 832,300 steps at 10 epochs; a rule-based fish's
+        /// steps are cheap. An expensive fish's are not (a network or Python code every frame),
+        /// so its policy keeps the previous budget ([`PpoConfig::preset_for`],
+        /// [`PpoConfig::PAPER_EXPENSIVE_FISH`]).
         pub total_timesteps: u64 = 6_658_400; "steps",
         /// Steps collected per iteration (paper: 8192).
         pub train_batch_size: usize = 8192; "steps",
@@ -123,16 +123,16 @@ impl PpoConfig {
         }
     }
 
-    /// The preset `name` for a policy of a fish that is (`learned_fish`) or is not a network
-    /// learned from recordings (`ModelSpec::is_learned`: M_ConvNet, ONNX models). Only the
-    /// `paper` preset tells them apart: a learned fish's policy trains at
-    /// [`PpoConfig::PAPER_LEARNED_FISH`], since its network runs every frame and costs about
-    /// twenty times a rule-based fish per step; every other preset is the same for all.
-    pub fn preset_for(name: &str, learned_fish: bool) -> Option<Self> {
+    /// The preset `name` for a policy of a fish whose steps are (`expensive_fish`) or are not far
+    /// costlier than a rule-based fish's (`ModelSpec::is_expensive`: M_ConvNet, ONNX and Python
+    /// models). Only the `paper` preset tells them apart: an expensive fish's policy trains at
+    /// [`PpoConfig::PAPER_EXPENSIVE_FISH`] (M_ConvNet's network runs every frame and costs about
+    /// twenty times a rule-based fish per step); every other preset is the same for all.
+    pub fn preset_for(name: &str, expensive_fish: bool) -> Option<Self> {
         let p = Self::preset(name)?;
-        Some(match (name, learned_fish) {
+        Some(match (name, expensive_fish) {
             ("paper", true) => {
-                let (total_timesteps, num_sgd_iter) = Self::PAPER_LEARNED_FISH;
+                let (total_timesteps, num_sgd_iter) = Self::PAPER_EXPENSIVE_FISH;
                 Self {
                     total_timesteps,
                     num_sgd_iter,
@@ -143,13 +143,13 @@ impl PpoConfig {
         })
     }
 
-    /// Steps and epochs per batch of the `paper` preset for a learned fish's policy
+    /// Steps and epochs per batch of the `paper` preset for an expensive fish's policy
     /// ([`PpoConfig::preset_for`]). **Decision: the published 832,300 steps at 10 epochs**,
     /// the `paper` preset's budget before issue 20's sweep, under which π_ConvNet reaches 0.87
     /// of the best scripted controller's goals (docs/validation.md, "The fidelity sweep"). Eight
     /// times the steps would take 20 minutes per π_ConvNet on two cores, and the paper
     /// study's six π_ConvNet runs alone past its hour.
-    pub const PAPER_LEARNED_FISH: (u64, usize) = (Self::PUBLISHED_TIMESTEPS, 10);
+    pub const PAPER_EXPENSIVE_FISH: (u64, usize) = (Self::PUBLISHED_TIMESTEPS, 10);
 
     /// Checks the ranges and the divisibility the sampler needs.
     pub fn validate(&self) -> Result<(), ConfigError> {

@@ -217,11 +217,12 @@ macro_rules! model_registry {
 }
 
 impl ModelSpec {
-    /// Whether the fish is a network learned from recordings that runs every frame (M_ConvNet,
-    /// an ONNX model): its simulation costs about twenty times a rule-based fish's per step,
-    /// which decides training budgets (a study's `learned_fish_budget`).
-    pub fn is_learned(&self) -> bool {
-        matches!(self, Self::ConvNet(_) | Self::Onnx(_))
+    /// Whether a step of this fish costs far more than a rule-based fish's: a network learned
+    /// from recordings that runs every frame (M_ConvNet, an ONNX model; about twenty times the
+    /// cost) or Python code called every frame. It decides training budgets (`PpoConfig::preset_for`,
+    /// a study's `expensive_fish_budget`).
+    pub fn is_expensive(&self) -> bool {
+        matches!(self, Self::ConvNet(_) | Self::Onnx(_) | Self::Python(_))
     }
 
     /// Where the support file of this model lives (`WEIGHTS.support.json` beside a weights or

@@ -710,7 +710,7 @@ fn train(
         };
         Trainer::resume_with_model(&out, model).map_err(learn_err)?
     } else {
-        let Some(mut cfg) = PpoConfig::preset_for(preset, resolved.spec.is_learned()) else {
+        let Some(mut cfg) = PpoConfig::preset_for(preset, resolved.spec.is_expensive()) else {
             return Err(PyValueError::new_err(format!(
                 "unknown preset `{preset}`: use paper, published, quick or smoke"
             )));

@@ -37,12 +37,12 @@ pub struct StudyConfig {
     /// `published`; see `fishprobe_learn::PpoConfig::num_sgd_iter` for why they differ).
     #[serde(default)]
     pub ppo_epochs: Option<usize>,
-    /// Steps and epochs of the policies of learned fish (M_ConvNet, ONNX models), in place of
+    /// Steps and epochs of the policies of expensive fish (M_ConvNet, ONNX models), in place of
     /// the budget above (None, every preset: the PPO preset's for such a fish, which for
     /// `paper` is 832,300 steps at 10 epochs, see `fishprobe_learn::PpoConfig::preset_for`,
     /// with the study's `train_steps` and `ppo_epochs`).
     #[serde(default)]
-    pub learned_fish_budget: Option<Budget>,
+    pub expensive_fish_budget: Option<Budget>,
     /// Training seeds per model beyond the first, for the stability analysis (paper: 5).
     pub extra_seeds: usize,
     /// Minutes per evaluation episode (paper: 15).
@@ -91,7 +91,7 @@ fn one_fish() -> u32 {
 }
 
 /// A training budget that replaces the PPO preset's for some models
-/// ([`StudyConfig::learned_fish_budget`]).
+/// ([`StudyConfig::expensive_fish_budget`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Budget {
@@ -139,7 +139,7 @@ impl StudyConfig {
             ppo_preset: "paper".into(),
             train_steps: None,
             ppo_epochs: None,
-            learned_fish_budget: None,
+            expensive_fish_budget: None,
             extra_seeds: 5,
             episode_minutes: 15.0,
             sim_trials: 18,
@@ -196,17 +196,18 @@ impl StudyConfig {
     }
 
     /// The PPO settings of the training runs of `model`: the PPO preset for that model with the
-    /// study's overrides of steps and epochs, and for a learned fish its
-    /// [`StudyConfig::learned_fish_budget`] if set (None: an unknown PPO preset).
+    /// study's overrides of steps and epochs, and for an expensive fish its
+    /// [`StudyConfig::expensive_fish_budget`] if set (None: an unknown PPO preset).
     pub fn ppo(&self, model: &ModelSpec) -> Option<fishprobe_learn::PpoConfig> {
-        let mut ppo = fishprobe_learn::PpoConfig::preset_for(&self.ppo_preset, model.is_learned())?;
+        let mut ppo =
+            fishprobe_learn::PpoConfig::preset_for(&self.ppo_preset, model.is_expensive())?;
         if let Some(n) = self.train_steps {
             ppo.total_timesteps = n;
         }
         if let Some(e) = self.ppo_epochs {
             ppo.num_sgd_iter = e;
         }
-        if let Some(b) = self.learned_fish_budget.filter(|_| model.is_learned()) {
+        if let Some(b) = self.expensive_fish_budget.filter(|_| model.is_expensive()) {
             ppo.total_timesteps = b.train_steps;
             ppo.num_sgd_iter = b.ppo_epochs;
         }
@@ -326,8 +327,8 @@ pub struct StudyFile {
     pub train_steps: Option<u64>,
     /// See [`StudyConfig::ppo_epochs`].
     pub ppo_epochs: Option<usize>,
-    /// See [`StudyConfig::learned_fish_budget`].
-    pub learned_fish_budget: Option<Budget>,
+    /// See [`StudyConfig::expensive_fish_budget`].
+    pub expensive_fish_budget: Option<Budget>,
     /// See [`StudyConfig::extra_seeds`].
     pub extra_seeds: Option<usize>,
     /// See [`StudyConfig::episode_minutes`].
@@ -410,8 +411,8 @@ impl StudyFile {
         if self.ppo_epochs.is_some() {
             c.ppo_epochs = self.ppo_epochs;
         }
-        if self.learned_fish_budget.is_some() {
-            c.learned_fish_budget = self.learned_fish_budget;
+        if self.expensive_fish_budget.is_some() {
+            c.expensive_fish_budget = self.expensive_fish_budget;
         }
         if let Some(v) = self.extra_seeds {
             c.extra_seeds = v;
@@ -478,7 +479,7 @@ mod tests {
     }
 
     #[test]
-    fn learned_fish_train_at_their_own_budget_in_the_paper_preset() {
+    fn expensive_fish_train_at_their_own_budget_in_the_paper_preset() {
         let paper = StudyConfig::preset("paper").unwrap();
         let spec = |n: &str| ModelSpec::by_name(n).unwrap();
         let zone = paper.ppo(&spec("Zone")).unwrap();
@@ -488,7 +489,7 @@ mod tests {
             (convnet.total_timesteps, convnet.num_sgd_iter),
             (832_300, 10)
         );
-        // Everything else of the learned fish's PPO is the preset's.
+        // Everything else of the expensive fish's PPO is the preset's.
         assert_eq!(
             fishprobe_learn::PpoConfig {
                 total_timesteps: zone.total_timesteps,
@@ -497,13 +498,13 @@ mod tests {
             },
             zone
         );
-        // A file's budget reaches every model; its learned-fish budget only those.
+        // A file's budget reaches every model; its expensive-fish budget only those.
         let c = toml_like(r#"{"train_steps": 9000}"#)
             .apply("paper")
             .unwrap();
         assert_eq!(c.ppo(&spec("ConvNet")).unwrap().total_timesteps, 9000);
         let c = toml_like(
-            r#"{"train_steps": 9000, "learned_fish_budget": {"train_steps": 5000, "ppo_epochs": 4}}"#,
+            r#"{"train_steps": 9000, "expensive_fish_budget": {"train_steps": 5000, "ppo_epochs": 4}}"#,
         )
         .apply("paper")
         .unwrap();
@@ -515,7 +516,7 @@ mod tests {
             (z.total_timesteps, cn.total_timesteps, cn.num_sgd_iter),
             (9000, 5000, 4)
         );
-        // Other presets train every model alike; `learned_fish_budget` is a file's choice.
+        // Other presets train every model alike; `expensive_fish_budget` is a file's choice.
         for p in ["published", "quick", "smoke"] {
             let c = StudyConfig::preset(p).unwrap();
             assert_eq!(c.ppo(&spec("ConvNet")), c.ppo(&spec("Follow")), "{p}");
@@ -523,11 +524,11 @@ mod tests {
         // Budgets out of range are refused before any work, naming the field.
         for (json, field) in [
             (
-                r#"{"learned_fish_budget": {"train_steps": 5000, "ppo_epochs": 0}}"#,
+                r#"{"expensive_fish_budget": {"train_steps": 5000, "ppo_epochs": 0}}"#,
                 "model `ConvNet`: invalid configuration: `ppo.num_sgd_iter` = 0",
             ),
             (
-                r#"{"learned_fish_budget": {"train_steps": 0, "ppo_epochs": 2}}"#,
+                r#"{"expensive_fish_budget": {"train_steps": 0, "ppo_epochs": 2}}"#,
                 "model `ConvNet`",
             ),
             (
@@ -544,7 +545,7 @@ mod tests {
             assert!(e.contains(field), "{json}: {e}");
         }
         let bad: Result<StudyFile, _> =
-            serde_json::from_str(r#"{"learned_fish_budget": {"train_steps": 5000}}"#);
+            serde_json::from_str(r#"{"expensive_fish_budget": {"train_steps": 5000}}"#);
         assert!(bad.is_err());
     }
 

@@ -296,11 +296,11 @@ mod tests {
         let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
         let paper = StudyConfig::preset("paper").unwrap();
         let base = plan(paper.clone());
-        // Setting the epochs the preset already has, and the learned fish's budget the preset
+        // Setting the epochs the preset already has, and the expensive fish's budget the preset
         // already gives them, changes nothing.
         let mut same = paper.clone();
         same.ppo_epochs = Some(2);
-        same.learned_fish_budget = Some(crate::config::Budget {
+        same.expensive_fish_budget = Some(crate::config::Budget {
             train_steps: 832_300,
             ppo_epochs: 10,
         });

@@ -325,7 +325,7 @@ fn with<T: serde::Serialize + serde::de::DeserializeOwned>(base: &T, over: &Valu
 fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
     spec.validate()?;
-    let Some(base_ppo) = PpoConfig::preset_for(&a.preset, spec.is_learned()) else {
+    let Some(base_ppo) = PpoConfig::preset_for(&a.preset, spec.is_expensive()) else {
         bail!("unknown --preset `{}`", a.preset);
     };
     let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)()))?;

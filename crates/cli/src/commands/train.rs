@@ -100,9 +100,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
             }
             settings.env.task.ood_goal_weight = w;
         }
-        // The preset for this fish (the `paper` preset trains a learned fish's policy at the
+        // The preset for this fish (the `paper` preset trains an expensive fish's policy at the
         // published budget), then the overrides.
-        let mut ppo = PpoConfig::preset_for(&a.preset, settings.fish.is_learned())
+        let mut ppo = PpoConfig::preset_for(&a.preset, settings.fish.is_expensive())
             .context("preset checked")?;
         if let Some(p) = &a.ppo {
             ppo = ppo_overrides(ppo, p)?;
