@@ -88,3 +88,14 @@ def test_a_second_writer_is_refused(tmp_path):
     assert not (out / "params.json").exists()
     fishprobe.train("Zone", out, preset="smoke", steps=1024, callback=None)
     assert (out / "policy.safetensors").exists()
+
+
+def test_the_paper_preset_trains_a_python_fish_at_the_published_budget(tmp_path):
+    """A Python fish costs a call every frame: the `paper` preset gives its policy the
+    published 832,300 steps at 10 epochs, a rule-based fish's eight times the steps at 2."""
+    tiny = {"train_batch_size": 64, "num_envs": 16, "sgd_minibatch_size": 32, "hidden": [8]}
+    for model, epochs in ((Attractor(), 10), ("Zone", 2)):
+        out = tmp_path / str(epochs)
+        fishprobe.train(model, out, preset="paper", steps=64, ppo=tiny, callback=None)
+        ppo = json.loads((out / "params.json").read_text())["ppo"]
+        assert ppo["num_sgd_iter"] == epochs, model

@@ -390,3 +390,41 @@ fn a_ppo_file_overrides_the_preset_field_by_field() {
         assert!(!e.contains("panicked"), "{e}");
     }
 }
+
+#[test]
+fn the_paper_preset_trains_an_expensive_fish_at_the_published_budget() {
+    // A tiny network and batch, so that one iteration against M_ConvNet is quick; the steps
+    // and epochs the preset chose for each fish are what params.json records.
+    let d = fresh_dir("paper-budget");
+    let file = d.join("tiny.toml");
+    std::fs::write(
+        &file,
+        "train_batch_size = 64\nnum_envs = 16\nsgd_minibatch_size = 32\nhidden = [8]\n",
+    )
+    .unwrap();
+    // The steps are set here to keep the run short; `PpoConfig::preset_for`'s own test checks
+    // the preset's steps for both kinds of fish.
+    for (model, epochs) in [("Zone", 2), ("ConvNet", 10)] {
+        let out = d.join(model);
+        let o = fishprobe(&[
+            "train",
+            "--model",
+            model,
+            "--preset",
+            "paper",
+            "--ppo",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--steps",
+            "64",
+        ]);
+        assert!(o.status.success(), "{model}: {}", stderr(&o));
+        let params: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("params.json")).unwrap())
+                .unwrap();
+        assert_eq!(params["ppo"]["num_sgd_iter"], epochs, "{model}");
+        assert_eq!(params["ppo"]["total_timesteps"], 64, "{model}");
+        assert_eq!(params["ppo"]["hidden"], serde_json::json!([8]), "{model}");
+    }
+}
