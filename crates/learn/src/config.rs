@@ -176,13 +176,15 @@ impl PpoConfig {
                 "must lie in [1, train_batch_size]",
             ));
         }
-        if self.num_sgd_iter == 0 || self.total_timesteps == 0 || self.checkpoint_every == 0 {
-            return Err(ConfigError::new(
-                p,
-                "num_sgd_iter",
-                self.num_sgd_iter,
-                "num_sgd_iter, total_timesteps and checkpoint_every must be at least 1",
-            ));
+        // Each count named on its own, so the message points at the field that is zero.
+        for (field, v) in [
+            ("num_sgd_iter", self.num_sgd_iter as u64),
+            ("total_timesteps", self.total_timesteps),
+            ("checkpoint_every", self.checkpoint_every as u64),
+        ] {
+            if v == 0 {
+                return Err(ConfigError::new(p, field, v, "must be at least 1"));
+            }
         }
         if self.hidden.is_empty()
             || self.hidden.len() > Self::MAX_HIDDEN_LAYERS

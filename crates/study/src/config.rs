@@ -529,7 +529,7 @@ mod tests {
             ),
             (
                 r#"{"expensive_fish_budget": {"train_steps": 0, "ppo_epochs": 2}}"#,
-                "model `ConvNet`",
+                "model `ConvNet`: invalid configuration: `ppo.total_timesteps` = 0",
             ),
             (
                 r#"{"train_steps": 99000000000000}"#,
