@@ -37,9 +37,9 @@ fishprobe_sim::documented_params! {
         /// network to each batch, the advantages become noise, and π_Zone and π_Force do not
         /// learn; with 10 they do (docs/validation.md, "Does it learn?"), and more data with
         /// fewer passes does better still: at the same update work, four times the steps at 3
-        /// epochs beat the published steps at 10, and eight times at 2 (the default, see
-        /// [`PpoConfig::total_timesteps`]) made every rule-based probe competent
-        /// (docs/validation.md, "The fidelity sweep"). No reading under which the published 100
+        /// epochs did about as well as four times at 10, and eight times at 2 (the default,
+        /// see [`PpoConfig::total_timesteps`]) did best (docs/validation.md, "The fidelity
+        /// sweep"). No reading under which the published 100
         /// epochs learn was found.
         pub num_sgd_iter: usize = 2; "epochs",
         /// Adam learning rate (paper: 0.00026).
@@ -94,9 +94,9 @@ impl PpoConfig {
     /// steps at 2 epochs per batch and a bounded log-s.d., see [`PpoConfig::total_timesteps`],
     /// [`PpoConfig::num_sgd_iter`] and [`PpoConfig::log_std_max`]), `published` (exactly the
     /// published settings, 832,300 steps at 100 epochs per batch, with RLlib's unbounded
-    /// log-s.d.), `quick` (200,000 steps at 10 epochs, for a first look in minutes: with so
-    /// few steps, more passes over each batch learn more), `smoke` (a few thousand steps of a
-    /// small network, for tests).
+    /// log-s.d.), `quick` (200,000 steps at 10 epochs, as before the `paper` preset's budget
+    /// changed, for a first look in minutes), `smoke` (a few thousand steps of a small
+    /// network, for tests).
     pub fn preset(name: &str) -> Option<Self> {
         let paper = Self::default();
         match name {
@@ -307,13 +307,16 @@ mod tests {
             .contains("log_std_max"));
         for name in ["paper", "published", "quick", "smoke"] {
             PpoConfig::preset(name).unwrap().validate().unwrap();
-            let learned = PpoConfig::preset_for(name, true).unwrap();
-            learned.validate().unwrap();
-            assert_eq!(learned == PpoConfig::preset(name).unwrap(), name != "paper");
+            let expensive = PpoConfig::preset_for(name, true).unwrap();
+            expensive.validate().unwrap();
+            assert_eq!(
+                expensive == PpoConfig::preset(name).unwrap(),
+                name != "paper"
+            );
         }
-        let learned = PpoConfig::preset_for("paper", true).unwrap();
+        let expensive = PpoConfig::preset_for("paper", true).unwrap();
         assert_eq!(
-            (learned.total_timesteps, learned.num_sgd_iter),
+            (expensive.total_timesteps, expensive.num_sgd_iter),
             (832_300, 10)
         );
         assert_eq!(

@@ -37,7 +37,8 @@ pub struct StudyConfig {
     /// `published`; see `fishprobe_learn::PpoConfig::num_sgd_iter` for why they differ).
     #[serde(default)]
     pub ppo_epochs: Option<usize>,
-    /// Steps and epochs of the policies of expensive fish (M_ConvNet, ONNX models), in place of
+    /// Steps and epochs of the policies of expensive fish (M_ConvNet, ONNX and Python models,
+    /// `ModelSpec::is_expensive`), in place of
     /// the budget above (None, every preset: the PPO preset's for such a fish, which for
     /// `paper` is 832,300 steps at 10 epochs, see `fishprobe_learn::PpoConfig::preset_for`,
     /// with the study's `train_steps` and `ppo_epochs`).

@@ -61,9 +61,6 @@ struct Reading {
 fn none() -> Value {
     json!({})
 }
-fn no_ppo() -> Value {
-    json!({})
-}
 
 /// The paper's training steps per policy; the budget readings are multiples of it.
 const PUBLISHED: u64 = PpoConfig::PUBLISHED_TIMESTEPS;
@@ -76,7 +73,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: none,
         model: none,
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "robot-reaches",
@@ -84,7 +81,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: || json!({"task": {"training_goal_reached_by": "robot"}}),
         model: none,
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "either-reaches",
@@ -92,7 +89,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: || json!({"task": {"training_goal_reached_by": "either"}}),
         model: none,
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "zone-radii",
@@ -100,7 +97,7 @@ const READINGS: &[Reading] = &[
         models: &["Zone"],
         env: none,
         model: || json!({"zone_convention": "radii"}),
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "force-noise-per-frame",
@@ -108,7 +105,7 @@ const READINGS: &[Reading] = &[
         models: &["Force"],
         env: none,
         model: || json!({"noise_convention": "per_frame"}),
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "force-noise-std-dev",
@@ -116,7 +113,7 @@ const READINGS: &[Reading] = &[
         models: &["Force"],
         env: none,
         model: || json!({"noise_convention": "std_dev"}),
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "follow-4cm-s",
@@ -124,7 +121,7 @@ const READINGS: &[Reading] = &[
         models: &["Follow"],
         env: none,
         model: || json!({"speed_cm_s": 4.0}),
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "follow-6.3cm-s",
@@ -132,7 +129,7 @@ const READINGS: &[Reading] = &[
         models: &["Follow"],
         env: none,
         model: || json!({"speed_cm_s": 6.3}),
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "lab-start",
@@ -140,7 +137,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: || json!({"task": {"training_start": "lab"}}),
         model: none,
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "mixed-start",
@@ -148,7 +145,7 @@ const READINGS: &[Reading] = &[
         models: &[],
         env: || json!({"task": {"training_start": "mixed", "lab_start_share": 0.5}}),
         model: none,
-        ppo: no_ppo,
+        ppo: none,
     },
     Reading {
         name: "time-limit-terminal",
