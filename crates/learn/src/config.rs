@@ -68,8 +68,9 @@ fishprobe_sim::documented_params! {
         /// log-s.d. Without a bound, wherever the best turn is about ±π (the goal behind the
         /// robot) the policy widens its Gaussian until its samples clip to ±π whatever the
         /// mean, and the mean itself (the action used in evaluation) is left untrained there;
-        /// with the bound the mean carries the turn. Above the bound the log-s.d. gets no
-        /// gradient (a clamp). In a `--ppo` file, `null` (JSON) or `inf` (TOML) means no bound.
+        /// with the bound the mean carries the turn. Above the bound only a gradient that
+        /// lowers the log-s.d. reaches the network (a plain clamp, which passes none, held
+        /// π_Zone's seed 0 at the widest Gaussian for a whole run). In a `--ppo` file, `null` (JSON) or `inf` (TOML) means no bound.
         /// The measurements: the validation record (docs/validation.md, "Does it learn?").
         pub log_std_max: Option<f32> = Some(0.0); "ln(normalised action units)",
         /// Hidden layers of the policy and the (separate) value network (RLlib default

@@ -44,3 +44,10 @@ pub use evaluate::{
 };
 pub use policy::{to_env_action, GaussianPolicy};
 pub use trainer::{IterationStats, RunSpec, Trainer};
+
+/// The trainer's revision: raised when a fix makes runs of earlier revisions wrong with the
+/// same settings, so that a study retrains the policies it made before (its training steps
+/// hash this number with their settings). 2: above the log-s.d. bound a gradient that lowers
+/// the log-s.d. passes (`ppo`); under revision 1 a run could stay at the widest Gaussian for
+/// good (docs/validation.md, "The log-s.d. bound was a trap").
+pub const TRAINER_REVISION: u32 = 2;

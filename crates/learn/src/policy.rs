@@ -30,8 +30,9 @@ pub struct GaussianPolicy {
     pub log_std_max: Option<f32>,
 }
 
-/// `raw` limited to `max` (`None`: unlimited). Above the bound the log-s.d. is constant, so
-/// it gets no gradient there.
+/// `raw` limited to `max` (`None`: unlimited). Above the bound the log-s.d. is constant; the
+/// PPO update still lets through a gradient that lowers `raw`, so the bound is a cap the
+/// policy can leave, not a trap (`ppo::above_bound_gradient`).
 #[inline]
 pub fn bounded_log_std(raw: f32, max: Option<f32>) -> f32 {
     match max {

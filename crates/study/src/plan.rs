@@ -119,9 +119,11 @@ impl StepKind {
             }
             // The resolved PPO settings, not the preset's name: a preset whose values change
             // (the `paper` preset's epochs went from 100 to 10) must not pass for the old one.
+            // And the trainer's revision: a fixed trainer retrains what the broken one made.
             StepKind::Train { m, k } => {
                 serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
-                    "ppo": c.ppo(&c.models[*m].spec)})
+                    "ppo": c.ppo(&c.models[*m].spec),
+                    "trainer": fishprobe_learn::TRAINER_REVISION})
             }
             StepKind::Eval { p, m } => {
                 serde_json::json!({"eval": [study.name(*p), model(*m)], "seed": c.seed,
@@ -326,5 +328,13 @@ mod tests {
         // hash held only the preset's name, no longer passes for a `paper` training.
         let follow = base.iter().find(|s| s.id == "train-Follow-0").unwrap();
         assert_ne!(format!("{:016x}", follow.hash), "7b2a1ef96103b6b1");
+        // The trainer's revision is hashed too: policies of a broken trainer are retrained.
+        let s = Study::new("/tmp/x".into(), paper, None).unwrap();
+        let train = StepKind::Train { m: 0, k: 0 }.inputs(&s);
+        assert_eq!(train["trainer"], fishprobe_learn::TRAINER_REVISION);
+        assert!(StepKind::Baseline { m: 0 }
+            .inputs(&s)
+            .get("trainer")
+            .is_none());
     }
 }

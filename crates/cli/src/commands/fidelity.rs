@@ -332,7 +332,8 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     // A finished cell is read back only if it was made with these settings (a default that
     // changed since, or another --preset, must not pass for this reading).
     let settings = json!({"ppo": ppo, "env": env, "model": spec, "episodes": a.episodes,
-        "approach_episodes": a.approach_episodes, "seed": a.seed});
+        "approach_episodes": a.approach_episodes, "seed": a.seed,
+        "trainer": fishprobe_learn::TRAINER_REVISION});
     // As the file will hold it (an f32 becomes its shortest decimal there).
     let settings: Value = serde_json::from_str(&serde_json::to_string(&settings)?)?;
     let done = dir.join("cell.json");
@@ -343,7 +344,8 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
             }
             bail!(
                 "{} holds a cell made with other settings (another --preset, --episodes or \
-                 --seed, or fishprobe's defaults changed since): use another --out or remove it",
+                 --seed, or fishprobe's defaults or trainer changed since): use another --out \
+                 or remove it",
                 dir.display()
             );
         }
