@@ -168,6 +168,7 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
     stability(&mut res, study, &loaded, &mut skipped, cfg, seed);
     crate::approach::approach(&mut res, study, &mut skipped, cfg);
     crate::competence::competence(&mut res, study, &policies, &loaded, &mut skipped, cfg);
+    crate::seeds::seeds(&mut res, study, &loaded, &mut skipped, cfg);
     skipped.sort_by(|a, b| a.what.cmp(&b.what));
     skipped.dedup();
     res.skipped = skipped;

@@ -11,9 +11,10 @@ use crate::trial::TrialData;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
+pub(crate) type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
 
-fn mean_goals(files: &[PathBuf], loaded: &Loaded) -> Option<(f64, usize)> {
+/// Mean goals per valid trial of `files`, and how many trials that is (none without any).
+pub(crate) fn mean_goals(files: &[PathBuf], loaded: &Loaded) -> Option<(f64, usize)> {
     let goals: Vec<f64> = files
         .iter()
         .filter_map(|f| loaded.get(f)?.as_ref().ok())

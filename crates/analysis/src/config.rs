@@ -36,6 +36,13 @@ fishprobe_sim::documented_params! {
         /// fraction of the best scripted controller's is flagged as a weak probe, whose
         /// strategy reflects the optimiser as much as the model (choice, issue 20: 0.8).
         pub competence_threshold: f64 = 0.8; "1",
+        /// Approach assay, per training seed: a policy goes to the still fish when it comes
+        /// at least this close to it (choice, issue 20's reading of the paper's pattern:
+        /// π_Zone came within 4 cm, π_Force within 0.35 cm, π_Follow not at all; 10 cm) ...
+        pub approach_closest_cm: f64 = 10.0; "cm",
+        /// ... and is nearer the fish than the goal in at least this fraction of the frames
+        /// (choice, issue 20: 0.1; the paper's π_Zone 22.3 %, π_Force 56.1 %, π_ConvNet 4.6 %).
+        pub approach_nearer_share: f64 = 0.1; "1",
         /// Groups: a fish this close to the robot counts as within its reach for the group
         /// metric `fish_near_robot` (choice: 15 cm, M_Force's interaction range and near
         /// M_Zone's outer attraction radius of 18 cm).
@@ -80,6 +87,22 @@ impl AnalysisConfig {
                 "ci_level",
                 self.ci_level,
                 "must lie in (0, 1)",
+            ));
+        }
+        if !(self.approach_closest_cm > 0.0 && self.approach_closest_cm.is_finite()) {
+            return Err(ConfigError::new(
+                "analysis",
+                "approach_closest_cm",
+                self.approach_closest_cm,
+                "must be a positive distance",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.approach_nearer_share) {
+            return Err(ConfigError::new(
+                "analysis",
+                "approach_nearer_share",
+                self.approach_nearer_share,
+                "must lie in [0, 1]",
             ));
         }
         check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)?;

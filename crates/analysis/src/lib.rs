@@ -22,6 +22,7 @@ pub mod error;
 pub mod offline;
 pub mod ood;
 pub mod results;
+pub mod seeds;
 pub mod study;
 pub mod trial;
 

@@ -42,9 +42,11 @@ mod nan {
 }
 
 /// Every file `write_results` can write, in the order a reader meets them.
-pub const OUTPUT_FILES: [&str; 12] = [
+pub const OUTPUT_FILES: [&str; 14] = [
     fishprobe_io::layout::RESULTS_FILE,
     "summary.md",
+    "competence.csv",
+    "seeds.csv",
     "goals.csv",
     "sim_to_real.csv",
     "metric_gaps.csv",
@@ -217,6 +219,32 @@ pub struct Approach {
     pub episodes: usize,
 }
 
+/// One training seed of a policy: how well it leads its own model's fish and whether it goes
+/// to the still fish of the approach assay (`crate::seeds`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SeedProbe {
+    /// The seed's name in the study (`seed0` is the policy itself).
+    #[serde(default)]
+    pub seed: String,
+    /// Mean goals per stability episode on its own model (NaN, written null, without them).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub goals: f64,
+    /// Stability episodes behind `goals`.
+    #[serde(default)]
+    pub episodes: usize,
+    /// `goals` over the best scripted controller's mean goals on the model's evaluation
+    /// episodes (the same kind of episode, not the same ones; NaN without baselines).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub ratio: f64,
+    /// Its approach assay, when the study ran one for this seed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub approach: Option<Approach>,
+    /// It goes to the still fish: closest at most `approach_closest_cm` and nearer the fish
+    /// than the goal at least `approach_nearer_share` of the frames (false without an assay).
+    #[serde(default)]
+    pub goes_to_fish: bool,
+}
+
 /// Retraining stability.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StabilityOut {
@@ -283,6 +311,10 @@ pub struct Results {
     /// Policy → probe competence (its goals next to the scripted controllers').
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub competence: BTreeMap<String, Competence>,
+    /// Policy → its training seeds in order (seed 0 first): competence and approach assay of
+    /// each, for studies with more than one seed.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub seeds: BTreeMap<String, Vec<SeedProbe>>,
     /// Retraining stability.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stability: Option<StabilityOut>,
@@ -302,7 +334,7 @@ fn csv_escape(s: &str) -> String {
     }
 }
 
-fn table(header: &[&str], rows: Vec<Vec<String>>) -> String {
+pub(crate) fn table(header: &[&str], rows: Vec<Vec<String>>) -> String {
     let mut out = header.join(",") + "\n";
     for r in rows {
         out += &r
@@ -315,7 +347,7 @@ fn table(header: &[&str], rows: Vec<Vec<String>>) -> String {
     out
 }
 
-fn f(x: f64) -> String {
+pub(crate) fn f(x: f64) -> String {
     if x.is_finite() {
         format!("{x}")
     } else {
@@ -591,6 +623,9 @@ impl Results {
                 ),
             ));
         }
+        if !self.seeds.is_empty() {
+            out.push(("seeds.csv", crate::seeds::csv(&self.seeds)));
+        }
         if let Some(s) = &self.stability {
             out.push((
                 "stability.csv",
@@ -666,6 +701,9 @@ impl Results {
                 );
             }
             s.push('\n');
+        }
+        if !self.seeds.is_empty() {
+            s += &crate::seeds::summary_markdown(&self.seeds, &self.config);
         }
         if !self.mean_ranks.is_empty() {
             let over = if self.metric_gaps.len() > crate::METRICS.len() {

@@ -4,6 +4,7 @@
 //! ```text
 //! STUDY/rollouts/<Policy>__<RolloutModel>/*.hdf5   e.g. Zone__Zone, Zone__Force, Zone__Real
 //! STUDY/approach_test/<Policy>/*.hdf5             (or files naming their policy)
+//! STUDY/approach_stability/<Model>/<seed>/*.hdf5   the assay of the extra seeds
 //! STUDY/stability/<Model>/<seed>/*.hdf5
 //! ```
 //!
@@ -26,6 +27,8 @@ pub struct StudyFiles {
     /// Approach-assay files: policy (from the directory; empty when it must come from the
     /// file) → files.
     pub approach: BTreeMap<String, Vec<PathBuf>>,
+    /// Approach-assay files of the extra training seeds: model → seed → files.
+    pub approach_seeds: BTreeMap<String, BTreeMap<String, Vec<PathBuf>>>,
     /// Retraining stability: model → seed → files.
     pub stability: BTreeMap<String, BTreeMap<String, Vec<PathBuf>>>,
     /// Scripted baselines: model → controller → files (on the model's own evaluation episodes).
@@ -95,6 +98,7 @@ impl StudyFiles {
                 s.approach.insert(name_of(&d), trial_files(&d));
             }
         }
+        s.approach_seeds = two_levels(&layout.approach_stability_root());
         s.stability = two_levels(&layout.stability_root());
         s.baselines = two_levels(&layout.baselines_root());
         if s.rollouts.is_empty() && s.approach.is_empty() && s.stability.is_empty() {

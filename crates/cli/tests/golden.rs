@@ -47,7 +47,10 @@ use std::path::{Path, PathBuf};
 /// digest stayed 5f7b3f96…). Then 98759d7a… until the log-s.d. bound stopped trapping the
 /// policy (issue 20: above the bound a gradient that lowers the log-s.d. passes; the smoke
 /// policies start with about half their states above it, so every policy's trials changed).
-const GOLDEN: &str = "babfa8caf8c1df99";
+/// Then babfa8ca… until every training seed's policy got its approach assay (issue 20:
+/// `approach_stability/` trial files joined the digest, `seeds` and two analysis settings
+/// joined results.json).
+const GOLDEN: &str = "db63f14ed88f9670";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
@@ -57,8 +60,8 @@ const GOLDEN: &str = "babfa8caf8c1df99";
 /// default speed became 4 cm/s (its trials, and so the figures, changed); 1f452965… until
 /// M_ConvNet stayed off the walls (issue 20, item 4: its trials, and so the figures, changed);
 /// 5f7b3f96… until the log-s.d. bound stopped trapping the policy (every policy's trials
-/// changed).
-const GOLDEN_REPORT: &str = "e6019e8e37c81a8c";
+/// changed); e6019e8e… until the "Every training seed" table joined the report and summary.
+const GOLDEN_REPORT: &str = "ccd1f03babfdd91f";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {
@@ -105,7 +108,7 @@ fn digest(study: &Path) -> (String, usize) {
         }
     }
     let mut files = Vec::new();
-    for top in ["rollouts", "approach_test", "stability"] {
+    for top in ["rollouts", "approach_test", "approach_stability", "stability"] {
         walk(&study.join(top), &mut files);
     }
     files.sort();

@@ -33,6 +33,7 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
         "rollouts/Zone__Force",
         "rollouts/Follow__VirtualLab",
         "approach_test/ConvNet",
+        "approach_stability/Zone/seed1",
         "stability/Follow/seed1",
         "analysis/results.json",
         "report/index.html",
@@ -55,15 +56,34 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
         assert!(a.join(format!("baselines/{p}/FetchAndLead")).is_dir());
     }
     assert!(a.join("analysis/competence.csv").is_file());
+    // Every training seed of every policy: its competence and its approach assay.
+    for p in ["Follow", "Zone", "Force", "ConvNet"] {
+        let seeds = r["seeds"][p].as_array().unwrap();
+        let names: Vec<&str> = seeds.iter().map(|s| s["seed"].as_str().unwrap()).collect();
+        assert_eq!(names, ["seed0", "seed1"], "{p}");
+        for s in seeds {
+            assert!(
+                s["ratio"].is_number() && s["goes_to_fish"].is_boolean(),
+                "{s}"
+            );
+            assert_eq!(s["approach"]["episodes"], 2, "{s}");
+        }
+        assert_eq!(
+            seeds[0]["approach"], r["approach"][p],
+            "seed 0's assay is the policy's"
+        );
+    }
+    assert!(a.join("analysis/seeds.csv").is_file());
     let html = std::fs::read_to_string(a.join("report/index.html")).unwrap();
     assert!(html.contains("id=\"virtual\""));
     assert!(html.contains("id=\"competence\""));
+    assert!(html.contains("id=\"seeds\"") && html.contains("seeds.csv"));
     // A rerun finds everything complete and changes nothing.
     let before = results(&a);
     let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
-        stderr(&o).contains("46 steps, 46 complete"),
+        stderr(&o).contains("50 steps, 50 complete"),
         "{}",
         stderr(&o)
     );
@@ -83,7 +103,7 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let err = stderr(&o);
-    assert!(!err.contains("46 steps, 46 complete"), "{err}");
+    assert!(!err.contains("50 steps, 50 complete"), "{err}");
     assert!(lost.is_file(), "the lost trial was not redone");
     assert!(!stranger.exists(), "the stranger is still there");
     assert_eq!(

@@ -10,6 +10,7 @@
 //! STUDY/rollouts/<Policy>__<Model>/             evaluation episodes (an "arm")
 //! STUDY/rollouts/<Policy>__Real/                live trials;  <Policy>__VirtualLab/: virtual lab
 //! STUDY/approach_test/<Policy>/                 approach-assay episodes
+//! STUDY/approach_stability/<Model>/seed<k>/     ... of the extra seeds' policies
 //! STUDY/baselines/<Model>/<Controller>/         scripted baselines on the model's own episodes
 //! STUDY/stability/<Model>/seed<k>/              stability episodes
 //! STUDY/analysis/results.json, STUDY/report/    results and report
@@ -72,9 +73,10 @@ pub const REALITY_ARMS: [&str; 2] = [REAL, VIRTUAL_LAB];
 pub const ARM_SEPARATOR: &str = "__";
 
 /// The top-level directories that hold the outputs of study steps.
-pub const STEP_OUTPUT_DIRS: [&str; 6] = [
+pub const STEP_OUTPUT_DIRS: [&str; 7] = [
     "rollouts",
     "approach_test",
+    "approach_stability",
     "baselines",
     "policies",
     "policies_stability",
@@ -85,7 +87,7 @@ pub const STEP_OUTPUT_DIRS: [&str; 6] = [
 pub const RESULTS_FILE: &str = "results.json";
 
 /// Of [`STEP_OUTPUT_DIRS`], those with one directory per model and seed (two levels).
-pub const SEEDED_DIRS: [&str; 2] = ["policies_stability", "stability"];
+pub const SEEDED_DIRS: [&str; 3] = ["policies_stability", "stability", "approach_stability"];
 
 /// Paths of a study directory.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -166,6 +168,24 @@ impl StudyLayout {
     /// `approach_test/<policy>/`.
     pub fn approach(&self, policy: &str) -> PathBuf {
         self.approach_root().join(policy)
+    }
+
+    /// `approach_stability/`.
+    pub fn approach_stability_root(&self) -> PathBuf {
+        self.root.join("approach_stability")
+    }
+
+    /// The approach-assay episodes of `model`'s training run `k`: `approach_test/<model>/` for
+    /// seed 0 (the policy), `approach_stability/<model>/seed<k>/` for the others (as
+    /// [`StudyLayout::policy`]).
+    pub fn approach_seed(&self, model: &str, k: usize) -> PathBuf {
+        if k == 0 {
+            self.approach(model)
+        } else {
+            self.approach_stability_root()
+                .join(model)
+                .join(format!("seed{k}"))
+        }
     }
 
     /// `baselines/`.
@@ -280,6 +300,11 @@ mod tests {
             p("S/rollouts/Zone__VirtualLab")
         );
         assert_eq!(s.approach("Zone"), p("S/approach_test/Zone"));
+        assert_eq!(s.approach_seed("Zone", 0), p("S/approach_test/Zone"));
+        assert_eq!(
+            s.approach_seed("Zone", 2),
+            p("S/approach_stability/Zone/seed2")
+        );
         assert_eq!(s.baselines("Zone"), p("S/baselines/Zone"));
         assert_eq!(s.stability("Force", 2), p("S/stability/Force/seed2"));
         assert_eq!(s.policy("Force", 0), p("S/policies/Force"));

@@ -662,6 +662,74 @@ impl Page<'_> {
         if !self.fig(o, "approach") && approach.is_none() {
             o.push_str("<p class=\"missing\">No approach-assay episodes (<code>approach_test/&lt;Policy&gt;/</code>).</p>\n");
         }
+        self.seeds(o);
+    }
+
+    /// Every training seed: competence and the approach assay of each, so that a strategy
+    /// seed 0 happens to find (or miss) is told from the model's.
+    fn seeds(&self, o: &mut String) {
+        let Some(r) = self.data.results.as_ref().filter(|r| !r.seeds.is_empty()) else {
+            return;
+        };
+        let cfg = &r.config;
+        o.push_str("<h3 id=\"seeds\">Every training seed</h3>\n<p>The table and figure above show each policy, seed 0. The study trains every model's policy with more seeds (retraining stability); here each of them on its own model (goals per stability episode, against the best scripted controller's goals on the model's evaluation episodes) and in the approach assay. ");
+        let _ = write!(
+            o,
+            "A seed goes to the still fish when it comes within {} cm of it and is nearer it than the goal at least {:.0} % of the time.",
+            cfg.approach_closest_cm,
+            100.0 * cfg.approach_nearer_share
+        );
+        let counts: Vec<String> = r
+            .seeds
+            .iter()
+            .filter_map(|(p, rows)| {
+                let (yes, of) = fishprobe_analysis::seeds::approach_count(rows);
+                (of > 0).then(|| format!("π_{p} in {yes} of {of}"))
+            })
+            .collect();
+        if !counts.is_empty() {
+            let _ = write!(
+                o,
+                " Seeds that go to the fish: {}.",
+                esc(&counts.join("; "))
+            );
+        }
+        o.push_str("</p>\n");
+        let rows: Vec<Vec<String>> = r
+            .seeds
+            .iter()
+            .flat_map(|(p, rows)| {
+                rows.iter().map(move |s| {
+                    let a = s.approach.as_ref();
+                    vec![
+                        format!("π_{p}"),
+                        s.seed.clone(),
+                        f(s.goals, 1),
+                        f(s.ratio, 2),
+                        a.map_or("–".into(), |a| f(a.min_iid, 1)),
+                        a.map_or("–".into(), |a| f(a.frac_closer_to_fish, 3)),
+                        match (a, s.goes_to_fish) {
+                            (None, _) => "–".into(),
+                            (Some(_), true) => "yes".into(),
+                            (Some(_), false) => "no".into(),
+                        },
+                    ]
+                })
+            })
+            .collect();
+        table(
+            o,
+            &[
+                "policy",
+                "seed",
+                "goals (stability)",
+                "ratio to best scripted",
+                "min distance to fish (cm)",
+                "fraction closer to fish than goal",
+                "goes to the fish",
+            ],
+            &rows,
+        );
     }
 
     /// Retraining stability.

@@ -29,10 +29,13 @@ pub enum StepKind {
         /// Model index.
         m: usize,
     },
-    /// The approach assay of policy `p`.
+    /// The approach assay of model `p`'s training run `k` (0: the policy; more: stability
+    /// seeds, so that a strategy one seed happens to find is told from the model's).
     Approach {
-        /// Policy index.
+        /// Policy (model) index.
         p: usize,
+        /// Seed index.
+        k: usize,
     },
     /// Stability episodes of training run `k` of model `m`.
     Stability {
@@ -72,7 +75,8 @@ impl StepKind {
             StepKind::FitConvnet => "fit-convnet".into(),
             StepKind::Train { m, k } => format!("train-{}-{k}", study.name(*m)),
             StepKind::Eval { p, m } => format!("eval-{}__{}", study.name(*p), study.name(*m)),
-            StepKind::Approach { p } => format!("approach-{}", study.name(*p)),
+            StepKind::Approach { p, k: 0 } => format!("approach-{}", study.name(*p)),
+            StepKind::Approach { p, k } => format!("approach-{}-{k}", study.name(*p)),
             StepKind::Baseline { m } => format!("baseline-{}", study.name(*m)),
             StepKind::Stability { m, k } => format!("stability-{}-{k}", study.name(*m)),
             StepKind::Reality { p } => format!("reality-{}", study.name(*p)),
@@ -88,7 +92,7 @@ impl StepKind {
     pub fn inputs(&self, study: &Study) -> serde_json::Value {
         let mut v = self.own_inputs(study);
         let runs = match self {
-            StepKind::Eval { p, .. } | StepKind::Approach { p } | StepKind::Reality { p } => {
+            StepKind::Eval { p, .. } | StepKind::Approach { p, k: 0 } | StepKind::Reality { p } => {
                 Some(*p)
             }
             StepKind::Stability { m, k: 0 } => Some(*m),
@@ -136,9 +140,14 @@ impl StepKind {
                 "fetch": fishprobe_sim::FetchParams::default(), "seed": c.seed,
                 "episodes": study.eval_episodes(*m, *m), "minutes": c.episode_minutes})
             }
-            StepKind::Approach { p } => {
-                serde_json::json!({"approach": study.name(*p), "seed": c.seed,
-                "episodes": c.approach_episodes, "minutes": c.approach_minutes})
+            // Every seed meets the same episodes; seed 0's inputs are as they always were.
+            StepKind::Approach { p, k } => {
+                let mut v = serde_json::json!({"approach": study.name(*p), "seed": c.seed,
+                "episodes": c.approach_episodes, "minutes": c.approach_minutes});
+                if *k > 0 {
+                    v["k"] = serde_json::json!(k);
+                }
+                v
             }
             StepKind::Stability { m, k } => {
                 serde_json::json!({"stability": model(*m), "k": k, "seed": c.seed,
@@ -166,7 +175,7 @@ impl StepKind {
             StepKind::FitConvnet => l.convnet(),
             StepKind::Train { m, k } => l.policy(study.name(*m), *k),
             StepKind::Eval { p, m } => l.arm(study.name(*p), &sim(*m)),
-            StepKind::Approach { p } => l.approach(study.name(*p)),
+            StepKind::Approach { p, k } => l.approach_seed(study.name(*p), *k),
             StepKind::Baseline { m } => l.baselines(study.name(*m)),
             StepKind::Stability { m, k } => l.stability(study.name(*m), *k),
             StepKind::Reality { p } => l.arm(study.name(*p), &study.reality_arm()),
@@ -241,12 +250,20 @@ impl Study {
                 for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps));
             }
             for_analysis.push(add(StepKind::Baseline { m: p }, needs_fit(p), &mut steps));
-            for_analysis.push(add(StepKind::Approach { p }, policy.clone(), &mut steps));
+            for_analysis.push(add(
+                StepKind::Approach { p, k: 0 },
+                policy.clone(),
+                &mut steps,
+            ));
             for_analysis.push(add(StepKind::Reality { p }, policy, &mut steps));
         }
         for (m, row) in train.iter().enumerate() {
             for (k, t) in row.iter().enumerate() {
-                let deps = t.iter().copied().collect();
+                let deps: Vec<usize> = t.iter().copied().collect();
+                if k > 0 {
+                    let approach = StepKind::Approach { p: m, k };
+                    for_analysis.push(add(approach, deps.clone(), &mut steps));
+                }
                 for_analysis.push(add(StepKind::Stability { m, k }, deps, &mut steps));
             }
         }
@@ -268,9 +285,20 @@ mod tests {
         let cfg = StudyConfig::preset("smoke").unwrap();
         let s = Study::new("/tmp/x".into(), cfg.clone(), None).unwrap();
         let plan = s.plan();
-        // 4 models x 2 seeds trainings, 16 evals, 4 baselines, 4 approach, 4 reality, 8
+        // 4 models x 2 seeds trainings, 16 evals, 4 baselines, 4 x 2 approach, 4 reality, 8
         // stability, analyze, report.
-        assert_eq!(plan.len(), 8 + 16 + 4 + 4 + 4 + 8 + 2);
+        assert_eq!(plan.len(), 8 + 16 + 4 + 8 + 4 + 8 + 2);
+        // Seed 0's assay keeps the id and inputs it always had (existing studies resume); a
+        // stability seed's assay runs its own policy on the same episodes.
+        let ids: Vec<&str> = plan.iter().map(|st| st.id.as_str()).collect();
+        assert!(ids.contains(&"approach-Zone") && ids.contains(&"approach-Zone-1"));
+        let zero = StepKind::Approach { p: 0, k: 0 }.inputs(&s);
+        assert!(zero.get("k").is_none());
+        assert_eq!(StepKind::Approach { p: 0, k: 1 }.inputs(&s)["k"], 1);
+        assert_eq!(
+            s.output(&StepKind::Approach { p: 1, k: 1 }),
+            PathBuf::from(format!("/tmp/x/approach_stability/{}/seed1", s.name(1)))
+        );
         for (i, st) in plan.iter().enumerate() {
             assert!(st.deps.iter().all(|&d| d < i), "{} before its deps", st.id);
         }

@@ -193,7 +193,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
             Ok(())
         }),
         // SPEC §8: the robot in a corner, a motionless fish and the goal on either side.
-        StepKind::Approach { p } => staged(&out, |tmp| {
+        StepKind::Approach { p, k } => staged(&out, |tmp| {
             let mut e = fishprobe_learn::approach_assay(
                 c.approach_episodes,
                 c.approach_minutes,
@@ -202,7 +202,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
             )?;
             // One still fish, observed as the study's policies observe.
             e.env.observation.centroid_bins = c.centroid_bins;
-            fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
+            fishprobe_learn::evaluate(policy_of(study, *p, *k)?.as_ref(), &e)?;
             Ok(())
         }),
         StepKind::Stability { m, k } => staged(&out, |tmp| {
