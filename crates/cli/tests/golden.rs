@@ -108,7 +108,12 @@ fn digest(study: &Path) -> (String, usize) {
         }
     }
     let mut files = Vec::new();
-    for top in ["rollouts", "approach_test", "approach_stability", "stability"] {
+    for top in [
+        "rollouts",
+        "approach_test",
+        "approach_stability",
+        "stability",
+    ] {
         walk(&study.join(top), &mut files);
     }
     files.sort();

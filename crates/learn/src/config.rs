@@ -20,9 +20,10 @@ fishprobe_sim::documented_params! {
         /// approach pattern (closest 0.1 and 0.3 cm, half the time nearer the fish than the goal;
         /// the paper: 0.35 cm, 56.1 %), π_Zone 0.85 and 0.74 of the best script, π_Follow 0.96,
         /// where the published steps at 10 epochs gave π_Zone 0.48, π_Force 0.74 and no pattern;
-        /// in the paper study every seed-0 policy reached 0.84-0.95, π_Force found the pattern
-        /// in five of six seeds, and π_Zone's competence still varies with the seed (0.18-0.88
-        /// over nine seeds).
+        /// in the paper study every seed-0 rule-based policy reached 0.88-1.14 and over six
+        /// seeds 0.82-1.19, π_Force found the pattern in five of six seeds and π_Zone in two
+        /// (docs/validation.md, "The paper's protocol on this machine"; before the log-s.d.
+        /// bound was fixed, [`PpoConfig::log_std_max`], π_Zone's seeds gave 0.18-0.88).
         /// It costs 1.6 times the update work of 832,300 steps at 10 epochs; a rule-based fish's
         /// steps are cheap. An expensive fish's are not (a network or Python code every frame),
         /// so its policy keeps the previous budget ([`PpoConfig::preset_for`],

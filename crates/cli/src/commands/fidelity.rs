@@ -140,6 +140,14 @@ const READINGS: &[Reading] = &[
         ppo: none,
     },
     Reading {
+        name: "random-start",
+        what: "training episodes start at random poses (the default, spelt out)",
+        models: &[],
+        env: || json!({"task": {"training_start": "random"}}),
+        model: none,
+        ppo: none,
+    },
+    Reading {
         name: "mixed-start",
         what: "half the training episodes start as `lab-start`, half at random poses (to learn fetching and leading)",
         models: &[],

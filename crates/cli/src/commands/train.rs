@@ -22,10 +22,12 @@ pub struct TrainArgs {
     /// Run directory (params.json, progress.csv, result.json, checkpoints/, policy.safetensors).
     #[arg(long)]
     out: PathBuf,
-    /// `paper` (the published settings with 10 epochs per batch instead of 100 and the
-    /// policy's log-s.d. bounded at 0: see docs/validation.md, "Does it learn?"), `published`
-    /// (exactly the published settings, 100 epochs, RLlib's unbounded log-s.d.),
-    /// `quick` (200,000 steps) or `smoke` (a few thousand steps of a small network).
+    /// `paper` (the published settings with eight times the steps at 2 epochs per batch
+    /// instead of 100, the policy's log-s.d. bounded at 0; an expensive fish's policy, e.g.
+    /// M_ConvNet's, 832,300 steps at 10 epochs: see docs/validation.md, "The fidelity sweep"),
+    /// `published` (exactly the published settings, 100 epochs, RLlib's unbounded log-s.d.),
+    /// `quick` (200,000 steps at 10 epochs) or `smoke` (a few thousand steps of a small
+    /// network).
     #[arg(long, default_value = "paper")]
     preset: String,
     /// Override the number of environment steps.
