@@ -122,3 +122,49 @@ impl AnalysisConfig {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn approach_thresholds_out_of_range_are_refused_by_name() {
+        assert!(AnalysisConfig::default().validate().is_ok());
+        for (cfg, field) in [
+            (
+                AnalysisConfig {
+                    approach_closest_cm: 0.0,
+                    ..AnalysisConfig::default()
+                },
+                "approach_closest_cm",
+            ),
+            (
+                AnalysisConfig {
+                    approach_closest_cm: f64::NAN,
+                    ..AnalysisConfig::default()
+                },
+                "approach_closest_cm",
+            ),
+            (
+                AnalysisConfig {
+                    approach_nearer_share: 1.5,
+                    ..AnalysisConfig::default()
+                },
+                "approach_nearer_share",
+            ),
+            (
+                AnalysisConfig {
+                    approach_nearer_share: f64::NAN,
+                    ..AnalysisConfig::default()
+                },
+                "approach_nearer_share",
+            ),
+        ] {
+            let e = cfg.validate().err().map(|e| e.to_string());
+            assert!(
+                e.as_deref().is_some_and(|e| e.contains(field)),
+                "{field}: {e:?}"
+            );
+        }
+    }
+}
