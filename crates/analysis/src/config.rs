@@ -97,6 +97,14 @@ impl AnalysisConfig {
                 "must be a positive distance",
             ));
         }
+        if !(self.competence_threshold >= 0.0 && self.competence_threshold.is_finite()) {
+            return Err(ConfigError::new(
+                "analysis",
+                "competence_threshold",
+                self.competence_threshold,
+                "must be a non-negative fraction of the best scripted controller's goals",
+            ));
+        }
         if !(0.0..=1.0).contains(&self.approach_nearer_share) {
             return Err(ConfigError::new(
                 "analysis",
@@ -107,6 +115,44 @@ impl AnalysisConfig {
         }
         check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)?;
         check::positive("analysis", "robot_reach_cm", self.robot_reach_cm)
+    }
+
+    /// This config with some settings replaced: `table` maps field names to values (a study
+    /// file's `[analysis]` table, `fishprobe analyze --settings FILE`), applied one by one so
+    /// that an unknown name or a value of the wrong type is refused by name; the result is
+    /// checked ([`AnalysisConfig::validate`]).
+    pub fn with_overrides(
+        &self,
+        table: &serde_json::Map<String, serde_json::Value>,
+    ) -> Result<Self, ConfigError> {
+        let mut cur = self.clone();
+        for (key, value) in table {
+            let mut obj = match serde_json::to_value(&cur) {
+                Ok(serde_json::Value::Object(o)) => o,
+                _ => {
+                    return Err(ConfigError::new(
+                        "analysis",
+                        key,
+                        value,
+                        "cannot be applied",
+                    ))
+                }
+            };
+            if !obj.contains_key(key) {
+                return Err(ConfigError::new(
+                    "analysis",
+                    key,
+                    value,
+                    "is not an analysis setting (they are listed in docs/settings.md)",
+                ));
+            }
+            obj.insert(key.clone(), value.clone());
+            cur = serde_json::from_value(serde_json::Value::Object(obj)).map_err(|e| {
+                ConfigError::new("analysis", key, value, &format!("has the wrong type: {e}"))
+            })?;
+        }
+        cur.validate()?;
+        Ok(cur)
     }
 
     /// Small replicate counts for quick looks and tests (the statistics are the same).
@@ -164,6 +210,40 @@ mod tests {
             assert!(
                 e.as_deref().is_some_and(|e| e.contains(field)),
                 "{field}: {e:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn overrides_replace_named_settings_and_refuse_unknown_or_mistyped_ones() {
+        let table = |json: &str| match serde_json::from_str(json) {
+            Ok(serde_json::Value::Object(o)) => o,
+            other => panic!("{other:?}"),
+        };
+        let base = AnalysisConfig::quick();
+        let c = base
+            .with_overrides(&table(
+                r#"{"approach_closest_cm": 4.0, "competence_threshold": 0.9}"#,
+            ))
+            .expect("valid overrides");
+        assert_eq!(c.approach_closest_cm, 4.0);
+        assert_eq!(c.competence_threshold, 0.9);
+        // Everything else is the base's, not the defaults'.
+        assert_eq!(c.permutations, base.permutations);
+        assert_eq!(c.approach_nearer_share, base.approach_nearer_share);
+        for (json, field) in [
+            (r#"{"approach_closest": 4.0}"#, "approach_closest"),
+            (r#"{"permutations": "many"}"#, "permutations"),
+            (r#"{"approach_nearer_share": 2.0}"#, "approach_nearer_share"),
+            (r#"{"permutations": 0}"#, "permutations"),
+        ] {
+            let e = base
+                .with_overrides(&table(json))
+                .err()
+                .map(|e| e.to_string());
+            assert!(
+                e.as_deref().is_some_and(|e| e.contains(field)),
+                "{json}: {e:?}"
             );
         }
     }

@@ -234,3 +234,56 @@ fn a_directory_without_a_study_is_an_error() {
         String::from_utf8_lossy(&o.stderr)
     );
 }
+
+#[test]
+fn a_settings_file_replaces_analysis_settings_by_name() {
+    let s = small_study("settings");
+    let good = s.join("analysis.toml");
+    std::fs::write(
+        &good,
+        "preset = \"quick\"\n[analysis]\ncompetence_threshold = 0.5\nci_level = 0.9\n",
+    )
+    .unwrap();
+    let out = s.join("out");
+    let o = fishprobe(&[
+        "analyze",
+        s.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quick",
+        "--sim-trials",
+        "6",
+        "--settings",
+        good.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    assert_eq!(r["config"]["competence_threshold"], 0.5);
+    assert_eq!(r["config"]["ci_level"], 0.9);
+    // The rest is --quick's.
+    assert_eq!(r["config"]["permutations"], 2000);
+    for (text, want) in [
+        (
+            "[analysis]\ncompetence_treshold = 0.5\n",
+            "competence_treshold",
+        ),
+        ("[analysis]\nci_level = \"high\"\n", "ci_level"),
+        ("competence_threshold = 0.5\n", "no [analysis] table"),
+        ("[analysis\n", "analysis settings"),
+    ] {
+        let bad = s.join("bad.toml");
+        std::fs::write(&bad, text).unwrap();
+        let o = fishprobe(&[
+            "analyze",
+            s.to_str().unwrap(),
+            "--out",
+            s.join("out_bad").to_str().unwrap(),
+            "--settings",
+            bad.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(want), "{text}: {err}");
+        assert!(!s.join("out_bad").join("results.json").exists());
+    }
+}

@@ -198,6 +198,25 @@ fn bad_study_inputs_fail_before_any_work() {
     let o = fishprobe(&["run", "--preset", "huge", "--out", out.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("huge"), "{}", stderr(&o));
+    // An analysis setting that does not exist, in the study file's [analysis] table.
+    std::fs::write(&cfg, "[analysis]\napproach_closest = 4.0\n").unwrap();
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("`analysis.approach_closest`")
+            && stderr(&o).contains("not an analysis setting"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
 }
 
 #[test]

@@ -85,6 +85,11 @@ pub struct StudyConfig {
     /// instead of the paper's 180; groups, issue 22).
     #[serde(default)]
     pub centroid_bins: bool,
+    /// Analysis settings replaced by the study file's `[analysis]` table, by field name of
+    /// `fishprobe_analysis::AnalysisConfig` (e.g. `competence_threshold`,
+    /// `approach_closest_cm`), applied over the preset's (`analysis_quick`) and `sim_trials`.
+    #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
+    pub analysis: serde_json::Map<String, serde_json::Value>,
 }
 
 fn one_fish() -> u32 {
@@ -156,6 +161,7 @@ impl StudyConfig {
             fish_count: 1,
             group_goal: fishprobe_sim::GroupGoal::Any,
             centroid_bins: false,
+            analysis: serde_json::Map::new(),
         };
         match name {
             "published" => Some(Self {
@@ -226,12 +232,35 @@ impl StudyConfig {
         env
     }
 
+    /// The analysis settings: the preset's (quick or full resampling), the study's
+    /// `sim_trials`, then the study file's `[analysis]` table.
+    pub fn analysis_config(&self) -> Result<fishprobe_analysis::AnalysisConfig, StudyError> {
+        let base = if self.analysis_quick {
+            fishprobe_analysis::AnalysisConfig::quick()
+        } else {
+            fishprobe_analysis::AnalysisConfig::default()
+        };
+        if self.analysis.contains_key("sim_trials") {
+            return Err(StudyError::Input(
+                "[analysis] sim_trials: set `sim_trials` at the top of the study file, it decides the trials run too"
+                    .into(),
+            ));
+        }
+        let base = fishprobe_analysis::AnalysisConfig {
+            sim_trials: self.sim_trials,
+            ..base
+        };
+        base.with_overrides(&self.analysis)
+            .map_err(|e| StudyError::Input(format!("[analysis] {e}")))
+    }
+
     /// Checks the settings before any work starts.
     pub fn validate(&self) -> Result<(), StudyError> {
         let bad = |what: String| Err(StudyError::Input(what));
         if self.models.is_empty() {
             return bad("no models".into());
         }
+        self.analysis_config()?;
         if let Err(e) = self.env().validate() {
             return bad(format!("fish_count / group_goal: {e}"));
         }
@@ -349,6 +378,9 @@ pub struct StudyFile {
     pub group_goal: Option<fishprobe_sim::GroupGoal>,
     /// See [`StudyConfig::centroid_bins`].
     pub centroid_bins: Option<bool>,
+    /// See [`StudyConfig::analysis`]: `[analysis]` with any of the analysis settings.
+    #[serde(default)]
+    pub analysis: serde_json::Map<String, serde_json::Value>,
 }
 
 impl StudyFile {
@@ -439,6 +471,7 @@ impl StudyFile {
         if let Some(v) = self.centroid_bins {
             c.centroid_bins = v;
         }
+        c.analysis.extend(self.analysis);
         for p in self.policies {
             if c.policies.insert(p.model.clone(), p.policy).is_some() {
                 return Err(StudyError::Input(format!(
@@ -548,6 +581,48 @@ mod tests {
         let bad: Result<StudyFile, _> =
             serde_json::from_str(r#"{"expensive_fish_budget": {"train_steps": 5000}}"#);
         assert!(bad.is_err());
+    }
+
+    #[test]
+    fn an_analysis_table_replaces_named_settings_over_the_preset() {
+        let c = toml_like(r#"{"analysis": {"approach_closest_cm": 4.0}}"#)
+            .apply("quick")
+            .unwrap();
+        let a = c.analysis_config().unwrap();
+        assert_eq!(a.approach_closest_cm, 4.0);
+        // The quick preset's resampling and the study's trials stay.
+        let quick = fishprobe_analysis::AnalysisConfig::quick();
+        assert_eq!((a.permutations, a.sim_trials), (quick.permutations, 18));
+        // A study with a table hashes it into its analysis step; one without keeps the old
+        // inputs (so existing studies resume).
+        assert_eq!(StudyConfig::preset("quick").unwrap().analysis.len(), 0);
+        for (json, want) in [
+            (
+                r#"{"analysis": {"approach_closest": 4.0}}"#,
+                "approach_closest",
+            ),
+            (r#"{"analysis": {"competence_threshold": 0.9}}"#, ""),
+            (
+                r#"{"analysis": {"competence_threshold": -0.5}}"#,
+                "competence_threshold",
+            ),
+            (r#"{"analysis": {"ci_level": 1.0}}"#, "ci_level"),
+            (
+                r#"{"analysis": {"sim_trials": 4}}"#,
+                "top of the study file",
+            ),
+        ] {
+            let e = toml_like(json)
+                .apply("quick")
+                .unwrap()
+                .validate()
+                .map_err(|e| e.to_string());
+            match (want, e) {
+                ("", e) => assert!(e.is_ok(), "{json}: {e:?}"),
+                (want, Err(e)) => assert!(e.contains(want) && e.contains("[analysis]"), "{e}"),
+                (_, Ok(())) => panic!("{json} was accepted"),
+            }
+        }
     }
 
     fn toml_like(json: &str) -> StudyFile {

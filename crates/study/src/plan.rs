@@ -160,8 +160,14 @@ impl StepKind {
                 None => serde_json::json!({"virtual": study.name(*p), "seed": c.seed,
                     "trials": c.virtual_trials, "minutes": c.virtual_minutes}),
             },
+            // The `[analysis]` table only when a study file has one, so existing studies resume.
             StepKind::Analyze => {
-                serde_json::json!({"analyze": c.analysis_quick, "seed": c.seed, "sim_trials": c.sim_trials})
+                let mut v = serde_json::json!({"analyze": c.analysis_quick, "seed": c.seed,
+                    "sim_trials": c.sim_trials});
+                if !c.analysis.is_empty() {
+                    v["analysis"] = serde_json::Value::Object(c.analysis.clone());
+                }
+                v
             }
             StepKind::Report => serde_json::json!({"report": 1}),
         }

@@ -221,15 +221,9 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         }),
         StepKind::Reality { p } => reality(study, *p, &out, &mut say),
         StepKind::Analyze => staged(&out, |tmp| {
-            let cfg = if c.analysis_quick {
-                fishprobe_analysis::AnalysisConfig::quick()
-            } else {
-                fishprobe_analysis::AnalysisConfig::default()
-            };
-            let cfg = fishprobe_analysis::AnalysisConfig {
-                sim_trials: c.sim_trials,
-                ..cfg
-            };
+            let cfg = c
+                .analysis_config()
+                .map_err(|e| StepError::Missing(e.to_string()))?;
             let r = fishprobe_analysis::analyze_dir(&study.root, &cfg, c.seed)?;
             fishprobe_analysis::write_results(tmp, &r)?;
             Ok(())

@@ -119,7 +119,7 @@ pub fn reference() -> String {
     section::<fishprobe_analysis::AnalysisConfig>(
         &mut o,
         "Analysis (`fishprobe_analysis::AnalysisConfig`)",
-        "Every measure and test of SPEC §8 (`fishprobe analyze --quick` lowers the resampling counts).",
+        "Every measure and test of SPEC §8 (`fishprobe analyze --quick` lowers the resampling counts; any of these can be set by name in an `[analysis]` table of a study file or of `fishprobe analyze --settings FILE`).",
     );
     section::<fishprobe_analysis::offline::OfflineConfig>(
         &mut o,
