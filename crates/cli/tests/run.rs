@@ -159,15 +159,18 @@ fn bad_study_inputs_fail_before_any_work() {
     )
     .unwrap();
     let out = d.join("s");
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let run_config = || {
+        fishprobe(&[
+            "run",
+            "--preset",
+            "smoke",
+            "--config",
+            cfg.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let o = run_config();
     assert!(!o.status.success());
     assert!(stderr(&o).contains("Couzin"), "{}", stderr(&o));
     assert!(!out.exists(), "work started despite a bad config");
@@ -200,15 +203,7 @@ fn bad_study_inputs_fail_before_any_work() {
     assert!(stderr(&o).contains("huge"), "{}", stderr(&o));
     // An analysis setting that does not exist, in the study file's [analysis] table.
     std::fs::write(&cfg, "[analysis]\napproach_closest = 4.0\n").unwrap();
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run_config();
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("`analysis.approach_closest`")
