@@ -17,6 +17,9 @@
 //! π_Zone 73.8 (0.88), docs/validation.md, "The log-s.d. bound was a trap". With mixed
 //! training starts this seed gave π_Zone 61.9 (0.74) and π_Force 108.4 (0.89) without the
 //! approach, one reason the default stayed random ("Mixed starts, with the fixed trainer").
+//! With random starts restored (commit 4b382d7, 19 min while an OOD training shared the
+//! cores): π_Follow 62.4 / 63.9, π_Zone 73.8 / 83.7 (assay 49.3 cm, 0 %), π_Force 141.2 / 121.9
+//! (assay 0.2 cm, 53.0 %, the paper's pattern); passed.
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
