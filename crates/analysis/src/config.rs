@@ -81,37 +81,36 @@ impl AnalysisConfig {
                 ));
             }
         }
-        if !(self.ci_level > 0.0 && self.ci_level < 1.0) {
-            return Err(ConfigError::new(
-                "analysis",
+        // The f64 settings: (name, value, whether it is in range, the range in words).
+        for (name, v, ok, why) in [
+            (
                 "ci_level",
                 self.ci_level,
+                self.ci_level > 0.0 && self.ci_level < 1.0,
                 "must lie in (0, 1)",
-            ));
-        }
-        if !(self.approach_closest_cm > 0.0 && self.approach_closest_cm.is_finite()) {
-            return Err(ConfigError::new(
-                "analysis",
+            ),
+            (
                 "approach_closest_cm",
                 self.approach_closest_cm,
+                self.approach_closest_cm > 0.0 && self.approach_closest_cm.is_finite(),
                 "must be a positive distance",
-            ));
-        }
-        if !(self.competence_threshold >= 0.0 && self.competence_threshold.is_finite()) {
-            return Err(ConfigError::new(
-                "analysis",
+            ),
+            (
                 "competence_threshold",
                 self.competence_threshold,
+                self.competence_threshold >= 0.0 && self.competence_threshold.is_finite(),
                 "must be a non-negative fraction of the best scripted controller's goals",
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.approach_nearer_share) {
-            return Err(ConfigError::new(
-                "analysis",
+            ),
+            (
                 "approach_nearer_share",
                 self.approach_nearer_share,
+                (0.0..=1.0).contains(&self.approach_nearer_share),
                 "must lie in [0, 1]",
-            ));
+            ),
+        ] {
+            if !ok {
+                return Err(ConfigError::new("analysis", name, v, why));
+            }
         }
         check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)?;
         check::positive("analysis", "robot_reach_cm", self.robot_reach_cm)
@@ -125,19 +124,19 @@ impl AnalysisConfig {
         &self,
         table: &serde_json::Map<String, serde_json::Value>,
     ) -> Result<Self, ConfigError> {
+        let mut obj = match serde_json::to_value(self) {
+            Ok(serde_json::Value::Object(o)) => o,
+            _ => {
+                return Err(ConfigError::new(
+                    "analysis",
+                    "",
+                    "",
+                    "cannot be represented",
+                ))
+            }
+        };
         let mut cur = self.clone();
         for (key, value) in table {
-            let mut obj = match serde_json::to_value(&cur) {
-                Ok(serde_json::Value::Object(o)) => o,
-                _ => {
-                    return Err(ConfigError::new(
-                        "analysis",
-                        key,
-                        value,
-                        "cannot be applied",
-                    ))
-                }
-            };
             if !obj.contains_key(key) {
                 return Err(ConfigError::new(
                     "analysis",
@@ -147,7 +146,7 @@ impl AnalysisConfig {
                 ));
             }
             obj.insert(key.clone(), value.clone());
-            cur = serde_json::from_value(serde_json::Value::Object(obj)).map_err(|e| {
+            cur = serde_json::from_value(serde_json::Value::Object(obj.clone())).map_err(|e| {
                 ConfigError::new("analysis", key, value, &format!("has the wrong type: {e}"))
             })?;
         }
