@@ -124,32 +124,7 @@ impl AnalysisConfig {
         &self,
         table: &serde_json::Map<String, serde_json::Value>,
     ) -> Result<Self, ConfigError> {
-        let mut obj = match serde_json::to_value(self) {
-            Ok(serde_json::Value::Object(o)) => o,
-            _ => {
-                return Err(ConfigError::new(
-                    "analysis",
-                    "",
-                    "",
-                    "cannot be represented",
-                ))
-            }
-        };
-        let mut cur = self.clone();
-        for (key, value) in table {
-            if !obj.contains_key(key) {
-                return Err(ConfigError::new(
-                    "analysis",
-                    key,
-                    value,
-                    "is not an analysis setting (they are listed in docs/settings.md)",
-                ));
-            }
-            obj.insert(key.clone(), value.clone());
-            cur = serde_json::from_value(serde_json::Value::Object(obj.clone())).map_err(|e| {
-                ConfigError::new("analysis", key, value, &format!("has the wrong type: {e}"))
-            })?;
-        }
+        let cur = fishprobe_sim::params::replace_by_name(self, "analysis", table)?;
         cur.validate()?;
         Ok(cur)
     }
@@ -235,6 +210,7 @@ mod tests {
             (r#"{"permutations": "many"}"#, "permutations"),
             (r#"{"approach_nearer_share": 2.0}"#, "approach_nearer_share"),
             (r#"{"permutations": 0}"#, "permutations"),
+            (r#"{"ci_level": null}"#, "ci_level"),
         ] {
             let e = base
                 .with_overrides(&table(json))
@@ -245,5 +221,18 @@ mod tests {
                 "{json}: {e:?}"
             );
         }
+        // TOML's nan becomes null on its way to JSON: refused as not finite, not as mistyped.
+        let nan: toml::Table = toml::from_str("ci_level = nan").expect("toml");
+        let nan = match serde_json::to_value(nan) {
+            Ok(serde_json::Value::Object(o)) => o,
+            other => panic!("{other:?}"),
+        };
+        let e = base.with_overrides(&nan).err().map(|e| e.to_string());
+        assert!(
+            e.as_deref().is_some_and(|e| e.contains("analysis.ci_level")
+                && e.contains("finite")
+                && !e.contains("wrong type")),
+            "{e:?}"
+        );
     }
 }

@@ -341,6 +341,40 @@ fn the_approach_assay_of_one_policy() {
     let closest = v["closest_cm"].as_f64().unwrap();
     let mean = v["mean_distance_cm"].as_f64().unwrap();
     assert!(closest > 20.0 && mean >= closest, "{v}");
+    assert_eq!(v["goes_to_fish"], false, "{v}");
+    // Fetch-and-lead swims to the still fish and waits 12 cm ahead of it, nearer it than the
+    // goal all the time: not the paper's pattern by the study's thresholds (closest at most
+    // 10 cm), but by a settings file's wider one.
+    let fetch = [
+        "assay",
+        "approach",
+        "--policy",
+        "scripted:fetch-and-lead",
+        "--episodes",
+        "3",
+    ];
+    let o = fishprobe(&fetch);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("does not go to the still fish"),
+        "{}",
+        stdout(&o)
+    );
+    let wide = temp_file("wide.toml", "[analysis]\napproach_closest_cm = 15.0\n");
+    let o = fishprobe(&[&fetch[..], &["--settings", wide.to_str().unwrap()]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains("\ngoes to the still fish"),
+        "{}",
+        stdout(&o)
+    );
+    let nan = temp_file("nan.toml", "[analysis]\napproach_nearer_share = nan\n");
+    let o = fishprobe(&[&fetch[..], &["--settings", nan.to_str().unwrap()]].concat());
+    assert!(
+        !o.status.success() && stderr(&o).contains("analysis.approach_nearer_share"),
+        "{}",
+        stderr(&o)
+    );
     let o = fishprobe(&[
         "assay",
         "approach",

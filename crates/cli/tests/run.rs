@@ -207,7 +207,17 @@ fn bad_study_inputs_fail_before_any_work() {
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("`analysis.approach_closest`")
-            && stderr(&o).contains("not an analysis setting"),
+            && stderr(&o).contains("is not among the [analysis] settings"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
+    // A task setting of the wrong kind, in the study file's [task] table.
+    std::fs::write(&cfg, "[task]\ntraining_start = \"corner\"\n").unwrap();
+    let o = run_config();
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("`task.training_start`"),
         "{}",
         stderr(&o)
     );

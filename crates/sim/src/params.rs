@@ -102,6 +102,48 @@ impl ConfigError {
     }
 }
 
+/// `base` with the fields named in `table` replaced by its values, one name at a time, so that
+/// an unknown name, a value of the wrong type or a missing number (TOML's `nan` and `inf`
+/// arrive here as JSON's null) is refused naming `prefix.name`. For a table of a settings file
+/// (e.g. a study file's `[analysis]` or `[task]`); the caller validates the result's ranges.
+pub fn replace_by_name<T>(
+    base: &T,
+    prefix: &str,
+    table: &serde_json::Map<String, serde_json::Value>,
+) -> Result<T, ConfigError>
+where
+    T: Serialize + serde::de::DeserializeOwned + Clone,
+{
+    let mut obj = match serde_json::to_value(base) {
+        Ok(serde_json::Value::Object(o)) => o,
+        _ => return Err(ConfigError::new(prefix, "", "", "cannot be represented")),
+    };
+    let mut cur = base.clone();
+    for (key, value) in table {
+        if !obj.contains_key(key) {
+            return Err(ConfigError::new(
+                prefix,
+                key,
+                value,
+                &format!("is not among the [{prefix}] settings (docs/settings.md lists them)"),
+            ));
+        }
+        if value.is_null() {
+            return Err(ConfigError::new(
+                prefix,
+                key,
+                "nan/inf",
+                "must be a finite number (NaN and infinities are refused)",
+            ));
+        }
+        obj.insert(key.clone(), value.clone());
+        cur = serde_json::from_value(serde_json::Value::Object(obj.clone())).map_err(|e| {
+            ConfigError::new(prefix, key, value, &format!("has the wrong type: {e}"))
+        })?;
+    }
+    Ok(cur)
+}
+
 /// Field checks used by the `validate` methods of parameter structs.
 pub mod check {
     use super::ConfigError;

@@ -90,6 +90,15 @@ pub struct StudyConfig {
     /// `approach_closest_cm`), applied over the preset's (`analysis_quick`) and `sim_trials`.
     #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
     pub analysis: serde_json::Map<String, serde_json::Value>,
+    /// Task settings replaced by the study file's `[task]` table, by field name of
+    /// `fishprobe_sim::TaskParams` (e.g. `training_start = "mixed"`,
+    /// `training_goal_reached_by = "robot"`, the fidelity sweep's readings, issue 20), for
+    /// every training and trial of the study. Refused: `group_goal` (set at the top),
+    /// `objective` (a study measures the lead-to-goal task; `fishprobe train --task ood`) and
+    /// `evaluation_episode_actions` (set `episode_minutes`). The approach assay keeps its own
+    /// set-up (SPEC §8).
+    #[serde(default, skip_serializing_if = "serde_json::Map::is_empty")]
+    pub task: serde_json::Map<String, serde_json::Value>,
 }
 
 fn one_fish() -> u32 {
@@ -162,6 +171,7 @@ impl StudyConfig {
             group_goal: fishprobe_sim::GroupGoal::Any,
             centroid_bins: false,
             analysis: serde_json::Map::new(),
+            task: serde_json::Map::new(),
         };
         match name {
             "published" => Some(Self {
@@ -221,15 +231,37 @@ impl StudyConfig {
         Some(ppo)
     }
 
-    /// The environment of the study's trials: the defaults with its group settings.
-    pub fn env(&self) -> fishprobe_sim::EnvConfig {
+    /// The environment of the study's trials: the defaults with its group settings and its
+    /// `[task]` table (refused by name if a setting is unknown, mistyped, out of range or one
+    /// the study sets elsewhere).
+    pub fn env(&self) -> Result<fishprobe_sim::EnvConfig, StudyError> {
+        let bad = |e: String| StudyError::Input(format!("[task] {e}"));
+        for (key, instead) in [
+            ("group_goal", "set `group_goal` at the top of the study file"),
+            (
+                "objective",
+                "a study measures the lead-to-goal task; train an OOD policy with `fishprobe train --task ood`",
+            ),
+            (
+                "evaluation_episode_actions",
+                "set `episode_minutes` at the top of the study file",
+            ),
+        ] {
+            if self.task.contains_key(key) {
+                return Err(bad(format!("{key}: {instead}")));
+            }
+        }
         let mut env = fishprobe_sim::EnvConfig {
             fish_count: self.fish_count,
             ..fishprobe_sim::EnvConfig::default()
         };
+        env.task = fishprobe_sim::params::replace_by_name(&env.task, "task", &self.task)
+            .map_err(|e| bad(e.to_string()))?;
         env.task.group_goal = self.group_goal;
         env.observation.centroid_bins = self.centroid_bins;
-        env
+        env.validate()
+            .map_err(|e| StudyError::Input(format!("fish_count / group_goal / [task]: {e}")))?;
+        Ok(env)
     }
 
     /// The analysis settings: the preset's (quick or full resampling), the study's
@@ -261,9 +293,7 @@ impl StudyConfig {
             return bad("no models".into());
         }
         self.analysis_config()?;
-        if let Err(e) = self.env().validate() {
-            return bad(format!("fish_count / group_goal: {e}"));
-        }
+        self.env()?;
         for model in self.policies.keys() {
             if !self.models.iter().any(|m| &m.name == model) {
                 return bad(format!(
@@ -381,6 +411,9 @@ pub struct StudyFile {
     /// See [`StudyConfig::analysis`]: `[analysis]` with any of the analysis settings.
     #[serde(default)]
     pub analysis: serde_json::Map<String, serde_json::Value>,
+    /// See [`StudyConfig::task`]: `[task]` with task settings of the trainings and trials.
+    #[serde(default)]
+    pub task: serde_json::Map<String, serde_json::Value>,
 }
 
 impl StudyFile {
@@ -472,6 +505,7 @@ impl StudyFile {
             c.centroid_bins = v;
         }
         c.analysis.extend(self.analysis);
+        c.task.extend(self.task);
         for p in self.policies {
             if c.policies.insert(p.model.clone(), p.policy).is_some() {
                 return Err(StudyError::Input(format!(
@@ -621,6 +655,52 @@ mod tests {
                 ("", e) => assert!(e.is_ok(), "{json}: {e:?}"),
                 (want, Err(e)) => assert!(e.contains(want) && e.contains("[analysis]"), "{e}"),
                 (_, Ok(())) => panic!("{json} was accepted"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_task_table_replaces_named_task_settings_of_every_trial() {
+        let c =
+            toml_like(r#"{"task": {"training_start": "mixed", "training_episode_actions": 120}}"#)
+                .apply("quick")
+                .unwrap();
+        let env = c.env().unwrap();
+        assert_eq!(env.task.training_start, fishprobe_sim::TrainingStart::Mixed);
+        assert_eq!(env.task.training_episode_actions, 120);
+        // The rest is the default, and the study's own group settings still apply.
+        let default = fishprobe_sim::TaskParams::default();
+        assert_eq!(env.task.goal_radius_cm, default.goal_radius_cm);
+        assert_eq!(
+            StudyConfig::preset("quick").unwrap().env().unwrap().task,
+            default
+        );
+        for (json, want) in [
+            (r#"{"task": {"training_begin": "lab"}}"#, "training_begin"),
+            (
+                r#"{"task": {"training_start": "corner"}}"#,
+                "training_start",
+            ),
+            (r#"{"task": {"goal_radius_cm": -1.0}}"#, "goal_radius_cm"),
+            (r#"{"task": {"lab_start_share": null}}"#, "finite"),
+            (
+                r#"{"task": {"group_goal": "centroid"}}"#,
+                "top of the study file",
+            ),
+            (r#"{"task": {"objective": "ood"}}"#, "--task ood"),
+            (
+                r#"{"task": {"evaluation_episode_actions": 60}}"#,
+                "episode_minutes",
+            ),
+        ] {
+            let e = toml_like(json)
+                .apply("quick")
+                .unwrap()
+                .validate()
+                .map_err(|e| e.to_string());
+            match e {
+                Err(e) => assert!(e.contains(want) && e.contains("task"), "{json}: {e}"),
+                Ok(()) => panic!("{json} was accepted"),
             }
         }
     }

@@ -44,6 +44,9 @@ pub enum StepError {
     /// Something the step needs is not there.
     #[error("{0}")]
     Missing(String),
+    /// The study's settings (refused by `StudyConfig::validate` before any step runs).
+    #[error("settings: {0}")]
+    Settings(String),
     /// Training or evaluation.
     #[error(transparent)]
     Learn(#[from] fishprobe_learn::LearnError),

@@ -64,6 +64,9 @@ pub struct Study {
     pub real: Option<PathBuf>,
     /// Pair recordings (`train/` and `validation/`) to refit M_ConvNet on, if any.
     pub convnet_data: Option<PathBuf>,
+    /// The environment of the study's trainings and trials ([`StudyConfig::env`], resolved
+    /// and checked once).
+    pub env: fishprobe_sim::EnvConfig,
 }
 
 impl Study {
@@ -83,6 +86,7 @@ impl Study {
         convnet_data: Option<PathBuf>,
     ) -> Result<Self, StudyError> {
         cfg.validate()?;
+        let env = cfg.env()?;
         if let Some(d) = &convnet_data {
             for sub in ["train", "validation"] {
                 if !d.join(sub).is_dir() {
@@ -109,7 +113,7 @@ impl Study {
         for (model, arg) in &cfg.policies {
             let c = fishprobe_learn::controller(arg, false)
                 .map_err(|e| StudyError::Input(format!("the policy for `{model}` ({arg}): {e}")))?;
-            c.check_observation(cfg.env().observation.size())
+            c.check_observation(env.observation.size())
                 .map_err(|e| StudyError::Input(format!("the policy for `{model}`: {e}")))?;
         }
         if let Some(r) = &real {
@@ -147,6 +151,7 @@ impl Study {
             cfg,
             real,
             convnet_data,
+            env,
         })
     }
 

@@ -104,6 +104,10 @@ impl StepKind {
             v["groups"] =
                 serde_json::json!({"fish_count": c.fish_count, "group_goal": c.group_goal});
         }
+        // The `[task]` table: only a study with one records it, so other studies resume.
+        if !c.task.is_empty() {
+            v["task"] = serde_json::Value::Object(c.task.clone());
+        }
         if let Some(ext) = runs.and_then(|p| study.external_policy(p)) {
             v["external_policy"] = serde_json::json!({
                 "policy": ext,
@@ -369,6 +373,29 @@ mod tests {
         assert!(StepKind::Baseline { m: 0 }
             .inputs(&s)
             .get("trainer")
+            .is_none());
+    }
+
+    #[test]
+    fn a_task_table_changes_every_step_and_its_absence_none() {
+        let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
+        let quick = StudyConfig::preset("quick").unwrap();
+        let base = plan(quick.clone());
+        // The table is hashed only when there is one: studies without it resume. Every step
+        // is redone with it (trainings and trials use the task; the rest follows them).
+        let mut mixed = quick;
+        mixed
+            .task
+            .insert("training_start".into(), serde_json::json!("mixed"));
+        let with = plan(mixed);
+        assert_eq!(base.len(), with.len());
+        for (a, b) in base.iter().zip(&with) {
+            assert_ne!(a.hash, b.hash, "{}", a.id);
+        }
+        let s = Study::new("/tmp/x".into(), StudyConfig::preset("quick").unwrap(), None).unwrap();
+        assert!(StepKind::Train { m: 0, k: 0 }
+            .inputs(&s)
+            .get("task")
             .is_none());
     }
 }

@@ -57,7 +57,7 @@ fn eval_episodes(study: &Study, p: usize, m: usize, out: PathBuf) -> Evaluation 
     let c = &study.cfg;
     Evaluation {
         model: c.models[m].spec.clone(),
-        env: c.env(),
+        env: study.env.clone(),
         episodes: study.eval_episodes(p, m),
         minutes: c.episode_minutes,
         seed: derive_seed(
@@ -136,7 +136,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
             })?;
             let spec = RunSpec {
                 ppo,
-                env: c.env(),
+                env: study.env.clone(),
                 model: c.models[*m].spec.clone(),
                 seed: derive_seed(c.seed, &format!("train/{}", c.models[*m].name), *k as u64),
                 preset: c.ppo_preset.clone(),
@@ -208,7 +208,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         StepKind::Stability { m, k } => staged(&out, |tmp| {
             let e = Evaluation {
                 model: c.models[*m].spec.clone(),
-                env: c.env(),
+                env: study.env.clone(),
                 episodes: c.stability_episodes,
                 minutes: c.episode_minutes,
                 seed: seed(&format!("stability/{}/{k}", c.models[*m].name)),
@@ -223,7 +223,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         StepKind::Analyze => staged(&out, |tmp| {
             let cfg = c
                 .analysis_config()
-                .map_err(|e| StepError::Missing(e.to_string()))?;
+                .map_err(|e| StepError::Settings(e.to_string()))?;
             let r = fishprobe_analysis::analyze_dir(&study.root, &cfg, c.seed)?;
             fishprobe_analysis::write_results(tmp, &r)?;
             Ok(())
@@ -289,7 +289,7 @@ fn reality(
     };
     let opts = ServeOptions {
         live,
-        task: c.env().task,
+        task: study.env.task.clone(),
         out: tmp.clone(),
         token: None,
         max_trials: Some(c.virtual_trials),

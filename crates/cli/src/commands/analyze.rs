@@ -45,7 +45,7 @@ pub fn run(a: AnalyzeArgs) -> Result<()> {
         cfg.sim_trials = n;
     }
     if let Some(p) = &a.settings {
-        cfg = analysis_settings(&cfg, p)?;
+        cfg = super::analysis_settings(&cfg, p)?;
     }
     if !a.study.is_dir() {
         anyhow::bail!("{}: no such study directory", a.study.display());
@@ -66,30 +66,4 @@ pub fn run(a: AnalyzeArgs) -> Result<()> {
         started.elapsed().as_secs_f64()
     );
     emit(&text)
-}
-
-/// `cfg` with the `[analysis]` table of the TOML file `path` applied.
-fn analysis_settings(cfg: &AnalysisConfig, path: &std::path::Path) -> Result<AnalysisConfig> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("reading analysis settings {}", path.display()))?;
-    let table: toml::Table =
-        toml::from_str(&text).with_context(|| format!("analysis settings {}", path.display()))?;
-    let Some(analysis) = table.get("analysis") else {
-        anyhow::bail!(
-            "analysis settings {}: no [analysis] table (write e.g. `[analysis]` then `competence_threshold = 0.9`)",
-            path.display()
-        );
-    };
-    let overrides: serde_json::Map<String, serde_json::Value> = serde_json::to_value(analysis)
-        .ok()
-        .and_then(|v| v.as_object().cloned())
-        .with_context(|| {
-            format!(
-                "analysis settings {}: `analysis` is not a table",
-                path.display()
-            )
-        })?;
-    cfg.with_overrides(&overrides)
-        .map_err(anyhow::Error::msg)
-        .with_context(|| format!("analysis settings {}", path.display()))
 }

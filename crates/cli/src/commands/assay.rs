@@ -4,6 +4,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use fishprobe_analysis::approach::assay_files;
+use fishprobe_analysis::seeds::goes_to_fish;
 use fishprobe_analysis::AnalysisConfig;
 use std::path::PathBuf;
 
@@ -45,6 +46,10 @@ struct ApproachArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
+    /// A TOML file whose `[analysis]` table sets the verdict's thresholds
+    /// (`approach_closest_cm`, `approach_nearer_share`; a study file works).
+    #[arg(long)]
+    settings: Option<PathBuf>,
 }
 
 pub fn run(a: AssayArgs) -> Result<()> {
@@ -53,6 +58,10 @@ pub fn run(a: AssayArgs) -> Result<()> {
         bail!("--episodes must lie in [1, 10000], got {}", a.episodes);
     }
     super::check_minutes("--minutes", f64::from(a.minutes))?;
+    let cfg = match &a.settings {
+        Some(p) => super::analysis_settings(&AnalysisConfig::default(), p)?,
+        None => AnalysisConfig::default(),
+    };
     let c = fishprobe_learn::controller(&a.policy, false)
         .with_context(|| format!("loading --policy {}", a.policy))?;
     let temporary = a.out.is_none();
@@ -63,7 +72,8 @@ pub fn run(a: AssayArgs) -> Result<()> {
     let e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
     let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
     let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
-    let r = assay_files(&files, &AnalysisConfig::default()).map_err(anyhow::Error::msg)?;
+    let r = assay_files(&files, &cfg).map_err(anyhow::Error::msg)?;
+    let goes = goes_to_fish(&r, &cfg);
     if temporary {
         drop(_lock);
         let _ = std::fs::remove_dir_all(&out);
@@ -77,17 +87,29 @@ pub fn run(a: AssayArgs) -> Result<()> {
             "closest_cm": r.min_iid,
             "mean_distance_cm": r.mean_iid,
             "fraction_nearer_fish_than_goal": r.frac_closer_to_fish,
+            "goes_to_fish": goes,
+            "thresholds": {
+                "closest_cm": cfg.approach_closest_cm,
+                "nearer_share": cfg.approach_nearer_share,
+            },
         }))? + "\n"
     } else {
         format!(
-            "approach assay of {}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episodes of {} min, seed {})\n",
+            "approach assay of {}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episodes of {} min, seed {})\n{} (the paper's pattern: closest at most {} cm and nearer the fish in at least {:.0} % of frames)\n",
             c.describe(),
             r.min_iid,
             r.mean_iid,
             100.0 * r.frac_closer_to_fish,
             r.episodes,
             a.minutes,
-            a.seed
+            a.seed,
+            if goes {
+                "goes to the still fish"
+            } else {
+                "does not go to the still fish"
+            },
+            cfg.approach_closest_cm,
+            100.0 * cfg.approach_nearer_share,
         )
     };
     emit(&text)

@@ -32,6 +32,7 @@ mod support;
 pub(crate) mod synth;
 mod train;
 
+use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 
 /// fishprobe: test models of fish behaviour by the robots they teach (Hocke et al. 2026).
@@ -221,4 +222,33 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::OodReport(a) => ood_report::run(a),
         Command::OodLoop(a) => ood_loop::run(a),
     }
+}
+
+/// `cfg` with the `[analysis]` table of the TOML file `path` applied.
+pub(crate) fn analysis_settings(
+    cfg: &fishprobe_analysis::AnalysisConfig,
+    path: &std::path::Path,
+) -> anyhow::Result<fishprobe_analysis::AnalysisConfig> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading analysis settings {}", path.display()))?;
+    let table: toml::Table =
+        toml::from_str(&text).with_context(|| format!("analysis settings {}", path.display()))?;
+    let Some(analysis) = table.get("analysis") else {
+        anyhow::bail!(
+            "analysis settings {}: no [analysis] table (write e.g. `[analysis]` then `competence_threshold = 0.9`)",
+            path.display()
+        );
+    };
+    let overrides: serde_json::Map<String, serde_json::Value> = serde_json::to_value(analysis)
+        .ok()
+        .and_then(|v| v.as_object().cloned())
+        .with_context(|| {
+            format!(
+                "analysis settings {}: `analysis` is not a table",
+                path.display()
+            )
+        })?;
+    cfg.with_overrides(&overrides)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("analysis settings {}", path.display()))
 }

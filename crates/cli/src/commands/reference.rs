@@ -71,7 +71,7 @@ pub fn reference() -> String {
     section::<s::TaskParams>(
         &mut o,
         "`env.task`",
-        "The lead-to-goal task, or the OOD objective (`fishprobe train --task ood`).",
+        "The lead-to-goal task, or the OOD objective (`fishprobe train --task ood`). A study file's `[task]` table sets these by name for the whole study (not `group_goal`, `objective`, `evaluation_episode_actions`).",
     );
     section::<s::ObservationParams>(&mut o, "`env.observation`", "The policy's observation.");
     o.push_str("## Fish models (`fish` section, study files' `spec`)\n\n");
