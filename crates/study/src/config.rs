@@ -646,11 +646,7 @@ mod tests {
                 "top of the study file",
             ),
         ] {
-            let e = toml_like(json)
-                .apply("quick")
-                .unwrap()
-                .validate()
-                .map_err(|e| e.to_string());
+            let e = validate_quick(json);
             match (want, e) {
                 ("", e) => assert!(e.is_ok(), "{json}: {e:?}"),
                 (want, Err(e)) => assert!(e.contains(want) && e.contains("[analysis]"), "{e}"),
@@ -693,11 +689,7 @@ mod tests {
                 "episode_minutes",
             ),
         ] {
-            let e = toml_like(json)
-                .apply("quick")
-                .unwrap()
-                .validate()
-                .map_err(|e| e.to_string());
+            let e = validate_quick(json);
             match e {
                 Err(e) => assert!(e.contains(want) && e.contains("task"), "{json}: {e}"),
                 Ok(()) => panic!("{json} was accepted"),
@@ -707,5 +699,14 @@ mod tests {
 
     fn toml_like(json: &str) -> StudyFile {
         serde_json::from_str(json).unwrap()
+    }
+
+    /// The study file `json` over the quick preset, checked.
+    fn validate_quick(json: &str) -> Result<(), String> {
+        toml_like(json)
+            .apply("quick")
+            .unwrap()
+            .validate()
+            .map_err(|e| e.to_string())
     }
 }
