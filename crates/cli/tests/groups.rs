@@ -212,6 +212,20 @@ fn a_policy_with_centroid_bins_trains_and_evaluates_with_its_settings_only() {
         "{}",
         stderr(&o)
     );
+    // The approach assay observes the still fish as the policy was trained to.
+    let o = fishprobe(&[
+        "assay",
+        "approach",
+        "--policy",
+        pol.to_str().unwrap(),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.2",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("\"goes_to_fish\""), "{}", stdout(&o));
 }
 
 #[test]

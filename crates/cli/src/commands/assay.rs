@@ -64,12 +64,26 @@ pub fn run(a: AssayArgs) -> Result<()> {
     };
     let c = fishprobe_learn::controller(&a.policy, false)
         .with_context(|| format!("loading --policy {}", a.policy))?;
+    // The still fish is observed as the policy was trained to observe: with the group's
+    // centroid bins (issue 22) when it takes those, as a study's approach step does.
+    let mut obs = fishprobe_sim::ObservationParams::default();
+    let centroid_bins = match c.check_observation(obs.size()) {
+        Ok(()) => false,
+        Err(why) => {
+            obs.centroid_bins = true;
+            if c.check_observation(obs.size()).is_err() {
+                bail!("--policy {}: {why}", a.policy);
+            }
+            true
+        }
+    };
     let temporary = a.out.is_none();
     let out = a.out.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("fishprobe-assay-{}", std::process::id()))
     });
     let _lock = super::lock_out(&out, "assay approach")?;
-    let e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
+    let mut e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
+    e.env.observation.centroid_bins = centroid_bins;
     let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
     let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
     let r = assay_files(&files, &cfg).map_err(anyhow::Error::msg)?;
@@ -95,12 +109,13 @@ pub fn run(a: AssayArgs) -> Result<()> {
         }))? + "\n"
     } else {
         format!(
-            "approach assay of {}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episodes of {} min, seed {})\n{} (the paper's pattern: closest at most {} cm and nearer the fish in at least {:.0} % of frames)\n",
+            "approach assay of {}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episode{} of {} min, seed {})\n{} (the paper's pattern: closest at most {} cm and nearer the fish in at least {:.0} % of frames)\n",
             c.describe(),
             r.min_iid,
             r.mean_iid,
             100.0 * r.frac_closer_to_fish,
             r.episodes,
+            if r.episodes == 1 { "" } else { "s" },
             a.minutes,
             a.seed,
             if goes {
