@@ -245,7 +245,8 @@ fn convnet_can_be_refitted_for_the_study() {
         }
     }
     let cfg = d.join("study.toml");
-    std::fs::write(&cfg, "preset = \"smoke\"\nmodels = [{ name = \"ConvNet\", spec = { model = \"ConvNet\" } }, { name = \"Follow\", spec = { model = \"Follow\" } }]\n").unwrap();
+    // With a [task] table: every training runs under it.
+    std::fs::write(&cfg, "preset = \"smoke\"\nmodels = [{ name = \"ConvNet\", spec = { model = \"ConvNet\" } }, { name = \"Follow\", spec = { model = \"Follow\" } }]\n[task]\ntraining_episode_actions = 30\n").unwrap();
     let out = d.join("study");
     let o = fishprobe(&[
         "run",
@@ -263,6 +264,8 @@ fn convnet_can_be_refitted_for_the_study() {
         params.contains("convnet/convnet.safetensors"),
         "the policy did not train against the refitted fish"
     );
+    let params: serde_json::Value = serde_json::from_str(&params).unwrap();
+    assert_eq!(params["env"]["task"]["training_episode_actions"], 30);
     let o = fishprobe(&[
         "run",
         "--convnet-data",
