@@ -104,9 +104,15 @@ impl StepKind {
             v["groups"] =
                 serde_json::json!({"fish_count": c.fish_count, "group_goal": c.group_goal});
         }
-        // The `[task]` table: only a study with one records it, so other studies resume.
-        if !c.task.is_empty() {
-            v["task"] = serde_json::Value::Object(c.task.clone());
+        // The `[task]` table, resolved: only a study whose task differs from the default
+        // records it, so other studies resume (and writing out a default value changes
+        // nothing).
+        let default_task = fishprobe_sim::TaskParams {
+            group_goal: c.group_goal,
+            ..fishprobe_sim::TaskParams::default()
+        };
+        if study.env.task != default_task {
+            v["task"] = serde_json::to_value(&study.env.task).unwrap_or_default();
         }
         if let Some(ext) = runs.and_then(|p| study.external_policy(p)) {
             v["external_policy"] = serde_json::json!({
@@ -381,8 +387,8 @@ mod tests {
         let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
         let quick = StudyConfig::preset("quick").unwrap();
         let base = plan(quick.clone());
-        // The table is hashed only when there is one: studies without it resume. Every step
-        // is redone with it (trainings and trials use the task; the rest follows them).
+        // A task other than the default is hashed: every step is redone with it (trainings
+        // and trials use the task; the rest follows them); studies without one resume.
         let mut mixed = quick;
         mixed
             .task
@@ -397,5 +403,13 @@ mod tests {
             .inputs(&s)
             .get("task")
             .is_none());
+        // A default written out is no change.
+        let mut explicit = StudyConfig::preset("quick").unwrap();
+        explicit
+            .task
+            .insert("training_start".into(), serde_json::json!("random"));
+        for (a, b) in base.iter().zip(&plan(explicit)) {
+            assert_eq!(a.hash, b.hash, "{}", a.id);
+        }
     }
 }
