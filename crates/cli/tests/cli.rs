@@ -353,23 +353,24 @@ fn the_approach_assay_of_one_policy() {
         "--episodes",
         "3",
     ];
-    let o = fishprobe(&fetch);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(
-        stdout(&o).contains("does not go to the still fish"),
-        "{}",
-        stdout(&o)
+    // The assay with an `[analysis]` table (none: the study's thresholds).
+    let assay = |table: Option<(&str, &str)>| match table {
+        None => fishprobe(&fetch),
+        Some((name, text)) => {
+            let file = temp_file(name, &format!("[analysis]\n{text}\n"));
+            fishprobe(&[&fetch[..], &["--settings", file.to_str().unwrap()]].concat())
+        }
+    };
+    let says = |o: &std::process::Output, verdict: &str| {
+        assert!(o.status.success(), "{}", stderr(o));
+        assert!(stdout(o).contains(verdict), "{}", stdout(o));
+    };
+    says(&assay(None), "does not go to the still fish");
+    says(
+        &assay(Some(("wide.toml", "approach_closest_cm = 15.0"))),
+        "\ngoes to the still fish",
     );
-    let wide = temp_file("wide.toml", "[analysis]\napproach_closest_cm = 15.0\n");
-    let o = fishprobe(&[&fetch[..], &["--settings", wide.to_str().unwrap()]].concat());
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(
-        stdout(&o).contains("\ngoes to the still fish"),
-        "{}",
-        stdout(&o)
-    );
-    let nan = temp_file("nan.toml", "[analysis]\napproach_nearer_share = nan\n");
-    let o = fishprobe(&[&fetch[..], &["--settings", nan.to_str().unwrap()]].concat());
+    let o = assay(Some(("nan.toml", "approach_nearer_share = nan")));
     assert!(
         !o.status.success() && stderr(&o).contains("analysis.approach_nearer_share"),
         "{}",
