@@ -73,7 +73,7 @@ pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
                 frame: i,
                 fish: me - first_fish,
                 position: [s.x, s.y],
-                score: support.score_features(&sit.features()),
+                score: support.score_situation(&sit),
                 situation: sit,
             });
         }
@@ -118,7 +118,7 @@ pub fn score_views(support: &SupportModel, label: &str, views: &[f32], max: usiz
         .step_by(step)
         .map(|i| {
             let s = Situation::of_view(&arch, &views[i * len..(i + 1) * len]);
-            (support.score_features(&s.features()), s)
+            (support.score_situation(&s), s)
         })
         .collect();
     let (scores, situations) = picked.into_iter().unzip();

@@ -134,6 +134,8 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "50",
         "--estimator",
         "gmm",
+        "--partner-range-cm",
+        "15",
         "--out",
         s(&other),
     ]);
@@ -143,6 +145,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     assert!(t.contains("pressed into a corner"), "{t}");
     let f: serde_json::Value = serde_json::from_slice(&std::fs::read(&other).unwrap()).unwrap();
     assert_eq!(f["config"]["estimator"], "gmm");
+    assert_eq!(f["config"]["partner_range_cm"], 15.0);
 
     // Refusals.
     let train = |model: &str, extra: &[&str]| {
@@ -161,6 +164,17 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         assert!(stderr(&o).contains(why), "{}", stderr(&o));
     };
     refused(train("Zone", &[]), "not data-driven");
+    refused(
+        fishprobe(&[
+            "support",
+            "--model",
+            &format!("convnet:{}", s(&weights)),
+            "--partner-range-cm=-3",
+            "--out",
+            s(&dir.join("never.json")),
+        ]),
+        "support.partner_range_cm",
+    );
     // Weights without a support file beside them.
     let bare = dir.join("bare.safetensors");
     std::fs::copy(&weights, &bare).unwrap();

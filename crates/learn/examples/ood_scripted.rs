@@ -4,11 +4,12 @@
 //! docs/validation.md, "The OOD objective", cites it.
 //!
 //! ```sh
-//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD
+//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD [MODEL]
 //! ```
 //!
 //! Every strategy meets the same training-task episodes (41 s, random starts; master seed 0,
-//! label "ood-scripted"), against the shipped M_ConvNet, every frame scored against its support.
+//! label "ood-scripted"), against MODEL (default: the shipped M_ConvNet; `convnet:FILE` for
+//! weights with their own support file beside them), every frame scored against its support.
 //! Prints, per strategy, the mean, median and 95th percentile of the per-second mean score and
 //! the share of seconds whose mean score is at least THRESHOLD (default 1.23, the lead-to-goal
 //! policy's 95th percentile per view in validation.md). Each second the robot turns toward:
@@ -32,7 +33,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let episodes: u64 = args.first().map_or(Ok(40), |s| s.parse())?;
     let thr: f32 = args.get(1).map_or(Ok(1.23), |s| s.parse())?;
-    let model = ModelSpec::by_name("ConvNet")?;
+    let model = ModelSpec::by_name(args.get(2).map_or("ConvNet", String::as_str))?;
     let support = Arc::new(model.support()?);
     let mut cfg = EnvConfig::default();
     cfg.task.objective = Objective::Ood;

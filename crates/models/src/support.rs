@@ -150,14 +150,30 @@ impl Situation {
         s
     }
 
-    /// The embedding's features (see [`FEATURE_NAMES`]).
+    /// The embedding's features (see [`FEATURE_NAMES`]), every partner the view shows.
     pub fn features(&self) -> [f32; FEATURES] {
+        self.features_within(0.0)
+    }
+
+    /// The embedding's features with partners farther than `partner_range_cm` embedded as
+    /// not seen, at that distance (0: no range, every partner the view shows).
+    pub fn features_within(&self, partner_range_cm: f32) -> [f32; FEATURES] {
         let (bs, bc) = self.partner_bearing_rad.sin_cos();
         let (hs, hc) = self.relative_heading_rad.sin_cos();
         let (ws, wc) = self.wall_bearing_rad.sin_cos();
-        let g = if self.partner_seen { 1.0 } else { 0.0 };
+        let beyond = partner_range_cm > 0.0 && self.partner_distance_cm > partner_range_cm;
+        let g = if self.partner_seen && !beyond {
+            1.0
+        } else {
+            0.0
+        };
+        let partner = if beyond {
+            partner_range_cm
+        } else {
+            self.partner_distance_cm
+        };
         [
-            self.partner_distance_cm.max(0.0).ln_1p(),
+            partner.max(0.0).ln_1p(),
             g * bc,
             g * bs,
             g * hc,
@@ -245,6 +261,12 @@ fishprobe_sim::documented_params! {
         pub components: usize = 16; "1",
         /// EM iterations of the `gmm` (choice: 100).
         pub em_iterations: usize = 100; "1",
+        /// Partners farther than this are embedded as not seen, at this distance, in the
+        /// training views and in every scored view alike (choice: 0, no range: every partner
+        /// the view shows counts, up to the far plane, since M_ConvNet still turns toward a
+        /// partner 40 cm away at two thirds of its close-range rate; 15 makes the OOD task
+        /// seek close interactions; docs/validation.md, "A partner range for the support").
+        pub partner_range_cm: f32 = 0.0; "cm",
     }
 }
 
@@ -278,6 +300,14 @@ impl SupportConfig {
         }
         if !(1..=256).contains(&self.components) {
             return bad("components", self.components, "must lie in [1, 256]");
+        }
+        if !(self.partner_range_cm.is_finite() && self.partner_range_cm >= 0.0) {
+            return Err(ConfigError::new(
+                "support",
+                "partner_range_cm",
+                self.partner_range_cm,
+                "must be a finite number of cm, 0 or more",
+            ));
         }
         if !(1..=10_000).contains(&self.em_iterations) {
             return bad(
@@ -541,7 +571,10 @@ impl SupportModel {
             });
         }
         let idx = draw(n, n_ref + n_cal, rng);
-        let feats = |i: usize| Situation::of_view(arch, &views[i * len..(i + 1) * len]).features();
+        let feats = |i: usize| {
+            Situation::of_view(arch, &views[i * len..(i + 1) * len])
+                .features_within(cfg.partner_range_cm)
+        };
         let reference: Vec<[f32; FEATURES]> = idx[..n_ref].iter().map(|&i| feats(i)).collect();
         let calibration: Vec<[f32; FEATURES]> = idx[n_ref..].iter().map(|&i| feats(i)).collect();
         let mut mean = [0.0f32; FEATURES];
@@ -675,9 +708,14 @@ impl SupportModel {
         }
     }
 
+    /// The support score of a situation, embedded as the support was built.
+    pub fn score_situation(&self, s: &Situation) -> f32 {
+        self.score_features(&s.features_within(self.config.partner_range_cm))
+    }
+
     /// The support score of a view (`3 x bins`).
     pub fn score_view(&self, view: &[f32]) -> f32 {
-        self.score_features(&Situation::of_view(&self.arch(), view).features())
+        self.score_situation(&Situation::of_view(&self.arch(), view))
     }
 
     /// The situation fish `me` is in among `others`, as the model sees it.
@@ -790,8 +828,7 @@ impl SupportModel {
 
 impl InputSupport for SupportModel {
     fn score(&self, view: &FishView) -> f32 {
-        let s = self.situation(&view.tank, &view.me, view.others());
-        self.score_features(&s.features())
+        self.score_situation(&self.situation(&view.tank, &view.me, view.others()))
     }
 }
 
@@ -1019,6 +1056,86 @@ mod tests {
             .support()
             .unwrap_err();
         assert!(e.to_string().contains("/nonexistent/w.safetensors"), "{e}");
+    }
+
+    #[test]
+    fn a_partner_range_embeds_far_partners_as_not_seen() {
+        let arch = ConvNetArch::default();
+        let tank = Tank::new(&TankParams::default());
+        let me = AgentState::at(0.0, 0.0, 0.0);
+        let mut v = vec![0.0; arch.view_len()];
+        let sit = |d: f32, v: &mut Vec<f32>| {
+            encode_view(&arch, &tank, &me, &[AgentState::at(0.0, d, PI)], v);
+            Situation::of_view(&arch, v)
+        };
+        let near = sit(8.0, &mut v);
+        let far = sit(40.0, &mut v);
+        // Within range, and with no range, nothing changes.
+        assert_eq!(near.features_within(20.0), near.features());
+        assert_eq!(far.features_within(0.0), far.features());
+        // Beyond it: at the range, no bearing, no heading; the walls as they are.
+        let f = far.features_within(20.0);
+        assert!((f[0] - 20.0f32.ln_1p()).abs() < 1e-6, "{f:?}");
+        assert_eq!(&f[1..5], &[0.0; 4]);
+        assert_eq!(&f[5..], &far.features()[5..]);
+        // Training data with the partner 3-10 cm away but now and then 30-45 cm, anywhere:
+        // with no range every far partner in a new direction scores far out; with a range of
+        // 20 cm the far partners all look alike and lie within the data.
+        let mut rng = stream(5, "support-range", 0);
+        let mut pairs = follower_views(2700, &mut rng);
+        let far_pair = |rng: &mut SimRng| {
+            let me = AgentState::at(
+                rng.random_range(-5.0..5.0),
+                rng.random_range(-5.0..5.0),
+                rng.random_range(-PI..PI),
+            );
+            let b = rng.random_range(-PI..PI);
+            let d = rng.random_range(30.0..42.0);
+            let o = AgentState::at(
+                me.x + d * b.cos(),
+                me.y + d * b.sin(),
+                rng.random_range(-PI..PI),
+            );
+            (me, o)
+        };
+        pairs.extend((0..300).map(|_| far_pair(&mut rng)));
+        let train = views_of(&pairs, &arch, &tank);
+        // Far partners ahead, heading at the fish: rare among 300 random far partners.
+        let probe: Vec<(AgentState, AgentState)> = (0..200)
+            .map(|_| {
+                let me = AgentState::at(0.0, 0.0, rng.random_range(-PI..PI));
+                let d = rng.random_range(30.0..42.0);
+                let o = AgentState::at(d * me.heading.cos(), d * me.heading.sin(), me.heading + PI);
+                (me, o)
+            })
+            .collect();
+        let probe = views_of(&probe, &arch, &tank);
+        let mean_score = |range: f32, rng: &mut SimRng| {
+            let cfg = SupportConfig {
+                reference_views: 1500,
+                calibration_views: 1000,
+                partner_range_cm: range,
+                ..Default::default()
+            };
+            let s = SupportModel::fit(&arch, &train, &cfg, "test", "", rng).unwrap();
+            let sc: Vec<f32> = probe
+                .chunks_exact(arch.view_len())
+                .map(|x| s.score_view(x))
+                .collect();
+            sc.iter().sum::<f32>() / sc.len() as f32
+        };
+        let open = mean_score(0.0, &mut rng);
+        let ranged = mean_score(20.0, &mut rng);
+        assert!(
+            open > 1.0 && ranged < 0.5,
+            "no range {open}, range 20 cm {ranged}"
+        );
+        let bad = SupportConfig {
+            partner_range_cm: f32::NAN,
+            ..Default::default()
+        };
+        let e = bad.validate().unwrap_err();
+        assert!(e.to_string().contains("support.partner_range_cm"), "{e}");
     }
 
     #[test]

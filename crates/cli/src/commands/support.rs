@@ -39,6 +39,10 @@ pub struct SupportArgs {
     /// shipped ConvNet needs an explicit path.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Partners farther than this (cm) are embedded as not seen (0: every partner the view
+    /// shows; see `support.partner_range_cm` in docs/settings.md).
+    #[arg(long, default_value_t = SupportConfig::default().partner_range_cm)]
+    partner_range_cm: f32,
     /// Seed of the reference and calibration draws.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -149,6 +153,12 @@ pub fn run(a: SupportArgs) -> Result<()> {
     if a.synthetic == 0 || a.synthetic > 1_000_000 {
         bail!("--synthetic must lie in [1, 1000000], got {}", a.synthetic);
     }
+    SupportConfig {
+        partner_range_cm: a.partner_range_cm,
+        ..SupportConfig::default()
+    }
+    .validate()
+    .context("--partner-range-cm")?;
     let (spec, hash) = model_of(&a.model)?;
     let out = match (&a.out, spec.support_path()?) {
         (Some(p), _) => p.clone(),
@@ -195,6 +205,7 @@ pub fn run(a: SupportArgs) -> Result<()> {
     for est in [Estimator::Knn, Estimator::Gmm] {
         let cfg = SupportConfig {
             estimator: est,
+            partner_range_cm: a.partner_range_cm,
             ..SupportConfig::default()
         };
         let t = Instant::now();
