@@ -22,13 +22,16 @@ fn collective_draws_the_phase_picture_and_writes_its_numbers() {
         "--orientation",
         "0,30",
         "--attraction",
-        "28",
+        "4,28",
         "--out",
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = stdout(&o);
     assert!(text.contains("highly parallel"), "{text}");
+    // Δr_o = 0 with a 4-cm attraction zone cannot hold the group: it falls apart, and is
+    // called so rather than by its fragments' order parameters.
+    assert!(text.contains("fragmented"), "{text}");
     for f in [
         "collective-phase.svg",
         "collective-phase.png",
@@ -38,10 +41,13 @@ fn collective_draws_the_phase_picture_and_writes_its_numbers() {
     }
     let grid: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("collective.json")).unwrap()).unwrap();
-    assert_eq!(grid["cells"].as_array().unwrap().len(), 2);
-    // Δr_o = 30 cm: everyone aligns with everyone: polarised.
-    let p = grid["cells"][1][0]["polarisation"].as_f64().unwrap();
+    assert_eq!(grid["cells"].as_array().unwrap().len(), 4);
+    // Δr_o = 30 cm: everyone aligns with everyone: polarised, together.
+    let p = grid["cells"][3][0]["polarisation"].as_f64().unwrap();
     assert!(p > 0.9, "{p}");
+    assert!(grid["cells"][3][0]["cohesion"].as_f64().unwrap() > 0.9);
+    assert!(grid["cells"][0][0]["cohesion"].as_f64().unwrap() < 0.5);
+    assert_eq!(grid["cohesive_share"].as_f64(), Some(0.9));
 
     let o = fishprobe(&[
         "collective",

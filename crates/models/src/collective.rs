@@ -31,6 +31,12 @@ fishprobe_sim::documented_params! {
         pub start_radius_cm: f32 = 12.0; "cm",
         /// Order parameters are sampled every this many frames after the burn-in (choice: 5).
         pub sample_every: u32 = 5; "frames",
+        /// A group whose largest cluster (fish linked when within the model's interaction
+        /// range of each other: M_Zone's outer attraction radius, M_Force's range) holds on
+        /// average less than this share of the fish is labelled `fragmented`, whatever its
+        /// order parameters say (choice: 0.9; a group that fell apart has no collective
+        /// state, its order parameters describe the fragments).
+        pub cohesive_share: f32 = 0.9; "1",
     }
 }
 
@@ -58,6 +64,7 @@ impl CollectiveParams {
             self.seconds * 0.99,
         )?;
         check::positive(prefix, "start_radius_cm", self.start_radius_cm)?;
+        check::within(prefix, "cohesive_share", self.cohesive_share, 0.0, 1.0)?;
         if self.sample_every == 0 {
             return Err(ConfigError::new(
                 prefix,
@@ -87,6 +94,15 @@ impl Swimmer {
     /// M_Force with these parameters.
     pub fn force(p: ForceParams) -> Result<Self, ConfigError> {
         Ok(Self::Force(Force::new(p)?))
+    }
+
+    /// The distance within which a fish reacts to another (cm): M_Zone's outer attraction
+    /// radius, M_Force's interaction range.
+    pub fn interaction_range_cm(&self) -> f32 {
+        match self {
+            Self::Zone(m) => m.params().radii()[2],
+            Self::Force(m) => m.params().interaction_range_cm,
+        }
     }
 
     fn begin(&self, me: &AgentState, mind: &mut FishMind, rng: &mut SimRng) {
@@ -125,15 +141,65 @@ pub struct CollectiveState {
     /// Standard deviation of the polarisation over the samples: high in Couzin's dynamic
     /// parallel state, whose polarisation fluctuates.
     pub polarisation_sd: f32,
+    /// Mean share of the fish in the largest cluster (fish linked when within the model's
+    /// interaction range of each other): 1 for a group that holds together.
+    #[serde(default = "one")]
+    pub cohesion: f32,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+/// The share of `fish` in the largest cluster, fish linked when at most `link_cm` apart
+/// (single linkage); `scratch` is reused space (union-find parents, then member counts).
+fn largest_cluster_share(fish: &[AgentState], link_cm: f32, scratch: &mut Vec<usize>) -> f32 {
+    let n = fish.len();
+    if n == 0 {
+        return 0.0;
+    }
+    scratch.clear();
+    scratch.extend(0..n);
+    scratch.resize(2 * n, 0);
+    let (parent, counts) = scratch.split_at_mut(n);
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let l2 = link_cm * link_cm;
+    for i in 0..n {
+        for j in i + 1..n {
+            let (dx, dy) = (fish[i].x - fish[j].x, fish[i].y - fish[j].y);
+            if dx * dx + dy * dy <= l2 {
+                let (a, b) = (root(parent, i), root(parent, j));
+                if a != b {
+                    parent[a] = b;
+                }
+            }
+        }
+    }
+    let mut best = 0usize;
+    for i in 0..n {
+        let r = root(parent, i);
+        counts[r] += 1;
+        best = best.max(counts[r]);
+    }
+    best as f32 / n as f32
 }
 
 impl CollectiveState {
     /// Couzin's name for the state, from the order parameters (thresholds: a choice, after his
     /// Fig. 2: torus when milling > 0.5; highly parallel when polarisation > 0.95; dynamic
-    /// parallel when polarisation > 0.65; swarm otherwise). A group that fell apart (spread
-    /// far beyond its zones) gets the label of its order parameters all the same.
-    pub fn label(&self) -> &'static str {
-        if self.milling > 0.5 {
+    /// parallel when polarisation > 0.65; swarm otherwise), or `fragmented` when the group
+    /// fell apart: its largest cluster held less than `cohesive_share` of the fish
+    /// ([`CollectiveParams::cohesive_share`]).
+    pub fn label(&self, cohesive_share: f32) -> &'static str {
+        if self.cohesion < cohesive_share {
+            "fragmented"
+        } else if self.milling > 0.5 {
             "torus"
         } else if self.polarisation > 0.95 {
             "highly parallel"
@@ -169,6 +235,9 @@ pub fn run(
         swimmer.begin(f, m, r);
     }
     let mut others = Vec::with_capacity(n - 1);
+    let link = swimmer.interaction_range_cm();
+    let mut scratch = Vec::with_capacity(2 * n);
+    let mut cohesion = 0.0f64;
     let mut motions = vec![FishMotion::default(); n];
     let frames = (p.seconds * p.frame_rate_hz).round() as u64;
     let burn = (p.burn_in_s * p.frame_rate_hz).round() as u64;
@@ -197,6 +266,7 @@ pub fn run(
                 sm += f64::from(g.milling);
                 snnd += f64::from(g.mean_nnd_cm);
                 sspread += f64::from(g.spread_cm);
+                cohesion += f64::from(largest_cluster_share(&fish, link, &mut scratch));
             }
         }
     }
@@ -208,6 +278,7 @@ pub fn run(
         mean_nnd_cm: (snnd / kf) as f32,
         spread_cm: (sspread / kf) as f32,
         polarisation_sd: (sp2 / kf - mean_p * mean_p).max(0.0).sqrt() as f32,
+        cohesion: (cohesion / kf) as f32,
     })
 }
 
@@ -227,6 +298,13 @@ pub struct PhaseGrid {
     pub fish: u32,
     /// Maximum turning rate used (rad/s).
     pub max_turn_rate_rad_s: f32,
+    /// The cohesion below which a run is `fragmented` ([`CollectiveParams::cohesive_share`]).
+    #[serde(default = "default_cohesive_share")]
+    pub cohesive_share: f32,
+}
+
+fn default_cohesive_share() -> f32 {
+    CollectiveParams::default().cohesive_share
 }
 
 impl PhaseGrid {
@@ -241,15 +319,17 @@ impl PhaseGrid {
             mean_nnd_cm: f(|c| c.mean_nnd_cm),
             spread_cm: f(|c| c.spread_cm),
             polarisation_sd: f(|c| c.polarisation_sd),
+            cohesion: f(|c| c.cohesion),
         }
     }
 
     /// The most frequent label among the seeds of a cell (ties: the first seed's).
     pub fn label(&self, a: usize, o: usize) -> &'static str {
         let runs = &self.cells[a * self.orientation_cm.len() + o];
-        let count = |l: &str| runs.iter().filter(|c| c.label() == l).count();
+        let share = self.cohesive_share;
+        let count = |l: &str| runs.iter().filter(|c| c.label(share) == l).count();
         let mut best = ("swarm", 0);
-        for l in runs.iter().map(CollectiveState::label) {
+        for l in runs.iter().map(|c| c.label(share)) {
             let k = count(l);
             if k > best.1 {
                 best = (l, k);
@@ -297,7 +377,12 @@ mod tests {
         for (orientation, want) in regimes {
             let s = Swimmer::zone(couzin_zone(orientation, 28.0)).unwrap();
             for c in states(&s, &p, 2) {
-                assert_eq!(c.label(), want, "Δr_o = {orientation} cm: {c:?}");
+                assert_eq!(
+                    c.label(p.cohesive_share),
+                    want,
+                    "Δr_o = {orientation} cm: {c:?}"
+                );
+                assert!(c.cohesion > 0.95, "Δr_o = {orientation} cm: {c:?}");
                 // Cohesive: the group stays together (spread within the attraction range).
                 assert!(c.spread_cm < 30.0, "Δr_o = {orientation} cm: {c:?}");
                 match want {
@@ -306,6 +391,43 @@ mod tests {
                     _ => assert!(c.milling < 0.2, "{c:?}"),
                 }
             }
+        }
+    }
+
+    #[test]
+    fn clusters_are_counted_by_single_linkage() {
+        // A chain 5 cm apart (linked through its middle fish), a pair, one fish alone.
+        let at = |x: f32, y: f32| AgentState::at(x, y, 0.0);
+        let fish = [
+            at(0.0, 0.0),
+            at(5.0, 0.0),
+            at(10.0, 0.0),
+            at(50.0, 50.0),
+            at(53.0, 50.0),
+            at(-40.0, 0.0),
+        ];
+        let mut scratch = Vec::new();
+        assert_eq!(largest_cluster_share(&fish, 6.0, &mut scratch), 0.5);
+        assert_eq!(largest_cluster_share(&fish, 4.0, &mut scratch), 2.0 / 6.0);
+        assert_eq!(largest_cluster_share(&fish, 1.0, &mut scratch), 1.0 / 6.0);
+        assert_eq!(largest_cluster_share(&fish, 100.0, &mut scratch), 1.0);
+        assert_eq!(largest_cluster_share(&[], 1.0, &mut scratch), 0.0);
+    }
+
+    #[test]
+    fn a_group_that_falls_apart_is_labelled_fragmented() {
+        // A narrow attraction zone (4 cm) cannot hold 50 fish together (docs/validation.md,
+        // "Groups"); their order parameters alone would call the fragments a swarm.
+        let p = CollectiveParams {
+            seconds: 60.0,
+            burn_in_s: 30.0,
+            ..CollectiveParams::default()
+        };
+        let s = Swimmer::zone(couzin_zone(1.0, 4.0)).unwrap();
+        for c in states(&s, &p, 2) {
+            assert!(c.cohesion < 0.5, "{c:?}");
+            assert_eq!(c.label(p.cohesive_share), "fragmented", "{c:?}");
+            assert_ne!(c.label(0.0), "fragmented", "{c:?}");
         }
     }
 
@@ -364,6 +486,13 @@ mod tests {
                     ..CollectiveParams::default()
                 },
                 "burn_in_s",
+            ),
+            (
+                CollectiveParams {
+                    cohesive_share: 1.5,
+                    ..CollectiveParams::default()
+                },
+                "cohesive_share",
             ),
             (
                 CollectiveParams {

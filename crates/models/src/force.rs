@@ -116,6 +116,11 @@ pub struct Force {
 }
 
 impl Force {
+    /// The parameters.
+    pub fn params(&self) -> &ForceParams {
+        &self.p
+    }
+
     /// From parameters (validated here).
     pub fn new(p: ForceParams) -> Result<Self, ConfigError> {
         p.validate("")?;

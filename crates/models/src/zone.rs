@@ -140,6 +140,11 @@ pub struct Zone {
 }
 
 impl Zone {
+    /// The parameters.
+    pub fn params(&self) -> &ZoneParams {
+        &self.p
+    }
+
     /// From parameters (validated here).
     pub fn new(p: ZoneParams) -> Result<Self, ConfigError> {
         p.validate("")?;

@@ -152,6 +152,7 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
                 repulsion_cm: ZoneParams::default().repulsion_zone_cm,
                 fish: a.fish,
                 max_turn_rate_rad_s: turn,
+                cohesive_share: p.cohesive_share,
             };
             if let Some(dir) = &a.out {
                 std::fs::create_dir_all(dir)
@@ -170,17 +171,26 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
             }
             let mut t = format!(
                 "M_Zone, {} fish in open water, turning rate {:.2} rad/s, {} seeds per cell \
-                 (mean polarisation / milling, state)\n{:>8} {:>8}  {:>6} {:>6}  state\n",
-                a.fish, grid.max_turn_rate_rad_s, a.seeds, "Δr_o cm", "Δr_a cm", "P", "M"
+                 (mean polarisation / milling / share in the largest cluster, state)\n\
+                 {:>8} {:>8}  {:>6} {:>6} {:>8}  state\n",
+                a.fish,
+                grid.max_turn_rate_rad_s,
+                a.seeds,
+                "Δr_o cm",
+                "Δr_a cm",
+                "P",
+                "M",
+                "cluster"
             );
             for (ai, ra) in grid.attraction_cm.iter().enumerate() {
                 for (oi, ro) in grid.orientation_cm.iter().enumerate() {
                     let m = grid.mean(ai, oi);
                     let _ = writeln!(
                         t,
-                        "{ro:>8} {ra:>8}  {:>6.2} {:>6.2}  {}",
+                        "{ro:>8} {ra:>8}  {:>6.2} {:>6.2} {:>8.2}  {}",
                         m.polarisation,
                         m.milling,
+                        m.cohesion,
                         grid.label(ai, oi)
                     );
                 }
@@ -209,19 +219,21 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
             }
             let mut t = format!(
                 "M_Force, {} fish in open water, {} seeds (mean polarisation / milling / \
-                 nearest-neighbour distance)\n{:>9}  {:>6} {:>6} {:>8}\n",
-                a.fish, a.seeds, "μ_alg", "P", "M", "NND cm"
+                 nearest-neighbour distance / share in the largest cluster)\n\
+                 {:>9}  {:>6} {:>6} {:>8} {:>8}\n",
+                a.fish, a.seeds, "μ_alg", "P", "M", "NND cm", "cluster"
             );
             for ((k, _), c) in swimmers.iter().zip(&cells) {
                 let n = c.len() as f32;
                 let f = |g: fn(&CollectiveState) -> f32| c.iter().map(g).sum::<f32>() / n;
                 let _ = writeln!(
                     t,
-                    "{:>9}  {:>6.2} {:>6.2} {:>8.1}",
+                    "{:>9}  {:>6.2} {:>6.2} {:>8.1} {:>8.2}",
                     k[0],
                     f(|s| s.polarisation),
                     f(|s| s.milling),
-                    f(|s| s.mean_nnd_cm)
+                    f(|s| s.mean_nnd_cm),
+                    f(|s| s.cohesion)
                 );
             }
             emit(&t)

@@ -36,6 +36,7 @@ pub fn collective_phase(grid: &PhaseGrid) -> Figure {
                     "torus" => "T",
                     "highly parallel" => "H",
                     "dynamic parallel" => "D",
+                    "fragmented" => "F",
                     _ => "S",
                 };
                 svg.text(
@@ -79,7 +80,7 @@ pub fn collective_phase(grid: &PhaseGrid) -> Figure {
     svg.text(
         left + 230.0,
         top + ph + 60.0,
-        "S swarm · T torus · D dynamic parallel · H highly parallel",
+        "S swarm · T torus · D dynamic parallel · H highly parallel · F fell apart",
         TextStyle::new(11.0, Anchor::Start),
     );
     let seeds = grid.cells.first().map_or(0, Vec::len);
@@ -89,10 +90,12 @@ pub fn collective_phase(grid: &PhaseGrid) -> Figure {
         caption: format!(
             "{} fish in open water, repulsion radius {} cm, maximum turning rate {:.2} rad/s; \
              each cell the mean over {seeds} seeds of the order parameters after the burn-in, \
-             marked with the most frequent state.",
+             marked with the most frequent state (F: the largest cluster held less than {:.0} % \
+             of the fish).",
             grid.fish,
             fmt(f64::from(grid.repulsion_cm), 1),
-            grid.max_turn_rate_rad_s
+            grid.max_turn_rate_rad_s,
+            100.0 * grid.cohesive_share
         ),
         svg: svg.finish(),
     }
