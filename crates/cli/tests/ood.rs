@@ -21,6 +21,7 @@ train_steps = 1500
 fit_max_epochs = 1
 gap_episodes = 1
 gap_minutes = 0.5
+support_partner_range_cm = 15.0
 "#;
 
 fn s(p: &Path) -> &str {
@@ -59,6 +60,11 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         support.is_file(),
         "fit-convnet writes the support beside the weights"
     );
+    let f: serde_json::Value = serde_json::from_slice(&std::fs::read(&support).unwrap()).unwrap();
+    assert_eq!(
+        f["config"]["partner_range_cm"], 15.0,
+        "the loop's partner range"
+    );
     // The loop resumes: a second call finds every stage done and prints the same table.
     let o2 = fishprobe(&[
         "ood-loop",
@@ -84,6 +90,22 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
+    // A partner range out of range: refused by name before anything runs.
+    std::fs::write(&cfg, TINY.replace("= 15.0", "= -1.0")).unwrap();
+    let o = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&dir.join("never")),
+        "--config",
+        s(&cfg),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("support_partner_range_cm"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("never").exists());
 
     // What the OOD policy finds.
     let report = dir.join("report");

@@ -64,6 +64,9 @@ fishprobe_sim::documented_params! {
         /// fish's). Choice: off, the paper fits fish pairs only; the OOD loop (issue 23) turns
         /// it on to add what the fish did under a policy.
         pub robot_as_partner: bool = false; "-",
+        /// The partner range of the support written beside the weights
+        /// (`support.partner_range_cm`; choice: 0, every partner counts).
+        pub support_partner_range_cm: f32 = 0.0; "cm",
     }
 }
 
@@ -77,6 +80,14 @@ impl CloneConfig {
             self.heading_disagreement_rad,
         )?;
         check::positive("clone", "learning_rate", self.learning_rate)?;
+        if !(self.support_partner_range_cm.is_finite() && self.support_partner_range_cm >= 0.0) {
+            return Err(ConfigError::new(
+                "clone",
+                "support_partner_range_cm",
+                self.support_partner_range_cm,
+                "must be a finite number of cm, 0 or more",
+            ));
+        }
         if self.heading_smoothing_frames.is_multiple_of(2) || self.heading_smoothing_frames > 251 {
             return Err(ConfigError::new(
                 "clone",
@@ -540,6 +551,15 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("heading_smoothing_frames"));
+        let ranged = CloneConfig {
+            support_partner_range_cm: f32::INFINITY,
+            ..CloneConfig::default()
+        };
+        assert!(ranged
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("clone.support_partner_range_cm"));
     }
 
     #[test]
@@ -778,7 +798,10 @@ pub fn fit_convnet(
     let s = build_support(
         &train,
         &arch,
-        &SupportConfig::default(),
+        &SupportConfig {
+            partner_range_cm: cfg.support_partner_range_cm,
+            ..SupportConfig::default()
+        },
         &out.display().to_string(),
         &fishprobe_models::sha256_hex(&bytes),
         seed,

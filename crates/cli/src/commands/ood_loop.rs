@@ -54,6 +54,10 @@ fishprobe_sim::documented_params! {
         pub gap_episodes: usize = 6; "episodes",
         /// Minutes per gap episode (choice: 5).
         pub gap_minutes: f32 = 5.0; "min",
+        /// Partner range of every fitted model's support (`support.partner_range_cm`; choice:
+        /// 0, every partner counts, as the shipped support; 15 makes the OOD policy seek
+        /// close interactions, docs/validation.md, "A partner range for the support").
+        pub support_partner_range_cm: f32 = 0.0; "cm",
     }
 }
 
@@ -78,6 +82,13 @@ impl OodLoopConfig {
         }
         super::check_minutes("episode_minutes", f64::from(self.episode_minutes))?;
         super::check_minutes("gap_minutes", f64::from(self.gap_minutes))?;
+        if !(self.support_partner_range_cm.is_finite() && self.support_partner_range_cm >= 0.0) {
+            bail!(
+                "ood-loop setting `support_partner_range_cm` = {}: must be a finite number of \
+                 cm, 0 or more",
+                self.support_partner_range_cm
+            );
+        }
         if PpoConfig::preset(&self.ppo_preset).is_none() {
             bail!(
                 "ood-loop setting `ppo_preset` = {}: not a preset",
@@ -173,7 +184,7 @@ fn fit(
     data: &[PathBuf],
     validation: &Path,
     dir: &Path,
-    epochs: usize,
+    loop_cfg: &OodLoopConfig,
     seed: u64,
 ) -> Result<ModelSpec> {
     let weights = dir.join("convnet.safetensors");
@@ -181,7 +192,8 @@ fn fit(
         std::fs::create_dir_all(dir)?;
         let cfg = CloneConfig {
             robot_as_partner: true,
-            max_epochs: epochs,
+            max_epochs: loop_cfg.fit_max_epochs,
+            support_partner_range_cm: loop_cfg.support_partner_range_cm,
             ..CloneConfig::default()
         };
         let quiet = |_: FitProgress<'_>| {};
@@ -275,13 +287,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
         &validation,
     )?;
     step("fitting M_ConvNet on the narrow data");
-    let m0 = fit(
-        &narrow,
-        &validation,
-        &dir.join("model-narrow"),
-        cfg.fit_max_epochs,
-        seed,
-    )?;
+    let m0 = fit(&narrow, &validation, &dir.join("model-narrow"), cfg, seed)?;
     step("training the OOD and the lead-to-goal policy against it");
     let p_ood = train(&m0, Objective::Ood, cfg, seed, &dir.join("policy-ood"))?;
     let p_goal = train(&m0, Objective::Goal, cfg, seed, &dir.join("policy-goal"))?;
@@ -313,14 +319,14 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
         &with(&ood_data),
         &validation,
         &dir.join("model-ood"),
-        cfg.fit_max_epochs,
+        cfg,
         seed,
     )?;
     let m_goal = fit(
         &with(&goal_data),
         &validation,
         &dir.join("model-goal"),
-        cfg.fit_max_epochs,
+        cfg,
         seed,
     )?;
     step("measuring each model's gap to the virtual guppy");
