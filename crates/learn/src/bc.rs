@@ -80,14 +80,11 @@ impl CloneConfig {
             self.heading_disagreement_rad,
         )?;
         check::positive("clone", "learning_rate", self.learning_rate)?;
-        if !(self.support_partner_range_cm.is_finite() && self.support_partner_range_cm >= 0.0) {
-            return Err(ConfigError::new(
-                "clone",
-                "support_partner_range_cm",
-                self.support_partner_range_cm,
-                "must be a finite number of cm, 0 or more",
-            ));
-        }
+        check::non_negative(
+            "clone",
+            "support_partner_range_cm",
+            self.support_partner_range_cm,
+        )?;
         if self.heading_smoothing_frames.is_multiple_of(2) || self.heading_smoothing_frames > 251 {
             return Err(ConfigError::new(
                 "clone",

@@ -48,7 +48,7 @@
 //! ```
 
 use crate::convnet::{encode_view, ConvNetArch, CHANNELS};
-use fishprobe_sim::params::ConfigError;
+use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{wrap_angle, AgentState, FishView, InputSupport, SimRng, Tank};
 use rand::RngExt;
 use serde::{Deserialize, Serialize};
@@ -301,14 +301,7 @@ impl SupportConfig {
         if !(1..=256).contains(&self.components) {
             return bad("components", self.components, "must lie in [1, 256]");
         }
-        if !(self.partner_range_cm.is_finite() && self.partner_range_cm >= 0.0) {
-            return Err(ConfigError::new(
-                "support",
-                "partner_range_cm",
-                self.partner_range_cm,
-                "must be a finite number of cm, 0 or more",
-            ));
-        }
+        check::non_negative("support", "partner_range_cm", self.partner_range_cm)?;
         if !(1..=10_000).contains(&self.em_iterations) {
             return bad(
                 "em_iterations",
