@@ -77,6 +77,24 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     ]);
     assert!(o2.status.success(), "{}", stderr(&o2));
     assert_eq!(stdout(&o2), text);
+    // A loop recorded before a setting existed (its settings.json lacks the field) resumes
+    // when the run keeps that setting's default.
+    let recorded = out.join("settings.json");
+    let mut old: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&recorded).unwrap()).unwrap();
+    assert!(old.as_object_mut().unwrap().remove("gap_probe").is_some());
+    std::fs::write(&recorded, serde_json::to_string_pretty(&old).unwrap()).unwrap();
+    let o3 = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg),
+    ]);
+    assert!(o3.status.success(), "{}", stderr(&o3));
+    assert_eq!(stdout(&o3), text);
     // Other settings into the same directory: refused.
     std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
     let o = fishprobe(&[

@@ -20,6 +20,7 @@ use fishprobe_analysis::{load_trial, AnalysisConfig};
 use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress};
 use fishprobe_learn::{Evaluation, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
+use fishprobe_sim::params::check;
 use fishprobe_sim::{EnvConfig, Objective};
 use std::path::{Path, PathBuf};
 
@@ -82,13 +83,12 @@ impl OodLoopConfig {
         }
         super::check_minutes("episode_minutes", f64::from(self.episode_minutes))?;
         super::check_minutes("gap_minutes", f64::from(self.gap_minutes))?;
-        if !(self.support_partner_range_cm.is_finite() && self.support_partner_range_cm >= 0.0) {
-            bail!(
-                "ood-loop setting `support_partner_range_cm` = {}: must be a finite number of \
-                 cm, 0 or more",
-                self.support_partner_range_cm
-            );
-        }
+        check::non_negative(
+            "",
+            "support_partner_range_cm",
+            self.support_partner_range_cm,
+        )
+        .context("ood-loop settings")?;
         if PpoConfig::preset(&self.ppo_preset).is_none() {
             bail!(
                 "ood-loop setting `ppo_preset` = {}: not a preset",
@@ -380,13 +380,27 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
     let settings = serde_json::to_string_pretty(&cfg)? + "\n";
     let recorded = a.out.join("settings.json");
     match std::fs::read_to_string(&recorded) {
-        Ok(old) if old != settings => bail!(
-            "{} holds a loop with other settings ({}); use another --out",
-            a.out.display(),
-            recorded.display()
-        ),
-        Ok(_) => {}
-        Err(_) => fishprobe_io::write_atomically(&recorded, settings.as_bytes())?,
+        // Compared as settings, not as text: a loop recorded before a setting existed has
+        // that setting's default, and resumes when the new run keeps it.
+        Ok(old) => {
+            let old: OodLoopConfig = serde_json::from_str(&old).with_context(|| {
+                format!(
+                    "{} is not the settings of a loop this fishprobe can resume; use another --out",
+                    recorded.display()
+                )
+            })?;
+            if old != cfg {
+                bail!(
+                    "{} holds a loop with other settings ({}); use another --out",
+                    a.out.display(),
+                    recorded.display()
+                );
+            }
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            fishprobe_io::write_atomically(&recorded, settings.as_bytes())?
+        }
+        Err(e) => return Err(e).with_context(|| format!("reading {}", recorded.display())),
     }
     let mut results = Vec::new();
     for &seed in &a.seeds {
