@@ -34,7 +34,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let cfg = dir.join("tiny.toml");
     std::fs::write(&cfg, TINY).unwrap();
     let out = dir.join("loop");
-    let o = fishprobe(&[
+    let loop_args = [
         "ood-loop",
         "--out",
         s(&out),
@@ -42,7 +42,8 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "5",
         "--config",
         s(&cfg),
-    ]);
+    ];
+    let o = fishprobe(&loop_args);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = stdout(&o);
     assert!(text.contains("| 5 |") && text.contains("seeds"), "{text}");
@@ -66,15 +67,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "the loop's partner range"
     );
     // The loop resumes: a second call finds every stage done and prints the same table.
-    let o2 = fishprobe(&[
-        "ood-loop",
-        "--out",
-        s(&out),
-        "--seeds",
-        "5",
-        "--config",
-        s(&cfg),
-    ]);
+    let o2 = fishprobe(&loop_args);
     assert!(o2.status.success(), "{}", stderr(&o2));
     assert_eq!(stdout(&o2), text);
     // A loop recorded before a setting existed (its settings.json lacks the field) resumes
@@ -84,28 +77,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         serde_json::from_slice(&std::fs::read(&recorded).unwrap()).unwrap();
     assert!(old.as_object_mut().unwrap().remove("gap_probe").is_some());
     std::fs::write(&recorded, serde_json::to_string_pretty(&old).unwrap()).unwrap();
-    let o3 = fishprobe(&[
-        "ood-loop",
-        "--out",
-        s(&out),
-        "--seeds",
-        "5",
-        "--config",
-        s(&cfg),
-    ]);
+    let o3 = fishprobe(&loop_args);
     assert!(o3.status.success(), "{}", stderr(&o3));
     assert_eq!(stdout(&o3), text);
     // Other settings into the same directory: refused.
     std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
-    let o = fishprobe(&[
-        "ood-loop",
-        "--out",
-        s(&out),
-        "--seeds",
-        "5",
-        "--config",
-        s(&cfg),
-    ]);
+    let o = fishprobe(&loop_args);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
     // A partner range out of range: refused by name before anything runs.
