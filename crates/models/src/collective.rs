@@ -190,6 +190,16 @@ fn largest_cluster_share(fish: &[AgentState], link_cm: f32, scratch: &mut Vec<us
     best as f32 / n as f32
 }
 
+/// Every label [`CollectiveState::label`] gives, the order in which [`PhaseGrid::label`]
+/// breaks a tie the cell's mean state does not settle.
+pub const STATE_LABELS: [&str; 5] = [
+    "fragmented",
+    "torus",
+    "highly parallel",
+    "dynamic parallel",
+    "swarm",
+];
+
 impl CollectiveState {
     /// Couzin's name for the state, from the order parameters (thresholds: a choice, after his
     /// Fig. 2: torus when milling > 0.5; highly parallel when polarisation > 0.95; dynamic
@@ -323,19 +333,24 @@ impl PhaseGrid {
         }
     }
 
-    /// The most frequent label among the seeds of a cell (ties: the first seed's).
+    /// The most frequent label among the seeds of a cell. A tie (e.g. three seeds, three
+    /// states) goes to the label of the cell's mean state when that is one of the tied, else to
+    /// the first tied in [`STATE_LABELS`]' order: never to whichever seed came first, so the
+    /// label does not depend on the order of the seeds.
     pub fn label(&self, a: usize, o: usize) -> &'static str {
         let runs = &self.cells[a * self.orientation_cm.len() + o];
         let share = self.cohesive_share;
         let count = |l: &str| runs.iter().filter(|c| c.label(share) == l).count();
-        let mut best = ("swarm", 0);
-        for l in runs.iter().map(|c| c.label(share)) {
-            let k = count(l);
-            if k > best.1 {
-                best = (l, k);
-            }
+        let top = STATE_LABELS.iter().map(|l| count(l)).max().unwrap_or(0);
+        let tied = |l: &str| count(l) == top;
+        let of_mean = self.mean(a, o).label(share);
+        if tied(of_mean) {
+            return of_mean;
         }
-        best.0
+        STATE_LABELS
+            .into_iter()
+            .find(|l| tied(l))
+            .unwrap_or(of_mean)
     }
 }
 
@@ -428,6 +443,47 @@ mod tests {
             assert!(c.cohesion < 0.5, "{c:?}");
             assert_eq!(c.label(p.cohesive_share), "fragmented", "{c:?}");
             assert_ne!(c.label(0.0), "fragmented", "{c:?}");
+        }
+    }
+
+    #[test]
+    fn a_cell_label_is_the_majority_and_a_tie_does_not_depend_on_the_seed_order() {
+        let state = |polarisation, milling| CollectiveState {
+            polarisation,
+            milling,
+            mean_nnd_cm: 5.0,
+            spread_cm: 20.0,
+            polarisation_sd: 0.01,
+            cohesion: 1.0,
+        };
+        let (torus, dynamic, high) = (state(0.1, 0.8), state(0.8, 0.1), state(0.99, 0.0));
+        let grid = |runs: Vec<CollectiveState>| PhaseGrid {
+            orientation_cm: vec![1.0],
+            attraction_cm: vec![28.0],
+            cells: vec![runs],
+            repulsion_cm: 2.0,
+            fish: 50,
+            max_turn_rate_rad_s: COUZIN_TURN_RATE_RAD_S,
+            cohesive_share: 0.9,
+        };
+        // Two of three: the majority.
+        assert_eq!(
+            grid(vec![torus, dynamic, dynamic]).label(0, 0),
+            "dynamic parallel"
+        );
+        assert_eq!(grid(vec![high, torus, high]).label(0, 0), "highly parallel");
+        // Three states: the mean state (polarisation 0.63, milling 0.3) is a swarm, not one
+        // of the tied, so the first tied in STATE_LABELS' order, whatever the seeds' order.
+        for runs in [
+            vec![torus, dynamic, high],
+            vec![high, dynamic, torus],
+            vec![dynamic, high, torus],
+        ] {
+            assert_eq!(grid(runs).label(0, 0), "torus");
+        }
+        // Two seeds, two states: the mean state's (polarisation 0.895: dynamic parallel).
+        for runs in [vec![dynamic, high], vec![high, dynamic]] {
+            assert_eq!(grid(runs).label(0, 0), "dynamic parallel");
         }
     }
 
