@@ -10,9 +10,10 @@
 //! Every strategy meets the same training-task episodes (41 s, random starts; master seed 0,
 //! label "ood-scripted"), against MODEL (default: the shipped M_ConvNet; `convnet:FILE` for
 //! weights with their own support file beside them), every frame scored against its support.
-//! Prints, per strategy, the mean, median and 95th percentile of the per-second mean score and
+//! Prints, per strategy, the mean, median and 95th percentile of the per-second mean score,
 //! the share of seconds whose mean score is at least THRESHOLD (default 1.23, the lead-to-goal
-//! policy's 95th percentile per view in validation.md). Each second the robot turns toward:
+//! policy's 95th percentile per view in validation.md) and the share of single views at least
+//! THRESHOLD (what `ood-report` counts for a policy). Each second the robot turns toward:
 //! - `seek`: the active goal (the goal-seeker baseline);
 //! - `chase`: the fish;
 //! - `aheadD`: the point D cm ahead of the fish along its heading (D = 5, 10, 20);
@@ -22,33 +23,80 @@
 //! - `random`: a uniform turn in [-3, 3] rad;
 //! - `pinD`: the point D cm from the fish toward the tank's centre (D = 4, 8), so that the fish
 //!   is between the robot and the walls;
-//! - `wallpin`: 5 cm from the fish along the normal of the fish's nearest wall.
+//! - `wallpin`: 5 cm from the fish along the normal of the fish's nearest wall;
+//! - `orbit-cw-R-A` / `orbit-ccw-R-A`: around the fish at R cm (R = 5, 8, 12, 16), clockwise /
+//!   counter-clockwise: the point on that circle A rad (0.5, 0.8, 1.2, 1.6) beyond the robot's
+//!   present bearing from the fish. Clockwise, the robot passes the fish's right heading the
+//!   opposite way, the OOD policies' first wish (docs/validation.md, "Rewards shaped like the
+//!   target, and orbits").
 
 use fishprobe_models::ModelSpec;
-use fishprobe_sim::{derive_seed, stream, wrap_angle, Env, EnvConfig, Objective, TankEnv};
+use fishprobe_sim::{
+    derive_seed, stream, wrap_angle, Env, EnvConfig, FishView, InputSupport, Objective, TankEnv,
+};
 use rand::RngExt;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
+
+/// The model's support, counting the views it scores and those at or beyond a threshold.
+#[derive(Debug)]
+struct Counting {
+    inner: Arc<dyn InputSupport>,
+    threshold: f32,
+    /// (views, views at or beyond the threshold)
+    counts: (AtomicU64, AtomicU64),
+}
+
+impl InputSupport for Counting {
+    fn score(&self, view: &FishView) -> f32 {
+        let s = self.inner.score(view);
+        self.counts.0.fetch_add(1, Ordering::Relaxed);
+        if s >= self.threshold {
+            self.counts.1.fetch_add(1, Ordering::Relaxed);
+        }
+        s
+    }
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let episodes: u64 = args.first().map_or(Ok(40), |s| s.parse())?;
     let thr: f32 = args.get(1).map_or(Ok(1.23), |s| s.parse())?;
     let model = ModelSpec::by_name(args.get(2).map_or("ConvNet", String::as_str))?;
-    let support = Arc::new(model.support()?);
+    let support: Arc<dyn InputSupport> = Arc::new(model.support()?);
     let mut cfg = EnvConfig::default();
     cfg.task.objective = Objective::Ood;
     cfg.task.ood_score_every_frames = 1;
     cfg.task.ood_score_cap = 100.0;
-    let pilots = [
+    let mut pilots: Vec<String> = [
         "seek", "chase", "ahead5", "ahead10", "ahead20", "behind10", "side8", "flee", "corner",
         "random", "pin4", "pin8", "wallpin",
-    ];
-    for name in pilots {
+    ]
+    .map(String::from)
+    .to_vec();
+    for dir in ["cw", "ccw"] {
+        for rad in ["5", "8", "12", "16"] {
+            for step in ["0.5", "0.8", "1.2", "1.6"] {
+                pilots.push(format!("orbit-{dir}-{rad}-{step}"));
+            }
+        }
+    }
+    for name in pilots.iter().map(String::as_str) {
+        // orbit-DIR-R-A: (clockwise, R, A)
+        let orbit: Option<(bool, f32, f32)> = name.strip_prefix("orbit-").and_then(|o| {
+            let p: Vec<&str> = o.split('-').collect();
+            Some((p[0] == "cw", p[1].parse().ok()?, p[2].parse().ok()?))
+        });
         let (mut n, mut hi, mut sum) = (0u64, 0u64, 0.0f64);
         let mut scores = Vec::new();
+        let counting = Arc::new(Counting {
+            inner: support.clone(),
+            threshold: thr,
+            counts: (AtomicU64::new(0), AtomicU64::new(0)),
+        });
         for ep in 0..episodes {
             let mut env = TankEnv::new(cfg.clone(), model.build()?)?;
-            env.set_support(Some(support.clone()));
+            env.set_support(Some(counting.clone()));
             let mut obs = vec![0.0; env.observation_space().dim()];
             env.reset(Some(derive_seed(0, "ood-scripted", ep)), &mut obs)?;
             let mut rng = stream(0, "ood-scripted-actions", ep);
@@ -58,31 +106,36 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let g = env.active_goal();
                 let toward = |t: [f32; 2]| wrap_angle((t[1] - r.y).atan2(t[0] - r.x) - r.heading);
                 let (c, s) = (f.heading.cos(), f.heading.sin());
-                let action = match name {
-                    "seek" => toward(g),
-                    "chase" => toward([f.x, f.y]),
-                    "ahead5" => toward([f.x + 5.0 * c, f.y + 5.0 * s]),
-                    "ahead10" => toward([f.x + 10.0 * c, f.y + 10.0 * s]),
-                    "ahead20" => toward([f.x + 20.0 * c, f.y + 20.0 * s]),
-                    "behind10" => toward([f.x - 10.0 * c, f.y - 10.0 * s]),
-                    "side8" => toward([f.x - 8.0 * s, f.y + 8.0 * c]),
-                    "flee" => toward([2.0 * r.x - f.x, 2.0 * r.y - f.y]),
-                    "corner" => toward([45.0 * f.x.signum(), 45.0 * f.y.signum()]),
-                    "pin4" | "pin8" => {
-                        let d = if name == "pin4" { 4.0 } else { 8.0 };
-                        let n = f.x.hypot(f.y).max(1e-3);
-                        toward([f.x - d * f.x / n, f.y - d * f.y / n])
+                let action = if let Some((cw, rad, step)) = orbit {
+                    let b = (r.y - f.y).atan2(r.x - f.x) + if cw { -step } else { step };
+                    toward([f.x + rad * b.cos(), f.y + rad * b.sin()])
+                } else {
+                    match name {
+                        "seek" => toward(g),
+                        "chase" => toward([f.x, f.y]),
+                        "ahead5" => toward([f.x + 5.0 * c, f.y + 5.0 * s]),
+                        "ahead10" => toward([f.x + 10.0 * c, f.y + 10.0 * s]),
+                        "ahead20" => toward([f.x + 20.0 * c, f.y + 20.0 * s]),
+                        "behind10" => toward([f.x - 10.0 * c, f.y - 10.0 * s]),
+                        "side8" => toward([f.x - 8.0 * s, f.y + 8.0 * c]),
+                        "flee" => toward([2.0 * r.x - f.x, 2.0 * r.y - f.y]),
+                        "corner" => toward([45.0 * f.x.signum(), 45.0 * f.y.signum()]),
+                        "pin4" | "pin8" => {
+                            let d = if name == "pin4" { 4.0 } else { 8.0 };
+                            let n = f.x.hypot(f.y).max(1e-3);
+                            toward([f.x - d * f.x / n, f.y - d * f.y / n])
+                        }
+                        "wallpin" => {
+                            // between the fish and the tank's centre along the nearest wall's normal
+                            let (nx, ny) = if f.x.abs() > f.y.abs() {
+                                (f.x.signum(), 0.0)
+                            } else {
+                                (0.0, f.y.signum())
+                            };
+                            toward([f.x - 5.0 * nx, f.y - 5.0 * ny])
+                        }
+                        _ => rng.random_range(-3.0..3.0),
                     }
-                    "wallpin" => {
-                        // between the fish and the tank's centre along the nearest wall's normal
-                        let (nx, ny) = if f.x.abs() > f.y.abs() {
-                            (f.x.signum(), 0.0)
-                        } else {
-                            (0.0, f.y.signum())
-                        };
-                        toward([f.x - 5.0 * nx, f.y - 5.0 * ny])
-                    }
-                    _ => rng.random_range(-3.0..3.0),
                 };
                 let t = env.step(&[action], &mut obs)?;
                 let sc = t.info.support_score;
@@ -96,12 +149,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         scores.sort_by(f32::total_cmp);
+        let views = counting.counts.0.load(Ordering::Relaxed).max(1);
+        let beyond = counting.counts.1.load(Ordering::Relaxed);
         println!(
-            "{name:>10}: mean {:.2} median {:.2} p95 {:.2} seconds >= {thr}: {:.1} %",
+            "{name:>16}: mean {:.2} median {:.2} p95 {:.2} seconds >= {thr}: {:.1} %, views >= {thr}: {:.1} %",
             sum / n as f64,
             scores[scores.len() / 2],
             scores[scores.len() * 95 / 100],
-            100.0 * hi as f64 / n as f64
+            100.0 * hi as f64 / n as f64,
+            100.0 * beyond as f64 / views as f64
         );
     }
     Ok(())
