@@ -136,6 +136,98 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let share = r["ood_share_beyond_goal_p95"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&share), "{share}");
 
+    // A reward that counts time beyond a lead-to-goal policy's 95th percentile: measured before
+    // training on `ood-report`'s episodes, so the report's yardstick is the reward's floor.
+    let good = format!("convnet:{}", s(&weights));
+    let goal_policy = seed_dir.join("policy-goal");
+    let yard_run = dir.join("yard-run");
+    let yard_args = |out: &Path, extra: &[&str]| {
+        let mut args: Vec<String> = [
+            "train",
+            "--model",
+            &good,
+            "--task",
+            "ood",
+            "--preset",
+            "smoke",
+            "--steps",
+            "500",
+            "--ood-yardstick",
+            s(&goal_policy),
+            "--ood-yardstick-episodes",
+            "2",
+            "--ood-yardstick-minutes",
+            "0.5",
+            "--out",
+            s(out),
+        ]
+        .map(String::from)
+        .to_vec();
+        args.extend(extra.iter().map(|a| a.to_string()));
+        args
+    };
+    let run_with =
+        |args: Vec<String>| fishprobe(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = run_with(yard_args(&yard_run, &["--ood-yardstick-band", "0.2"]));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let y: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(yard_run.join("yardstick.json")).unwrap()).unwrap();
+    let t = y["score"].as_f64().unwrap();
+    let p: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(yard_run.join("params.json")).unwrap()).unwrap();
+    let task = &p["env"]["task"];
+    let floor = task["ood_score_floor"].as_f64().unwrap();
+    assert!(
+        (floor - t.max(0.0)).abs() < 1e-6,
+        "floor {floor}, score {t}"
+    );
+    assert!((task["ood_score_cap"].as_f64().unwrap() - (floor + 0.2)).abs() < 1e-5);
+    assert!((task["ood_weight"].as_f64().unwrap() - 5.0).abs() < 1e-5);
+    assert!(yard_run.join("yardstick/yardstick_000.hdf5").is_file());
+    let yard_report = dir.join("yard-report");
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&yard_run),
+        "--compare",
+        s(&goal_policy),
+        "--episodes",
+        "2",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&yard_report),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(yard_report.join("ood.json")).unwrap()).unwrap();
+    assert!(
+        (r["goal_policy_p95"].as_f64().unwrap() - t).abs() < 1e-9,
+        "the report's yardstick {} is the reward's {t}",
+        r["goal_policy_p95"]
+    );
+    // Refused before anything runs: a band out of range, the goal task, a used directory.
+    let o = run_with(yard_args(
+        &dir.join("yard-bad"),
+        &["--ood-yardstick-band", "0"],
+    ));
+    assert!(
+        !o.status.success() && stderr(&o).contains("band"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("yard-bad/params.json").exists());
+    let mut goal_task = yard_args(&dir.join("yard-goal"), &[]);
+    goal_task[4] = "goal".into();
+    let o = run_with(goal_task);
+    assert!(stderr(&o).contains("--task ood only"), "{}", stderr(&o));
+    let o = run_with(yard_args(&yard_run, &[]));
+    assert!(
+        stderr(&o).contains("already holds a training run"),
+        "{}",
+        stderr(&o)
+    );
+
     // The support command: both estimators checked, the chosen one written.
     let other = dir.join("support.json");
     let o = fishprobe(&[
@@ -215,7 +307,6 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "was built for the model with SHA-256",
     );
     // Settings out of range.
-    let good = format!("convnet:{}", s(&weights));
     refused(
         train(&good, &["--ood-goal-weight", "20"]),
         "task.ood_goal_weight",

@@ -31,6 +31,7 @@ mod simulate;
 mod support;
 pub(crate) mod synth;
 mod train;
+mod yardstick;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};

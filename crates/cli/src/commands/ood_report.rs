@@ -14,7 +14,7 @@ use fishprobe_learn::{Evaluation, Trainer};
 use fishprobe_models::support::SupportModel;
 use fishprobe_models::ModelSpec;
 use fishprobe_report::figures::{ood_scores, ood_trajectories, ScoredEpisode};
-use fishprobe_sim::EnvConfig;
+use fishprobe_sim::{Controller, EnvConfig};
 use std::path::{Path, PathBuf};
 
 use super::emit;
@@ -90,6 +90,36 @@ fn scored_episode(support: &SupportModel, file: &Path, title: String) -> Result<
     })
 }
 
+/// A policy's episodes, every fish view scored against the support.
+pub(crate) struct ScoredRun {
+    /// The scored views.
+    pub scores: SourceScores,
+    /// Goals per episode (mean).
+    pub goals: f64,
+    /// The episodes' trial files.
+    pub files: Vec<PathBuf>,
+}
+
+/// Runs `c` on the episodes of `e` (their trial files in `e.out`) and scores every fish view
+/// against `support`: what `ood-report` compares, and what `train --ood-yardstick` takes its
+/// yardstick from.
+pub(crate) fn score_policy(
+    c: &dyn Controller,
+    e: &Evaluation,
+    support: &SupportModel,
+    label: &str,
+) -> Result<ScoredRun> {
+    std::fs::create_dir_all(&e.out).with_context(|| format!("creating {}", e.out.display()))?;
+    say!("running {} episodes of {} ...", e.episodes, c.describe());
+    let results = super::with_jobs(None, || fishprobe_learn::evaluate(c, e))??;
+    let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
+    Ok(ScoredRun {
+        scores: score_trials(support, label, &files).map_err(anyhow::Error::msg)?,
+        goals: fishprobe_learn::goals_mean_sd(&results).0,
+        files,
+    })
+}
+
 pub fn run(a: OodReportArgs) -> Result<()> {
     if a.episodes == 0 || a.episodes > 1000 {
         bail!("--episodes must lie in [1, 1000], got {}", a.episodes);
@@ -127,18 +157,15 @@ pub fn run(a: OodReportArgs) -> Result<()> {
             out: a.out.join("episodes").join(name),
             prefix: name.into(),
         };
-        std::fs::create_dir_all(&e.out).with_context(|| format!("creating {}", e.out.display()))?;
-        say!("running {} episodes of {} ...", a.episodes, c.describe());
-        let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
-        goals[k] = fishprobe_learn::goals_mean_sd(&results).0;
-        let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
-        first_files.push(files[0].clone());
         let label = if k == 0 {
             "OOD policy"
         } else {
             "lead-to-goal policy"
         };
-        sources.push(score_trials(&support, label, &files).map_err(anyhow::Error::msg)?);
+        let run = score_policy(c.as_ref(), &e, &support, label)?;
+        goals[k] = run.goals;
+        first_files.push(run.files[0].clone());
+        sources.push(run.scores);
     }
     let data = if !a.data.is_empty() {
         a.data.clone()

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 
 use super::config::SimSettings;
-use super::emit;
+use super::{emit, yardstick};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -53,6 +53,27 @@ pub struct TrainArgs {
     /// default 0, or the settings file's `env.task.ood_goal_weight`).
     #[arg(long)]
     ood_goal_weight: Option<f32>,
+    /// With `--task ood`: reward the time beyond this lead-to-goal policy's 95th-percentile
+    /// support score (a training directory, `onnx:FILE` or `scripted:NAME`). Before training,
+    /// the policy runs `ood-report`'s default episodes against the fish (trial files in
+    /// OUT/yardstick/); its percentile becomes the reward's floor, floor + band its cap and
+    /// 1 / band its weight (replacing the settings file's `ood_score_floor`, `ood_score_cap`
+    /// and `ood_weight`; what was measured: OUT/yardstick.json). docs/guide/ood.md.
+    #[arg(long, value_name = "POLICY")]
+    ood_yardstick: Option<String>,
+    /// With `--ood-yardstick`: the percentile, in (0, 1) (default 0.95, issue 23's target).
+    #[arg(long, requires = "ood_yardstick")]
+    ood_yardstick_quantile: Option<f64>,
+    /// With `--ood-yardstick`: width of the reward's ramp above the yardstick, in [0.01, 10]
+    /// (default 0.15).
+    #[arg(long, requires = "ood_yardstick")]
+    ood_yardstick_band: Option<f32>,
+    /// With `--ood-yardstick`: episodes of the yardstick policy (default 6, `ood-report`'s).
+    #[arg(long, requires = "ood_yardstick")]
+    ood_yardstick_episodes: Option<usize>,
+    /// With `--ood-yardstick`: minutes per episode (default 5, `ood-report`'s).
+    #[arg(long, requires = "ood_yardstick")]
+    ood_yardstick_minutes: Option<f32>,
     /// Threads (default: all cores). Results do not depend on it.
     #[arg(long)]
     jobs: Option<usize>,
@@ -68,8 +89,9 @@ pub fn run(a: TrainArgs) -> Result<()> {
             || a.ppo.is_some()
             || a.task.is_some()
             || a.ood_goal_weight.is_some()
+            || a.ood_yardstick.is_some()
         {
-            say!("note: --resume continues the run as params.json records it; --model, --settings, --steps, --ppo, --task and --ood-goal-weight are ignored");
+            say!("note: --resume continues the run as params.json records it; --model, --settings, --steps, --ppo, --task, --ood-goal-weight and --ood-yardstick are ignored");
         }
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
@@ -102,6 +124,53 @@ pub fn run(a: TrainArgs) -> Result<()> {
             }
             settings.env.task.ood_goal_weight = w;
         }
+        let yardstick = match &a.ood_yardstick {
+            None => None,
+            Some(_) if settings.env.task.objective != Objective::Ood => {
+                bail!("--ood-yardstick applies to --task ood only")
+            }
+            Some(policy) => {
+                if a.out.join("params.json").exists() {
+                    bail!(
+                        "{} already holds a training run (use --resume to continue it, or another --out)",
+                        a.out.display()
+                    );
+                }
+                settings
+                    .env
+                    .validate()
+                    .context("the environment settings")?;
+                let mut config = yardstick::OodYardstickConfig::default();
+                if let Some(q) = a.ood_yardstick_quantile {
+                    config.quantile = q;
+                }
+                if let Some(b) = a.ood_yardstick_band {
+                    config.band = b;
+                }
+                if let Some(n) = a.ood_yardstick_episodes {
+                    config.episodes = n;
+                }
+                if let Some(m) = a.ood_yardstick_minutes {
+                    config.minutes = m;
+                }
+                let y = yardstick::apply(
+                    policy,
+                    &config,
+                    &settings.fish,
+                    &mut settings.env,
+                    &a.out.join("yardstick"),
+                )?;
+                say!(
+                    "yardstick: {policy}'s {}th-percentile support score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
+                    (100.0 * config.quantile).round(),
+                    y.score,
+                    settings.env.task.ood_score_floor,
+                    y.cap,
+                    y.weight
+                );
+                Some(y)
+            }
+        };
         // The preset for this fish (the `paper` preset trains an expensive fish's policy at the
         // published budget), then the overrides.
         let mut ppo = PpoConfig::preset_for(&a.preset, settings.fish.is_expensive())
@@ -120,8 +189,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
             preset: a.preset.clone(),
             program_version: env!("CARGO_PKG_VERSION").into(),
         };
-        Trainer::create(&a.out, spec)
-            .with_context(|| format!("starting a run in {}", a.out.display()))?
+        let trainer = Trainer::create(&a.out, spec)
+            .with_context(|| format!("starting a run in {}", a.out.display()))?;
+        if let Some(y) = yardstick {
+            let json = serde_json::to_string_pretty(&y)? + "\n";
+            fishprobe_io::write_atomically(&a.out.join("yardstick.json"), json.as_bytes())?;
+        }
+        trainer
     };
     super::with_jobs(a.jobs, || train_loop(&mut trainer))??;
     let path = trainer.finish()?;
