@@ -206,6 +206,31 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "the report's yardstick {} is the reward's {t}",
         r["goal_policy_p95"]
     );
+    assert!(
+        !stdout(&o).contains("counted time beyond"),
+        "{}",
+        stdout(&o)
+    );
+    // Measured against another yardstick, the report says what the reward counted.
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&yard_run),
+        "--compare",
+        "scripted:goal-seeker",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&dir.join("yard-report-2")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stdout(&o).contains(&format!("counted time beyond {t:.3}")),
+        "{}",
+        stdout(&o)
+    );
     // Refused before anything runs: a band out of range, the goal task, a used directory.
     let o = run_with(yard_args(
         &dir.join("yard-bad"),

@@ -72,8 +72,33 @@ struct OodReport {
     goal_policy_p95: f64,
     /// Share of the OOD policy's views scoring at least that (the issue's target: most).
     ood_share_beyond_goal_p95: f64,
+    /// The score the OOD policy's reward counted time beyond (`train --ood-yardstick`), if
+    /// it was trained so: its `yardstick.json`.
+    trained_yardstick: Option<TrainedYardstick>,
     goals_per_episode: [f64; 2],
     wishlist: Vec<WishItem>,
+}
+
+/// What `train --ood-yardstick` measured for the OOD policy (its run's `yardstick.json`).
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
+struct TrainedYardstick {
+    policy: String,
+    score: f64,
+}
+
+/// The yardstick the OOD policy at `policy` was trained against, if any.
+fn trained_yardstick(policy: &str) -> Result<Option<TrainedYardstick>> {
+    let Some(file) = run_dir(policy).map(|d| d.join("yardstick.json")) else {
+        return Ok(None);
+    };
+    if !file.exists() {
+        return Ok(None);
+    }
+    let text =
+        std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
+    let y = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a yardstick record of `train`", file.display()))?;
+    Ok(Some(y))
 }
 
 /// An example episode for the picture: the robot's path, the first fish's scored views.
@@ -200,6 +225,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         distributions: training.iter().chain(&sources).map(distribution).collect(),
         goal_policy_p95: goal_p95,
         ood_share_beyond_goal_p95: share_at_least(&sources[0].scores, goal_p95),
+        trained_yardstick: trained_yardstick(&a.policy)?,
         goals_per_episode: goals,
         wishlist: wishlist(
             &sources[0],
@@ -274,14 +300,28 @@ fn wishlist_table(r: &OodReport) -> String {
     t
 }
 
+/// A note when the OOD policy was trained to count time beyond another score than this
+/// report's yardstick (empty when it was not, or the two agree).
+fn yardstick_note(r: &OodReport) -> String {
+    match &r.trained_yardstick {
+        Some(y) if (y.score - r.goal_policy_p95).abs() > 1e-9 => format!(
+            " Note: the OOD policy's reward counted time beyond {:.3} (the 95th percentile of \
+             {}, `train --ood-yardstick`), not this report's yardstick.",
+            y.score, y.policy
+        ),
+        _ => String::new(),
+    }
+}
+
 fn summary(r: &OodReport, out: &Path) -> String {
     format!(
         "{}\nThe OOD policy's fish spent {} of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}). Goals per episode: OOD {:.1}, lead-to-goal \
+         policy's 95th-percentile score ({:.2}).{} Goals per episode: OOD {:.1}, lead-to-goal \
          {:.1}.\n\nData wishlist (record these next):\n{}\nwrote {}\n",
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
+        yardstick_note(r),
         r.goals_per_episode[0],
         r.goals_per_episode[1],
         r.wishlist
@@ -307,7 +347,7 @@ fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
          median, 1: their 95th percentile).\n\n\
          ## Support scores\n\n{}\n\
          The OOD policy's fish spent **{}** of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}). Goals per episode: OOD policy {:.1}, \
+         policy's 95th-percentile score ({:.2}).{} Goals per episode: OOD policy {:.1}, \
          lead-to-goal policy {:.1}.\n\n\
          ![score distributions](ood-scores.png)\n\n\
          ![example episodes](ood-trajectories.png)\n\n\
@@ -325,6 +365,7 @@ fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
+        yardstick_note(r),
         r.goals_per_episode[0],
         r.goals_per_episode[1],
         wishlist_table(r),
