@@ -168,6 +168,28 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         .with_context(|| format!("loading --policy {}", a.policy))?;
     let goal_c = fishprobe_learn::controller(&a.compare, false)
         .with_context(|| format!("loading --compare {}", a.compare))?;
+    // The training recordings first: a bad --data fails before minutes of episodes.
+    let data = if !a.data.is_empty() {
+        a.data.clone()
+    } else {
+        match (&model, fishprobe_io::shared_data_dir()) {
+            (ModelSpec::ConvNet(p), Some(d)) if p.weights.is_empty() => {
+                vec![d.join("guppy-pairs/legacy/train")]
+            }
+            _ => Vec::new(),
+        }
+    };
+    let training = if data.is_empty() {
+        say!("note: no training recordings given (--data): the report has no training-data row");
+        None
+    } else {
+        let clone = CloneConfig {
+            robot_as_partner: true,
+            ..CloneConfig::default()
+        };
+        let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
+        Some(score_views(&support, "training recordings", &d.x, 50_000))
+    };
     let mut sources = Vec::new();
     let mut goals = [0.0; 2];
     let mut first_files = Vec::new();
@@ -192,27 +214,6 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         first_files.push(run.files[0].clone());
         sources.push(run.scores);
     }
-    let data = if !a.data.is_empty() {
-        a.data.clone()
-    } else {
-        match (&model, fishprobe_io::shared_data_dir()) {
-            (ModelSpec::ConvNet(p), Some(d)) if p.weights.is_empty() => {
-                vec![d.join("guppy-pairs/legacy/train")]
-            }
-            _ => Vec::new(),
-        }
-    };
-    let training = if data.is_empty() {
-        say!("note: no training recordings given (--data): the report has no training-data row");
-        None
-    } else {
-        let clone = CloneConfig {
-            robot_as_partner: true,
-            ..CloneConfig::default()
-        };
-        let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
-        Some(score_views(&support, "training recordings", &d.x, 50_000))
-    };
     let cap = env.task.ood_score_cap;
     let goal_p95 = quantile(&sources[1].scores, 0.95);
     let report = OodReport {
