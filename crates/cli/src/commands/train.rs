@@ -140,19 +140,14 @@ pub fn run(a: TrainArgs) -> Result<()> {
                     .env
                     .validate()
                     .context("the environment settings")?;
-                let mut config = yardstick::OodYardstickConfig::default();
-                if let Some(q) = a.ood_yardstick_quantile {
-                    config.quantile = q;
-                }
-                if let Some(b) = a.ood_yardstick_band {
-                    config.band = b;
-                }
-                if let Some(n) = a.ood_yardstick_episodes {
-                    config.episodes = n;
-                }
-                if let Some(m) = a.ood_yardstick_minutes {
-                    config.minutes = m;
-                }
+                let d = yardstick::OodYardstickConfig::default();
+                let config = yardstick::OodYardstickConfig {
+                    quantile: a.ood_yardstick_quantile.unwrap_or(d.quantile),
+                    band: a.ood_yardstick_band.unwrap_or(d.band),
+                    episodes: a.ood_yardstick_episodes.unwrap_or(d.episodes),
+                    minutes: a.ood_yardstick_minutes.unwrap_or(d.minutes),
+                    ..d
+                };
                 let y = yardstick::apply(
                     policy,
                     &config,
