@@ -166,12 +166,7 @@ impl Trainer {
         spec.ppo.validate()?;
         spec.env.mode = TaskMode::Training;
         spec.env.validate()?;
-        if dir.join("params.json").exists() {
-            return Err(run_err(
-                dir,
-                "already holds a training run (use --resume to continue it, or another --out)",
-            ));
-        }
+        Self::ensure_new(dir)?;
         let mut t = Self::build(dir, spec, model)?;
         t.venv.reset(derive_seed(t.spec.seed, "envs", 0))?;
         let params = serde_json::to_string_pretty(&t.spec).map_err(|e| run_err(dir, e))?;
@@ -182,6 +177,18 @@ impl Trainer {
         )?;
         write_atomic(&dir.join("result.json"), b"")?;
         Ok(t)
+    }
+
+    /// An error when `dir` already holds a training run: what [`Trainer::create`] refuses, for
+    /// a caller that must know before work of its own (e.g. measuring an OOD yardstick).
+    pub fn ensure_new(dir: &Path) -> Result<(), LearnError> {
+        if dir.join("params.json").exists() {
+            return Err(run_err(
+                dir,
+                "already holds a training run (use --resume to continue it, or another --out)",
+            ));
+        }
+        Ok(())
     }
 
     fn build(dir: &Path, spec: RunSpec, model: Arc<dyn FishModel>) -> Result<Self, LearnError> {

@@ -130,12 +130,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 bail!("--ood-yardstick applies to --task ood only")
             }
             Some(policy) => {
-                if a.out.join("params.json").exists() {
-                    bail!(
-                        "{} already holds a training run (use --resume to continue it, or another --out)",
-                        a.out.display()
-                    );
-                }
+                Trainer::ensure_new(&a.out)?;
                 settings
                     .env
                     .validate()
