@@ -166,9 +166,11 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         .unwrap_or_else(EnvConfig::default);
     let ood_c = fishprobe_learn::controller(&a.policy, false)
         .with_context(|| format!("loading --policy {}", a.policy))?;
+    // Read before the episodes: a corrupt record fails at once, not after minutes.
+    let trained = trained_yardstick(&a.policy)?;
     let goal_c = fishprobe_learn::controller(&a.compare, false)
         .with_context(|| format!("loading --compare {}", a.compare))?;
-    // The training recordings first: a bad --data fails before minutes of episodes.
+    // The training recordings too: a bad --data fails before minutes of episodes.
     let data = if !a.data.is_empty() {
         a.data.clone()
     } else {
@@ -226,7 +228,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         distributions: training.iter().chain(&sources).map(distribution).collect(),
         goal_policy_p95: goal_p95,
         ood_share_beyond_goal_p95: share_at_least(&sources[0].scores, goal_p95),
-        trained_yardstick: trained_yardstick(&a.policy)?,
+        trained_yardstick: trained,
         goals_per_episode: goals,
         wishlist: wishlist(
             &sources[0],
