@@ -265,7 +265,8 @@ fishprobe_sim::documented_params! {
         /// training views and in every scored view alike (choice: 0, no range: every partner
         /// the view shows counts, up to the far plane, since M_ConvNet still turns toward a
         /// partner 40 cm away at two thirds of its close-range rate; 15 makes the OOD task
-        /// seek close interactions; docs/validation.md, "A partner range for the support").
+        /// seek close interactions; docs/validation.md, "A partner range for the support"). In
+        /// [0, 1000].
         pub partner_range_cm: f32 = 0.0; "cm",
     }
 }
@@ -301,7 +302,14 @@ impl SupportConfig {
         if !(1..=256).contains(&self.components) {
             return bad("components", self.components, "must lie in [1, 256]");
         }
-        check::non_negative("support", "partner_range_cm", self.partner_range_cm)?;
+        // Beyond any tank (10 m) a range means what 0 does; a typo like 1e30 is refused.
+        check::within(
+            "support",
+            "partner_range_cm",
+            self.partner_range_cm,
+            0.0,
+            1000.0,
+        )?;
         if !(1..=10_000).contains(&self.em_iterations) {
             return bad(
                 "em_iterations",
@@ -1129,6 +1137,12 @@ mod tests {
         };
         let e = bad.validate().unwrap_err();
         assert!(e.to_string().contains("support.partner_range_cm"), "{e}");
+        let absurd = SupportConfig {
+            partner_range_cm: 1e30,
+            ..Default::default()
+        };
+        let e = absurd.validate().unwrap_err();
+        assert!(e.to_string().contains("[0, 1000]"), "{e}");
     }
 
     #[test]
