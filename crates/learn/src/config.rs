@@ -219,16 +219,20 @@ impl PpoConfig {
                 ),
             ));
         }
-        if self.total_timesteps > Self::MAX_TOTAL_TIMESTEPS || self.num_sgd_iter > 10_000 {
+        if self.total_timesteps > Self::MAX_TOTAL_TIMESTEPS {
             return Err(ConfigError::new(
                 p,
                 "total_timesteps",
                 self.total_timesteps,
-                &format!(
-                    "at most {} steps and 10,000 epochs per batch (num_sgd_iter = {})",
-                    Self::MAX_TOTAL_TIMESTEPS,
-                    self.num_sgd_iter
-                ),
+                &format!("at most {} steps", Self::MAX_TOTAL_TIMESTEPS),
+            ));
+        }
+        if self.num_sgd_iter > Self::MAX_SGD_ITER {
+            return Err(ConfigError::new(
+                p,
+                "num_sgd_iter",
+                self.num_sgd_iter,
+                &format!("at most {} epochs per batch", Self::MAX_SGD_ITER),
             ));
         }
         check::positive(p, "lr", self.lr)?;
@@ -258,6 +262,8 @@ impl PpoConfig {
     pub const PUBLISHED_TIMESTEPS: u64 = 832_300;
     /// Longest run in environment steps (the paper: 832,300; this is 12,000 times that).
     pub const MAX_TOTAL_TIMESTEPS: u64 = 10_000_000_000;
+    /// Most epochs per batch (the published settings: 100).
+    pub const MAX_SGD_ITER: usize = 10_000;
 
     /// Iterations until `total_timesteps` is reached.
     pub fn iterations(&self) -> u64 {
@@ -268,6 +274,30 @@ impl PpoConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_absurd_budget_names_its_own_field() {
+        let p = PpoConfig::default();
+        for (bad, field) in [
+            (
+                PpoConfig {
+                    num_sgd_iter: 1 << 40,
+                    ..p.clone()
+                },
+                "`ppo.num_sgd_iter`",
+            ),
+            (
+                PpoConfig {
+                    total_timesteps: u64::MAX,
+                    ..p.clone()
+                },
+                "`ppo.total_timesteps`",
+            ),
+        ] {
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains(field), "{e}");
+        }
+    }
 
     #[test]
     fn published_preset_is_spec_section_7_and_paper_differs_in_budget_and_std_bound() {
