@@ -241,17 +241,39 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "{}",
         stderr(&o)
     );
-    assert!(!dir.join("yard-bad/params.json").exists());
+    // Refused before its directory is made: nothing left behind.
+    assert!(!dir.join("yard-bad").exists());
     let mut goal_task = yard_args(&dir.join("yard-goal"), &[]);
     goal_task[4] = "goal".into();
     let o = run_with(goal_task);
     assert!(stderr(&o).contains("--task ood only"), "{}", stderr(&o));
+    assert!(!dir.join("yard-goal").exists());
     let o = run_with(yard_args(&yard_run, &[]));
     assert!(
         stderr(&o).contains("already holds a training run"),
         "{}",
         stderr(&o)
     );
+    // A corrupt yardstick record is refused by name before any episode runs.
+    std::fs::write(yard_run.join("yardstick.json"), b"{\"score\": \"high\"}").unwrap();
+    let bad_report = dir.join("yard-report-bad");
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&yard_run),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&bad_report),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("yardstick.json"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!bad_report.join("episodes").exists());
 
     // The support command: both estimators checked, the chosen one written.
     let other = dir.join("support.json");

@@ -333,6 +333,17 @@ fn unusable_policies_are_clear_errors() {
         "{}",
         stderr(&o)
     );
+    // A refused new run leaves no directory behind (it is made only once the run is checked).
+    assert!(!d.join("z").exists());
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "onnx:/nonexistent/fish.onnx",
+        "--out",
+        d.join("z").to_str().unwrap(),
+    ]);
+    assert!(stderr(&o).contains("fish.onnx"), "{}", stderr(&o));
+    assert!(!d.join("z").exists());
 }
 
 #[test]

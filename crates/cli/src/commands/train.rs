@@ -4,9 +4,11 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
+use fishprobe_sim::FishModel;
 use fishprobe_sim::Objective;
 use indicatif::{ProgressBar, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use super::config::SimSettings;
 use super::{emit, yardstick};
@@ -79,10 +81,143 @@ pub struct TrainArgs {
     jobs: Option<usize>,
 }
 
+/// A new run, checked as far as it can be before its directory exists.
+struct Fresh {
+    spec: RunSpec,
+    model: Arc<dyn FishModel>,
+    /// The yardstick policy and how to measure it (`--ood-yardstick`).
+    yardstick: Option<(String, yardstick::OodYardstickConfig)>,
+}
+
+/// The new run the flags ask for: settings, model, task, PPO, all checked and the fish built,
+/// so that a refused `train` refuses before it creates (and locks) its run directory.
+fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
+    if PpoConfig::preset(&a.preset).is_none() {
+        bail!(
+            "unknown --preset `{}`: use paper, published, quick or smoke",
+            a.preset
+        );
+    }
+    let mut settings = match &a.settings {
+        Some(p) => SimSettings::load(p)?,
+        None => SimSettings::default(),
+    };
+    match &a.model {
+        Some(m) => settings.fish = ModelSpec::by_name(m)?,
+        None if a.settings.is_none() => {
+            bail!("--model is required (or a --settings file naming the fish)")
+        }
+        None => {}
+    }
+    if let Some(t) = &a.task {
+        settings.env.task.objective = match t.as_str() {
+            "ood" => Objective::Ood,
+            _ => Objective::Goal,
+        };
+    }
+    if let Some(w) = a.ood_goal_weight {
+        if settings.env.task.objective != Objective::Ood {
+            bail!("--ood-goal-weight applies to --task ood only");
+        }
+        settings.env.task.ood_goal_weight = w;
+    }
+    let yardstick = match &a.ood_yardstick {
+        None => None,
+        Some(_) if settings.env.task.objective != Objective::Ood => {
+            bail!("--ood-yardstick applies to --task ood only")
+        }
+        Some(policy) => {
+            let d = yardstick::OodYardstickConfig::default();
+            let config = yardstick::OodYardstickConfig {
+                quantile: a.ood_yardstick_quantile.unwrap_or(d.quantile),
+                band: a.ood_yardstick_band.unwrap_or(d.band),
+                episodes: a.ood_yardstick_episodes.unwrap_or(d.episodes),
+                minutes: a.ood_yardstick_minutes.unwrap_or(d.minutes),
+                ..d
+            };
+            config.validate()?;
+            Some((policy.clone(), config))
+        }
+    };
+    settings
+        .env
+        .validate()
+        .context("the environment settings")?;
+    // The preset for this fish (the `paper` preset trains an expensive fish's policy at the
+    // published budget), then the overrides.
+    let mut ppo =
+        PpoConfig::preset_for(&a.preset, settings.fish.is_expensive()).context("preset checked")?;
+    if let Some(p) = &a.ppo {
+        ppo = ppo_overrides(ppo, p)?;
+    }
+    if let Some(s) = a.steps {
+        ppo.total_timesteps = s;
+    }
+    ppo.validate().context("the PPO settings")?;
+    let model = settings
+        .fish
+        .build()
+        .with_context(|| format!("building fish model {}", settings.fish.name()))?;
+    Ok(Fresh {
+        spec: RunSpec {
+            ppo,
+            env: settings.env,
+            model: settings.fish,
+            seed: a.seed,
+            preset: a.preset.clone(),
+            program_version: env!("CARGO_PKG_VERSION").into(),
+        },
+        model,
+        yardstick,
+    })
+}
+
+/// Starts the new run `f` in `out` (locked by the caller): measures its yardstick, if any,
+/// then writes the run's files.
+fn start(out: &Path, mut f: Fresh) -> Result<Trainer> {
+    Trainer::ensure_new(out)?;
+    let yardstick = match &f.yardstick {
+        None => None,
+        Some((policy, config)) => {
+            let y = yardstick::apply(
+                policy,
+                config,
+                &f.spec.model,
+                &mut f.spec.env,
+                &out.join("yardstick"),
+            )?;
+            let task = &f.spec.env.task;
+            say!(
+                "yardstick: {policy}'s {}th-percentile support score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
+                (100.0 * config.quantile).round(),
+                y.score,
+                task.ood_score_floor,
+                y.cap,
+                y.weight
+            );
+            Some(y)
+        }
+    };
+    let trainer = Trainer::create_with_model(out, f.spec, f.model)
+        .with_context(|| format!("starting a run in {}", out.display()))?;
+    if let Some(y) = yardstick {
+        let json = serde_json::to_string_pretty(&y)? + "\n";
+        fishprobe_io::write_atomically(&out.join("yardstick.json"), json.as_bytes())?;
+    }
+    Ok(trainer)
+}
+
 pub fn run(a: TrainArgs) -> Result<()> {
+    let resuming = |a: &TrainArgs| a.resume && a.out.join("params.json").exists();
+    // A new run is checked before its directory is created: a refused `train` leaves none.
+    let mut fresh = if resuming(&a) {
+        None
+    } else {
+        Some(fresh_run(&a)?)
+    };
     // One writer per run directory: a second `train` (or a `--resume`) into it is refused.
     let _lock = super::lock_out(&a.out, "train")?;
-    let mut trainer = if a.resume && a.out.join("params.json").exists() {
+    let mut trainer = if resuming(&a) {
         if a.model.is_some()
             || a.settings.is_some()
             || a.steps.is_some()
@@ -95,97 +230,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
         }
         Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
     } else {
-        if PpoConfig::preset(&a.preset).is_none() {
-            bail!(
-                "unknown --preset `{}`: use paper, published, quick or smoke",
-                a.preset
-            );
-        }
-        let mut settings = match &a.settings {
-            Some(p) => SimSettings::load(p)?,
-            None => SimSettings::default(),
+        // (Checked above unless the run's params.json vanished since.)
+        let f = match fresh.take() {
+            Some(f) => f,
+            None => fresh_run(&a)?,
         };
-        match &a.model {
-            Some(m) => settings.fish = ModelSpec::by_name(m)?,
-            None if a.settings.is_none() => {
-                bail!("--model is required (or a --settings file naming the fish)")
-            }
-            None => {}
-        }
-        if let Some(t) = &a.task {
-            settings.env.task.objective = match t.as_str() {
-                "ood" => Objective::Ood,
-                _ => Objective::Goal,
-            };
-        }
-        if let Some(w) = a.ood_goal_weight {
-            if settings.env.task.objective != Objective::Ood {
-                bail!("--ood-goal-weight applies to --task ood only");
-            }
-            settings.env.task.ood_goal_weight = w;
-        }
-        let yardstick = match &a.ood_yardstick {
-            None => None,
-            Some(_) if settings.env.task.objective != Objective::Ood => {
-                bail!("--ood-yardstick applies to --task ood only")
-            }
-            Some(policy) => {
-                Trainer::ensure_new(&a.out)?;
-                settings
-                    .env
-                    .validate()
-                    .context("the environment settings")?;
-                let d = yardstick::OodYardstickConfig::default();
-                let config = yardstick::OodYardstickConfig {
-                    quantile: a.ood_yardstick_quantile.unwrap_or(d.quantile),
-                    band: a.ood_yardstick_band.unwrap_or(d.band),
-                    episodes: a.ood_yardstick_episodes.unwrap_or(d.episodes),
-                    minutes: a.ood_yardstick_minutes.unwrap_or(d.minutes),
-                    ..d
-                };
-                let y = yardstick::apply(
-                    policy,
-                    &config,
-                    &settings.fish,
-                    &mut settings.env,
-                    &a.out.join("yardstick"),
-                )?;
-                say!(
-                    "yardstick: {policy}'s {}th-percentile support score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
-                    (100.0 * config.quantile).round(),
-                    y.score,
-                    settings.env.task.ood_score_floor,
-                    y.cap,
-                    y.weight
-                );
-                Some(y)
-            }
-        };
-        // The preset for this fish (the `paper` preset trains an expensive fish's policy at the
-        // published budget), then the overrides.
-        let mut ppo = PpoConfig::preset_for(&a.preset, settings.fish.is_expensive())
-            .context("preset checked")?;
-        if let Some(p) = &a.ppo {
-            ppo = ppo_overrides(ppo, p)?;
-        }
-        if let Some(s) = a.steps {
-            ppo.total_timesteps = s;
-        }
-        let spec = RunSpec {
-            ppo,
-            env: settings.env,
-            model: settings.fish,
-            seed: a.seed,
-            preset: a.preset.clone(),
-            program_version: env!("CARGO_PKG_VERSION").into(),
-        };
-        let trainer = Trainer::create(&a.out, spec)
-            .with_context(|| format!("starting a run in {}", a.out.display()))?;
-        if let Some(y) = yardstick {
-            let json = serde_json::to_string_pretty(&y)? + "\n";
-            fishprobe_io::write_atomically(&a.out.join("yardstick.json"), json.as_bytes())?;
-        }
-        trainer
+        start(&a.out, f)?
     };
     super::with_jobs(a.jobs, || train_loop(&mut trainer))??;
     let path = trainer.finish()?;
