@@ -64,6 +64,14 @@ def test_bad_training_arguments(tmp_path):
         fishprobe.train("Zone", tmp_path / "c", preset="smoke", ppo={"bogus": 1})
     with pytest.raises(ValueError, match="Zonk"):
         fishprobe.train("Zonk", tmp_path / "d")
+    with pytest.raises(ValueError, match="ppo: numbers must be finite"):
+        fishprobe.train("Zone", tmp_path / "e", preset="smoke", ppo={"lr": float("nan")})
+    with pytest.raises(ValueError, match="num_sgd_iter"):
+        fishprobe.train("Zone", tmp_path / "f", preset="smoke", ppo={"num_sgd_iter": 10**12})
+    with pytest.raises(ValueError, match="settings: numbers must be finite"):
+        fishprobe.train("Zone", tmp_path / "g", settings={"task": {"goal_radius_cm": float("inf")}})
+    # Refused before the run directory is made: nothing is left behind.
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_python_model_that_fails_during_training(tmp_path):

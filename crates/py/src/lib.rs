@@ -65,11 +65,24 @@ fn io_err(e: IoError) -> PyErr {
 }
 
 /// A Python value as JSON text (dicts of settings and model specs).
-fn to_json(obj: &Bound<'_, PyAny>) -> PyResult<String> {
-    let json = obj.py().import("json")?;
-    json.call_method1("dumps", (obj,))
+/// `what` names the argument in errors. NaN and infinities are refused here (Python's `json`
+/// would write them as `NaN`, which is not JSON, and serde's error would only give a column).
+fn to_json(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<String> {
+    let py = obj.py();
+    let kwargs = PyDict::new(py);
+    kwargs.set_item("allow_nan", false)?;
+    py.import("json")?
+        .call_method("dumps", (obj,), Some(&kwargs))
         .and_then(|t| t.extract())
-        .map_err(|e: PyErr| PyTypeError::new_err(format!("not JSON-like: {e}")))
+        .map_err(|e: PyErr| {
+            if e.is_instance_of::<pyo3::exceptions::PyValueError>(py) {
+                PyValueError::new_err(format!("{what}: numbers must be finite: {e}"))
+            } else {
+                PyTypeError::new_err(format!(
+                    "{what}: not JSON-like (dicts, lists, strings, finite numbers): {e}"
+                ))
+            }
+        })
 }
 
 /// A resolved `model=` argument.
@@ -88,7 +101,7 @@ impl Model {
             return Self::from_spec(spec);
         }
         if obj.cast::<PyDict>().is_ok() {
-            let text = to_json(obj)?;
+            let text = to_json(obj, "model")?;
             let spec: ModelSpec = serde_json::from_str(&text).map_err(|e| {
                 PyValueError::new_err(format!(
                     "model spec {text}: {e} (a spec is {{\"model\": NAME, field: value, ...}}; fields: \
@@ -136,7 +149,7 @@ fn env_config(
 ) -> PyResult<EnvConfig> {
     let mut cfg = match settings {
         Some(s) if !s.is_none() => {
-            let text = to_json(s)?;
+            let text = to_json(s, "settings")?;
             serde_json::from_str::<EnvConfig>(&text)
                 .map_err(|e| PyValueError::new_err(format!("settings: {e}")))?
         }
@@ -688,10 +701,18 @@ fn train(
     resume: bool,
     callback: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<String> {
+    let resolved = Model::resolve(model)?;
+    let resuming = || resume && out.join("params.json").exists();
+    // A new run is checked before its directory is created: a refused `train` leaves none.
+    let fresh_spec = || fresh_run(&resolved.spec, preset, seed, steps, settings, ppo);
+    let mut fresh = if resuming() {
+        None
+    } else {
+        Some(fresh_spec()?)
+    };
     let _lock = fishprobe_io::DirLock::acquire(&out, "fishprobe.train")
         .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-    let resolved = Model::resolve(model)?;
-    let mut trainer = if resume && out.join("params.json").exists() {
+    let mut trainer = if resuming() {
         let recorded = Trainer::recorded_spec(&out).map_err(learn_err)?;
         if recorded.model.name() != resolved.spec.name()
             || (resolved.python.is_some() && recorded.model != resolved.spec)
@@ -710,35 +731,10 @@ fn train(
         };
         Trainer::resume_with_model(&out, model).map_err(learn_err)?
     } else {
-        let Some(mut cfg) = PpoConfig::preset_for(preset, resolved.spec.is_expensive()) else {
-            return Err(PyValueError::new_err(format!(
-                "unknown preset `{preset}`: use paper, published, quick or smoke"
-            )));
-        };
-        if let Some(p) = ppo.filter(|p| !p.is_none()) {
-            let mut base =
-                serde_json::to_value(&cfg).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-            let over: serde_json::Value = serde_json::from_str(&to_json(p)?)
-                .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-            let (Some(b), serde_json::Value::Object(o)) = (base.as_object_mut(), over) else {
-                return Err(PyTypeError::new_err("ppo must be a dict of PPO settings"));
-            };
-            b.extend(o);
-            cfg = serde_json::from_value(base)
-                .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-        }
-        if let Some(s) = steps {
-            cfg.total_timesteps = s;
-        }
-        cfg.validate()
-            .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-        let spec = RunSpec {
-            ppo: cfg,
-            env: env_config(settings, "training", None)?,
-            model: resolved.spec.clone(),
-            seed,
-            preset: preset.to_string(),
-            program_version: env!("CARGO_PKG_VERSION").into(),
+        // (Checked above unless the run's params.json vanished since.)
+        let spec = match fresh.take() {
+            Some(s) => s,
+            None => fresh_spec()?,
         };
         Trainer::create_with_model(&out, spec, resolved.model.clone()).map_err(learn_err)?
     };
@@ -758,6 +754,47 @@ fn train(
     }
     let path = trainer.finish().map_err(learn_err)?;
     Ok(path.display().to_string())
+}
+
+/// The spec of a new training run, every setting checked.
+fn fresh_run(
+    model: &ModelSpec,
+    preset: &str,
+    seed: u64,
+    steps: Option<u64>,
+    settings: Option<&Bound<'_, PyAny>>,
+    ppo: Option<&Bound<'_, PyAny>>,
+) -> PyResult<RunSpec> {
+    let Some(mut cfg) = PpoConfig::preset_for(preset, model.is_expensive()) else {
+        return Err(PyValueError::new_err(format!(
+            "unknown preset `{preset}`: use paper, published, quick or smoke"
+        )));
+    };
+    if let Some(p) = ppo.filter(|p| !p.is_none()) {
+        let mut base =
+            serde_json::to_value(&cfg).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        let over: serde_json::Value = serde_json::from_str(&to_json(p, "ppo")?)
+            .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+        let (Some(b), serde_json::Value::Object(o)) = (base.as_object_mut(), over) else {
+            return Err(PyTypeError::new_err("ppo must be a dict of PPO settings"));
+        };
+        b.extend(o);
+        cfg =
+            serde_json::from_value(base).map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+    }
+    if let Some(s) = steps {
+        cfg.total_timesteps = s;
+    }
+    cfg.validate()
+        .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+    Ok(RunSpec {
+        ppo: cfg,
+        env: env_config(settings, "training", None)?,
+        model: model.clone(),
+        seed,
+        preset: preset.to_string(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+    })
 }
 
 /// Whether `path` names a directory holding a study's results.
