@@ -1,13 +1,15 @@
 //! Stepping an environment allocates nothing after reset, for every model: the per-frame
-//! path (robot controller, fish models, goal logic, observation) works in place.
+//! path (robot controller, fish models, goal logic, observation, and the OOD task's scoring
+//! of the fish's views against the model's support) works in place.
 
 // A counting GlobalAlloc cannot be written without unsafe; it only forwards to System.
 #![allow(unsafe_code)]
 
 use fishprobe_models::ModelSpec;
-use fishprobe_sim::{Env, EnvConfig, TankEnv, TaskMode};
+use fishprobe_sim::{Env, EnvConfig, Objective, TankEnv, TaskMode};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
+use std::sync::Arc;
 
 struct Counting;
 
@@ -31,6 +33,36 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// Allocations while `env` takes 600 steps, after one step first: a network model sizes its
+/// buffers on its first inference.
+fn allocations_in_600_steps(env: &mut TankEnv) -> u64 {
+    let mut obs = vec![0.0; 180];
+    env.reset(Some(1), &mut obs).unwrap();
+    env.step(&[0.0], &mut obs).unwrap();
+    COUNT.with(|c| c.set(0));
+    COUNTING.with(|c| c.set(true));
+    for t in 0..600 {
+        env.step(&[((t % 7) as f32 - 3.0) * 0.9], &mut obs).unwrap();
+    }
+    COUNTING.with(|c| c.set(false));
+    COUNT.with(Cell::get)
+}
+
+#[test]
+fn the_ood_task_scores_views_without_allocating() {
+    let spec = ModelSpec::by_name("ConvNet").unwrap();
+    let mut cfg = EnvConfig {
+        mode: TaskMode::Evaluation,
+        ..EnvConfig::default()
+    };
+    cfg.task.objective = Objective::Ood;
+    cfg.task.ood_score_every_frames = 1;
+    let mut env = TankEnv::new(cfg, spec.build().unwrap()).unwrap();
+    env.set_support(Some(Arc::new(spec.support().unwrap())));
+    let n = allocations_in_600_steps(&mut env);
+    assert_eq!(n, 0, "the OOD task: {n} allocations in 600 steps");
+}
+
 #[test]
 fn stepping_does_not_allocate() {
     // One fish (the paper) and a group of eight (issue 22).
@@ -42,17 +74,7 @@ fn stepping_does_not_allocate() {
             ..EnvConfig::default()
         };
         let mut env = TankEnv::new(cfg, model).unwrap();
-        let mut obs = vec![0.0; 180];
-        env.reset(Some(1), &mut obs).unwrap();
-        // One step first: a network model sizes its buffers on its first inference.
-        env.step(&[0.0], &mut obs).unwrap();
-        COUNT.with(|c| c.set(0));
-        COUNTING.with(|c| c.set(true));
-        for t in 0..600 {
-            env.step(&[((t % 7) as f32 - 3.0) * 0.9], &mut obs).unwrap();
-        }
-        COUNTING.with(|c| c.set(false));
-        let n = COUNT.with(Cell::get);
+        let n = allocations_in_600_steps(&mut env);
         assert_eq!(
             n, 0,
             "{name} with {fish_count} fish: {n} allocations in 600 steps (15,000 frames)"
