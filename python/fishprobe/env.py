@@ -1,4 +1,4 @@
-"""The lead-to-goal task as a Gymnasium environment."""
+"""The lead-to-goal task (and the OOD task) as a Gymnasium environment."""
 
 from __future__ import annotations
 
@@ -12,6 +12,23 @@ import numpy as np
 from . import _native
 
 MODES = ("training", "evaluation")
+TASKS = ("goal", "ood")
+
+
+def with_task(settings: dict | None, task: str | None) -> dict | None:
+    """``settings`` with ``task.objective`` set to ``task`` (``None``: unchanged)."""
+    if task is None:
+        return settings
+    if task not in TASKS:
+        raise ValueError(f"task {task!r}: use 'goal' (lead to goals) or 'ood' (out of the support)")
+    if settings is not None and not isinstance(settings, dict):
+        raise TypeError(f"settings must be a dict, not {type(settings).__name__}")
+    settings = dict(settings or {})
+    table = settings.get("task", {})
+    if not isinstance(table, dict):
+        raise TypeError(f"settings['task'] must be a dict, not {type(table).__name__}")
+    settings["task"] = {**table, "objective": task}
+    return settings
 
 
 class LeadToGoalEnv(gym.Env):
@@ -35,8 +52,17 @@ class LeadToGoalEnv(gym.Env):
             ``settings={"task": {"group_goal": "centroid"}}`` says when a goal is reached.
         settings: environment settings as a dict, as the ``env`` table of a settings file
             (``fishprobe config show``); missing fields keep the paper's values.
+        task: ``"goal"`` (lead the fish to goals, the paper's task) or ``"ood"`` (drive the
+            fish's views out of its model's training support, as ``fishprobe train --task
+            ood``; a data-driven model with its support file, e.g. ``"ConvNet"``); sets
+            ``settings["task"]["objective"]``. Default: the settings' (``"goal"``).
+            ``gym.make("fishprobe/OOD-v0")`` is this environment with ``task="ood"`` and
+            ``model="ConvNet"``.
         render_mode: ``None`` or ``"rgb_array"`` (a top-down picture, uint8 H x W x 3).
         render_size: side of the rendered picture in pixels.
+
+    With the OOD task the reward is the OOD reward (``docs/guide/ood.md``) and ``info`` also
+    holds ``support_score``, the mean support score of the fish's views in this step.
 
     ``info`` holds ``goals_reached`` (in this step), ``goals_total`` (this episode),
     ``robot_wall_contacts`` and ``fish_wall_contacts`` (frames clipped at a wall in this
@@ -54,11 +80,13 @@ class LeadToGoalEnv(gym.Env):
         settings: dict | None = None,
         render_mode: str | None = None,
         render_size: int = 400,
+        task: str | None = None,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode {mode!r}: use 'training' or 'evaluation'")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r}: use None or 'rgb_array'")
+        settings = with_task(settings, task)
         self._env = _native.Env(model, mode=mode, fish_count=fish_count, settings=settings)
         self.mode = mode
         self.model_name: str = self._env.model_name

@@ -11,7 +11,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from . import _native
-from .env import MODES
+from .env import MODES, with_task
 
 
 class VectorEnv(gym.vector.VectorEnv):
@@ -25,7 +25,9 @@ class VectorEnv(gym.vector.VectorEnv):
 
     Args:
         num_envs: number of environments (at most 65,536).
-        model, mode, fish_count, settings: as for :class:`fishprobe.LeadToGoalEnv`.
+        model, mode, fish_count, settings, task: as for :class:`fishprobe.LeadToGoalEnv`
+            (with the OOD task, ``info["support_score"]`` holds each environment's mean
+            support score of the fish's views in the step).
         seed: seed of the first ``reset()`` when it is called without one.
     """
 
@@ -41,6 +43,7 @@ class VectorEnv(gym.vector.VectorEnv):
         seed: int | None = None,
         render_mode: str | None = None,
         render_size: int = 400,
+        task: str | None = None,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode {mode!r}: use 'training' or 'evaluation'")
@@ -48,9 +51,11 @@ class VectorEnv(gym.vector.VectorEnv):
             raise TypeError(f"num_envs must be an integer, not {type(num_envs).__name__}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r}: use None or 'rgb_array'")
+        settings = with_task(settings, task)
         self._venv = _native.VecEnv(
             int(num_envs), model, mode=mode, fish_count=fish_count, settings=settings
         )
+        self._ood = (settings or {}).get("task", {}).get("objective") == "ood"
         self.num_envs = int(num_envs)
         self.mode = mode
         self.model_name: str = self._venv.model_name
@@ -94,6 +99,9 @@ class VectorEnv(gym.vector.VectorEnv):
             np.ascontiguousarray(a.reshape(-1))
         )
         info: dict[str, Any] = {"goals_reached": goals, "_goals_reached": np.ones(self.num_envs, bool)}
+        if self._ood:
+            info["support_score"] = self._venv.support_scores()
+            info["_support_score"] = np.ones(self.num_envs, bool)
         if ended.any():
             fo = np.full(self.num_envs, None, dtype=object)
             returns = np.zeros(self.num_envs, np.float32)

@@ -18,8 +18,8 @@ use fishprobe_io::{IoError, TrialFile};
 use fishprobe_learn::{LearnError, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::{ModelError, ModelSpec, PythonParams};
 use fishprobe_sim::{
-    AgentState, ControlInput, Controller, Env as _, EnvConfig, FishModel, SimError, SimRng,
-    TankEnv, TaskMode,
+    AgentState, ControlInput, Controller, Env as _, EnvConfig, FishModel, InputSupport, Objective,
+    SimError, SimRng, TankEnv, TaskMode,
 };
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyOSError, PyRuntimeError, PyTypeError, PyValueError};
@@ -172,6 +172,16 @@ fn env_config(
     Ok(cfg)
 }
 
+/// The support the OOD task (`task.objective = "ood"`) scores the fish's views against: the
+/// model's own, as `fishprobe train --task ood` uses; none for the lead-to-goal task.
+fn ood_support(model: &Model, cfg: &EnvConfig) -> PyResult<Option<Arc<dyn InputSupport>>> {
+    if cfg.task.objective != Objective::Ood {
+        return Ok(None);
+    }
+    let support = model.spec.support().map_err(model_err)?;
+    Ok(Some(Arc::new(support)))
+}
+
 fn pose(a: &AgentState) -> [f32; 3] {
     [a.x, a.y, a.heading]
 }
@@ -224,7 +234,9 @@ impl Env {
     ) -> PyResult<Self> {
         let cfg = env_config(settings, mode, fish_count)?;
         let model = Model::resolve(model)?;
-        let env = TankEnv::new(cfg, model.model.clone()).map_err(sim_err)?;
+        let support = ood_support(&model, &cfg)?;
+        let mut env = TankEnv::new(cfg, model.model.clone()).map_err(sim_err)?;
+        env.set_support(support);
         let obs = vec![0.0; env.observation_space().dim()];
         Ok(Self {
             env,
@@ -314,6 +326,9 @@ impl Env {
         info.set_item("robot_wall_contacts", t.info.robot_wall_contacts)?;
         info.set_item("fish_wall_contacts", t.info.fish_wall_contacts)?;
         info.set_item("robot_near_wall", t.info.robot_near_wall)?;
+        if self.env.config().task.objective == Objective::Ood {
+            info.set_item("support_score", t.info.support_score)?;
+        }
         state_info(py, &self.env, &info)?;
         Ok((
             PyArray1::from_slice(py, &self.obs),
@@ -358,8 +373,10 @@ impl VecEnv {
         }
         let cfg = env_config(settings, mode, fish_count)?;
         let model = Model::resolve(model)?;
-        let venv =
+        let support = ood_support(&model, &cfg)?;
+        let mut venv =
             fishprobe_sim::VecEnv::new(cfg, model.model.clone(), num_envs).map_err(sim_err)?;
+        venv.set_support(support);
         Ok(Self {
             venv,
             model,
@@ -456,6 +473,18 @@ impl VecEnv {
                 PyArray1::from_vec(py, goals).into_any(),
             ],
         )
+    }
+
+    /// With the OOD task: each environment's mean support score of the fish's views over
+    /// the last step (0 with the lead-to-goal task).
+    fn support_scores<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
+        let scores: Vec<f32> = self
+            .venv
+            .transitions()
+            .iter()
+            .map(|t| t.info.support_score)
+            .collect();
+        PyArray1::from_vec(py, scores)
     }
 
     /// Goals and returns of the episodes that ended in the last step: a list with, for each

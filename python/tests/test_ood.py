@@ -1,0 +1,68 @@
+"""The OOD task (issue 23) from Python: ``fishprobe/OOD-v0`` and ``task="ood"``."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import fishprobe
+
+# With floor 0 and a cap no score reaches, the OOD reward of a step is exactly the mean support
+# score of the fish's views in it, less the wall penalty when the robot came near a wall.
+PLAIN = {"task": {"ood_score_floor": 0.0, "ood_score_cap": 1000.0, "ood_weight": 1.0}}
+
+
+def _reward_is_the_score(reward, score, near_wall, penalty):
+    return reward == pytest.approx(score - (penalty if near_wall else 0.0), abs=1e-5)
+
+
+def test_the_ood_env_rewards_the_support_score():
+    env = gym.make("fishprobe/OOD-v0", settings=PLAIN)
+    settings = env.unwrapped.settings
+    assert settings["task"]["objective"] == "ood"
+    assert env.unwrapped.model_name == "ConvNet"
+    penalty = settings["task"]["wall_penalty"]
+    env.reset(seed=0)
+    scores = []
+    for k in range(6):
+        _, reward, _, _, info = env.step(np.array([0.8 * (k % 3 - 1)], np.float32))
+        assert _reward_is_the_score(reward, info["support_score"], info["robot_near_wall"], penalty)
+        scores.append(info["support_score"])
+    assert np.all(np.isfinite(scores)) and max(scores) > 0.0
+    # The default reward pays only the part of a score beyond the support's edge (floor 1).
+    default = fishprobe.LeadToGoalEnv(model="ConvNet", task="ood")
+    default.reset(seed=0)
+    _, reward, _, _, info = default.step(np.zeros(1, np.float32))
+    assert reward <= info["support_score"] + 1e-6
+    # The lead-to-goal task has no support score.
+    goal = fishprobe.LeadToGoalEnv(model="ConvNet")
+    goal.reset(seed=0)
+    assert "support_score" not in goal.step(np.zeros(1, np.float32))[4]
+
+
+def test_the_vector_ood_env_reports_each_environments_score():
+    envs = gym.make_vec("fishprobe/OOD-v0", num_envs=3, settings=PLAIN)
+    envs.reset(seed=1)
+    penalty = fishprobe.LeadToGoalEnv(model="ConvNet", settings=PLAIN).settings["task"]["wall_penalty"]
+    for _ in range(3):
+        _, rewards, _, _, info = envs.step(np.zeros((3, 1), np.float32))
+        scores = info["support_score"]
+        assert scores.shape == (3,) and np.all(np.isfinite(scores))
+        # Each reward is its environment's score, or that less the wall penalty.
+        for r, s in zip(rewards, scores):
+            assert r == pytest.approx(s, abs=1e-5) or r == pytest.approx(s - penalty, abs=1e-5)
+    goal = gym.make_vec("fishprobe/LeadToGoal-v0", num_envs=2, model="Zone")
+    goal.reset(seed=0)
+    assert "support_score" not in goal.step(np.zeros((2, 1), np.float32))[4]
+
+
+def test_the_ood_task_needs_a_data_driven_model():
+    with pytest.raises(ValueError, match="not data-driven"):
+        gym.make("fishprobe/OOD-v0", model="Zone")
+    with pytest.raises(ValueError, match="not data-driven"):
+        fishprobe.VectorEnv(2, model="Follow", task="ood")
+    with pytest.raises(ValueError, match="task 'race'"):
+        fishprobe.LeadToGoalEnv(model="ConvNet", task="race")
+    with pytest.raises(TypeError, match="settings"):
+        fishprobe.LeadToGoalEnv(model="ConvNet", task="ood", settings=[1])
