@@ -4,7 +4,7 @@
 //! docs/validation.md, "The OOD objective", cites it.
 //!
 //! ```sh
-//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD [MODEL]
+//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD [MODEL [PREFIX]]
 //! ```
 //!
 //! Every strategy meets the same training-task episodes (41 s, random starts; master seed 0,
@@ -29,6 +29,15 @@
 //!   present bearing from the fish. Clockwise, the robot passes the fish's right heading the
 //!   opposite way, the OOD policies' first wish (docs/validation.md, "Rewards shaped like the
 //!   target, and orbits").
+//! - `weave-D-L`: across the fish's path in front of it: the point D cm ahead of the fish and
+//!   L cm to the side of its path opposite the robot's (D = 5, 10, 20; L = 5, 10, 15), so the
+//!   robot keeps crossing the fish's heading instead of swimming alongside it.
+//! - `pass-O-D`: repeated passes down the fish's right side heading the opposite way, the
+//!   orbits' best situation without the rest of the turn: while the robot is ahead of the fish
+//!   it turns toward the point O cm to the fish's right (O = 3, 6, 10), once behind it toward
+//!   the point D cm ahead of the fish and O cm to its right (D = 15, 25), to come round again.
+//!
+//! A fourth argument keeps only the strategies whose names start with it (`weave`).
 
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{
@@ -81,12 +90,35 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     }
-    for name in pilots.iter().map(String::as_str) {
+    for ahead in ["5", "10", "20"] {
+        for side in ["5", "10", "15"] {
+            pilots.push(format!("weave-{ahead}-{side}"));
+        }
+    }
+    for off in ["3", "6", "10"] {
+        for ahead in ["15", "25"] {
+            pilots.push(format!("pass-{off}-{ahead}"));
+        }
+    }
+    let only = args.get(3).map_or("", String::as_str);
+    for name in pilots
+        .iter()
+        .map(String::as_str)
+        .filter(|n| n.starts_with(only))
+    {
         // orbit-DIR-R-A: (clockwise, R, A)
         let orbit: Option<(bool, f32, f32)> = name.strip_prefix("orbit-").and_then(|o| {
             let p: Vec<&str> = o.split('-').collect();
             Some((p[0] == "cw", p[1].parse().ok()?, p[2].parse().ok()?))
         });
+        // weave-D-L: (D, L)
+        let pair = |prefix: &str| -> Option<(f32, f32)> {
+            let (a, b) = name.strip_prefix(prefix)?.split_once('-')?;
+            Some((a.parse().ok()?, b.parse().ok()?))
+        };
+        let weave = pair("weave-");
+        // pass-O-D: (O, D)
+        let pass = pair("pass-");
         let (mut n, mut hi, mut sum) = (0u64, 0u64, 0.0f64);
         let mut scores = Vec::new();
         let counting = Arc::new(Counting {
@@ -106,7 +138,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let g = env.active_goal();
                 let toward = |t: [f32; 2]| wrap_angle((t[1] - r.y).atan2(t[0] - r.x) - r.heading);
                 let (c, s) = (f.heading.cos(), f.heading.sin());
-                let action = if let Some((cw, rad, step)) = orbit {
+                let action = if let Some((ahead, side)) = weave {
+                    // The robot's side of the fish's path (left: +), and the point opposite.
+                    let left = c * (r.y - f.y) - s * (r.x - f.x) > 0.0;
+                    let l = if left { -side } else { side };
+                    toward([f.x + ahead * c - l * s, f.y + ahead * s + l * c])
+                } else if let Some((off, ahead)) = pass {
+                    // The fish's right: (s, -c). Ahead of the fish: pass down its right side.
+                    let in_front = c * (r.x - f.x) + s * (r.y - f.y) > 0.0;
+                    let d = if in_front { 0.0 } else { ahead };
+                    toward([f.x + d * c + off * s, f.y + d * s - off * c])
+                } else if let Some((cw, rad, step)) = orbit {
                     let b = (r.y - f.y).atan2(r.x - f.x) + if cw { -step } else { step };
                     toward([f.x + rad * b.cos(), f.y + rad * b.sin()])
                 } else {
