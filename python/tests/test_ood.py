@@ -66,3 +66,9 @@ def test_the_ood_task_needs_a_data_driven_model():
         fishprobe.LeadToGoalEnv(model="ConvNet", task="race")
     with pytest.raises(TypeError, match="settings"):
         fishprobe.LeadToGoalEnv(model="ConvNet", task="ood", settings=[1])
+
+
+def test_training_on_the_ood_task_needs_a_data_driven_model(tmp_path):
+    with pytest.raises(ValueError, match="not data-driven"):
+        fishprobe.train("Zone", tmp_path / "run", preset="smoke", settings={"task": {"objective": "ood"}})
+    assert not (tmp_path / "run").exists()

@@ -320,6 +320,8 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         assert!(stderr(&o).contains(why), "{}", stderr(&o));
     };
     refused(train("Zone", &[]), "not data-driven");
+    // Refused before its run directory is made.
+    assert!(!dir.join("run-0").exists());
     refused(
         fishprobe(&[
             "support",
@@ -353,6 +355,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         train(&bare_model, &[]),
         "was built for the model with SHA-256",
     );
+    assert!(!dir.join("run-0").exists());
     // Settings out of range.
     refused(
         train(&good, &["--ood-goal-weight", "20"]),

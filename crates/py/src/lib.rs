@@ -816,9 +816,14 @@ fn fresh_run(
     }
     cfg.validate()
         .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
+    let env = env_config(settings, "training", None)?;
+    if env.task.objective == Objective::Ood {
+        // The OOD reward needs the model's support: a missing or foreign file is refused here.
+        model.support().map_err(model_err)?;
+    }
     Ok(RunSpec {
         ppo: cfg,
-        env: env_config(settings, "training", None)?,
+        env,
         model: model.clone(),
         seed,
         preset: preset.to_string(),

@@ -154,6 +154,13 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
         ppo.total_timesteps = s;
     }
     ppo.validate().context("the PPO settings")?;
+    if settings.env.task.objective == Objective::Ood {
+        // The OOD reward needs the model's support: a missing or foreign file is refused here.
+        settings
+            .fish
+            .support()
+            .with_context(|| format!("the support of fish model {}", settings.fish.name()))?;
+    }
     let model = settings
         .fish
         .build()
