@@ -37,7 +37,9 @@ pub struct ScoredView {
 }
 
 /// The fish's views of a trial file: for each frame with the fish tracked, its situation
-/// among the robot and the other fish (agents not tracked in that frame are left out).
+/// among the robot and the other fish (agents not tracked in that frame are left out). A live
+/// trial's frames before closed-loop control began (habituation, the robot idle) are left
+/// out: they are not the policy's.
 pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
     let tank = Tank::new(&TankParams {
         half_size_cm: t.world_size_cm[0] / 2.0,
@@ -57,7 +59,8 @@ pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
         (p[0].is_finite() && p[1].is_finite() && h.is_finite())
             .then(|| AgentState::at(p[0], p[1], h))
     };
-    for i in 0..frames {
+    let control = t.task.as_ref().map_or(0, |k| k.control_start_frame as usize);
+    for i in control..frames {
         for me in first_fish..agents.len() {
             let Some(s) = state(&agents[me], i) else {
                 continue;
@@ -87,11 +90,25 @@ pub fn score_trials(
     label: &str,
     files: &[PathBuf],
 ) -> Result<SourceScores, String> {
-    let parts: Vec<Vec<ScoredView>> = files
+    score_recorded(support, label, files).map(|(s, _)| s)
+}
+
+/// [`score_trials`], and each file's goals reached (`None` for a file without fishprobe's
+/// task record, e.g. a recording made by other tools): for recordings that no evaluation
+/// of fishprobe's counted, such as live trials.
+pub fn score_recorded(
+    support: &SupportModel,
+    label: &str,
+    files: &[PathBuf],
+) -> Result<(SourceScores, Vec<Option<usize>>), String> {
+    let parts: Vec<(Vec<ScoredView>, Option<usize>)> = files
         .par_iter()
         .map(|f| {
             read_trial(f)
-                .map(|t| trial_views(support, &t))
+                .map(|t| {
+                    let goals = t.task.as_ref().map(|k| k.goal_frames.len());
+                    (trial_views(support, &t), goals)
+                })
                 .map_err(|e| format!("{}: {e}", f.display()))
         })
         .collect::<Result<_, _>>()?;
@@ -99,11 +116,15 @@ pub fn score_trials(
         label: label.into(),
         ..SourceScores::default()
     };
-    for v in parts.into_iter().flatten() {
-        s.scores.push(v.score);
-        s.situations.push(v.situation);
+    let mut goals = Vec::with_capacity(parts.len());
+    for (views, g) in parts {
+        goals.push(g);
+        for v in views {
+            s.scores.push(v.score);
+            s.situations.push(v.situation);
+        }
     }
-    Ok(s)
+    Ok((s, goals))
 }
 
 /// Views given as M_ConvNet inputs (`n x view_len`, e.g. a training dataset), at most `max`
@@ -344,6 +365,51 @@ mod tests {
             wall_bearing_rad: 0.0,
             second_wall_cm: 60.0,
         }
+    }
+
+    #[test]
+    fn a_live_trials_views_begin_with_control() {
+        use fishprobe_io::{Category, Entity, TaskRecord, TrialKind};
+        let entity = |name: &str, category: Category, x0: f32| Entity {
+            name: name.into(),
+            category_label: name.into(),
+            category,
+            positions: (0..10).map(|i| [x0 + i as f32, 0.0]).collect(),
+            orientations: vec![[1.0, 0.0]; 10],
+            attributes: Default::default(),
+        };
+        let record = |control_start_frame| TaskRecord {
+            kind: TrialKind::Real,
+            policy: "p".into(),
+            fish_model: "live".into(),
+            seed: 0,
+            goal_radius_cm: 5.0,
+            goals: vec![],
+            active_goal: vec![-1; 10],
+            goal_frames: vec![],
+            command_frames: vec![],
+            command_turns: vec![],
+            control_start_frame,
+            config_json: String::new(),
+            program_version: String::new(),
+        };
+        let mut t = TrialFile {
+            world_size_cm: [100.0, 100.0],
+            frame_rate_hz: 25.0,
+            entities: vec![
+                entity("robot", Category::Robot, -20.0),
+                entity("fish", Category::Fish, 0.0),
+            ],
+            attributes: Default::default(),
+            task: None,
+        };
+        let support = fishprobe_models::convnet::shipped_support().unwrap();
+        assert_eq!(trial_views(&support, &t).len(), 10);
+        t.task = Some(record(0));
+        assert_eq!(trial_views(&support, &t).len(), 10);
+        t.task = Some(record(4));
+        let v = trial_views(&support, &t);
+        assert_eq!((v.len(), v[0].frame), (6, 4));
     }
 
     #[test]

@@ -52,8 +52,8 @@ pub fn ood_scores(sources: &[(String, Vec<f32>)], cap: f32) -> Figure {
         caption: format!(
             "Empirical distribution of the support score of every fish view (each frame), per \
              source. 0: at or below the training views' median; 1 (dashed): their 95th \
-             percentile, so 95 % of the training views lie left of it; scores above {cap} are \
-             drawn at {cap}. A curve further right spends more time where the data is thin."
+             percentile, so 95 % of the training views lie left of it; scores above {cap:.2} are \
+             drawn at {cap:.2}. A curve further right spends more time where the data is thin."
         ),
         svg: svg.finish(),
     }
@@ -105,7 +105,7 @@ pub fn ood_trajectories(episodes: &[ScoredEpisode], cap: f32) -> Figure {
             TextStyle::new(12.0, Anchor::Middle).bold(),
         );
     }
-    colour_bar(&mut svg, (30.0, side + 70.0), "score 0", &format!("{cap}+"));
+    colour_bar(&mut svg, (30.0, side + 70.0), "score 0", &format!("{cap:.2}+"));
     svg.text(
         30.0,
         side + 120.0,
