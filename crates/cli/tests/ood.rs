@@ -135,6 +135,68 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     assert_eq!(r["distributions"].as_array().unwrap().len(), 3);
     let share = r["ood_share_beyond_goal_p95"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&share), "{share}");
+    assert_eq!(r["recorded_trials"], serde_json::json!([null, null]));
+
+    // Recorded trials (here: the report's own episodes, as live trials would be given) are
+    // scored exactly as the episodes were when simulated.
+    let rescored = dir.join("report-recorded");
+    let o = fishprobe(&[
+        "ood-report",
+        "--trials",
+        s(&report.join("episodes/ood")),
+        "--compare-trials",
+        s(&report.join("episodes/goal/goal_000.hdf5")),
+        s(&report.join("episodes/goal/goal_001.hdf5")),
+        "--policy",
+        s(&seed_dir.join("policy-ood")),
+        "--data",
+        s(&seed_dir.join("data/narrow")),
+        "--out",
+        s(&rescored),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rr: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(rescored.join("ood.json")).unwrap()).unwrap();
+    assert_eq!(rr["recorded_trials"], serde_json::json!([2, 2]));
+    for k in [
+        "goal_policy_p95",
+        "ood_share_beyond_goal_p95",
+        "goals_per_episode",
+        "wishlist",
+    ] {
+        assert_eq!(rr[k], r[k], "{k}");
+    }
+    for (a, b) in rr["distributions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(r["distributions"].as_array().unwrap())
+    {
+        for k in ["views", "median", "p95", "beyond_support"] {
+            assert_eq!(a[k], b[k], "{k}");
+        }
+    }
+    let md = std::fs::read_to_string(rescored.join("report.md")).unwrap();
+    assert!(
+        md.contains("2 recorded trials of") && md.contains("--trials"),
+        "{md}"
+    );
+    let empty = dir.join("no-trials");
+    std::fs::create_dir_all(&empty).unwrap();
+    let o = fishprobe(&[
+        "ood-report",
+        "--trials",
+        s(&empty),
+        "--model",
+        "ConvNet",
+        "--out",
+        s(&dir.join("never-report")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("no trial files"),
+        "{}",
+        stderr(&o)
+    );
 
     // A reward that counts time beyond a lead-to-goal policy's 95th percentile: measured before
     // training on `ood-report`'s episodes, so the report's yardstick is the reward's floor.

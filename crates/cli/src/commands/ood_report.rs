@@ -1,13 +1,14 @@
 //! `fishprobe ood-report`: what an OOD policy (issue 23) drives the fish into. Runs the policy
-//! and a lead-to-goal policy on the same episodes against the fish model, scores every view
-//! of the fish against the model's training support, and writes the distributions, example
-//! episodes, and a ranked data wishlist.
+//! and a lead-to-goal policy on the same episodes against the fish model (or reads recorded
+//! trials of either, e.g. live ones), scores every view of the fish against the model's
+//! training support, and writes the distributions, example episodes, and a ranked data
+//! wishlist.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_analysis::ood::{
-    distribution, quantile, score_trials, score_views, share_at_least, trial_views, wishlist,
-    Distribution, SourceScores, WishItem,
+    distribution, quantile, score_recorded, score_trials, score_views, share_at_least, trial_views,
+    wishlist, Distribution, SourceScores, WishItem,
 };
 use fishprobe_learn::bc::{load_pairs, CloneConfig};
 use fishprobe_learn::{Evaluation, Trainer};
@@ -21,9 +22,21 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct OodReportArgs {
-    /// The OOD policy: a directory from `fishprobe train --task ood` (or `onnx:FILE`).
-    #[arg(long)]
-    policy: String,
+    /// The OOD policy: a directory from `fishprobe train --task ood` (or `onnx:FILE`). With
+    /// `--trials`, only names the policy the trials were recorded with (and, as a training
+    /// directory, the fish model and its yardstick).
+    #[arg(long, required_unless_present = "trials")]
+    policy: Option<String>,
+    /// Recorded trials of the OOD policy to score instead of simulating its episodes: trial
+    /// files or directories of them (`*.hdf5`, `*.h5`), e.g. live trials (`fishprobe live`)
+    /// or the virtual lab's (`fishprobe lab`): how far the fish in those recordings went
+    /// outside the model's training support. At most 1000 files.
+    #[arg(long, num_args = 1..)]
+    trials: Vec<PathBuf>,
+    /// Recorded trials of the lead-to-goal policy, scored instead of simulating `--compare`'s
+    /// episodes (as `--trials`).
+    #[arg(long, num_args = 1..)]
+    compare_trials: Vec<PathBuf>,
     /// The lead-to-goal policy to compare with (a training directory, `onnx:FILE` or
     /// `scripted:NAME`). Default: `scripted:fetch-and-lead`.
     #[arg(long, default_value = "scripted:fetch-and-lead")]
@@ -67,6 +80,9 @@ struct OodReport {
     episodes: usize,
     minutes: f32,
     seed: u64,
+    /// Recorded trials scored for each policy (OOD, lead-to-goal) instead of simulated
+    /// episodes (`--trials`, `--compare-trials`); `None`: simulated.
+    recorded_trials: [Option<usize>; 2],
     distributions: Vec<Distribution>,
     /// The goal policy's 95th-percentile score.
     goal_policy_p95: f64,
@@ -75,6 +91,7 @@ struct OodReport {
     /// The score the OOD policy's reward counted time beyond (`train --ood-yardstick`), if
     /// it was trained so: its `yardstick.json`.
     trained_yardstick: Option<TrainedYardstick>,
+    /// Goals per episode or recorded trial (null: recordings without fishprobe's task record).
     goals_per_episode: [f64; 2],
     wishlist: Vec<WishItem>,
 }
@@ -101,12 +118,17 @@ fn trained_yardstick(policy: &str) -> Result<Option<TrainedYardstick>> {
     Ok(Some(y))
 }
 
-/// An example episode for the picture: the robot's path, the first fish's scored views.
+/// An example episode for the picture: the robot's path, the first fish's scored views (both
+/// from the start of closed-loop control: a live trial's habituation is not the policy's).
 fn scored_episode(support: &SupportModel, file: &Path, title: String) -> Result<ScoredEpisode> {
     let t = fishprobe_io::read_trial(file)?;
+    let control = t.task.as_ref().map_or(0, |k| k.control_start_frame as usize);
     Ok(ScoredEpisode {
         title,
-        robot: t.robot().map(|r| r.positions.clone()).unwrap_or_default(),
+        robot: t
+            .robot()
+            .map(|r| r.positions.iter().skip(control).copied().collect())
+            .unwrap_or_default(),
         fish: trial_views(support, &t)
             .into_iter()
             .filter(|v| v.fish == 0)
@@ -145,17 +167,71 @@ pub(crate) fn score_policy(
     })
 }
 
+/// Most recorded trials one source may hold (as many as `--episodes` allows).
+const MAX_RECORDED: usize = 1000;
+
+/// Where a policy's scored views come from.
+enum Source {
+    /// Episodes simulated now with this controller.
+    Simulated(Box<dyn Controller>),
+    /// Recorded trial files.
+    Recorded(Vec<PathBuf>),
+}
+
+/// The trial files `paths` name (files, or directories of `*.hdf5` / `*.h5`), for `flag`.
+fn recorded_files(paths: &[PathBuf], flag: &str) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    for p in paths {
+        if p.is_dir() {
+            let found = fishprobe_io::trial_files(p);
+            if found.is_empty() {
+                bail!(
+                    "{flag} {}: no trial files (*.hdf5, *.h5) in it",
+                    p.display()
+                );
+            }
+            files.extend(found);
+        } else {
+            files.push(p.clone());
+        }
+        if files.len() > MAX_RECORDED {
+            bail!("{flag}: more than {MAX_RECORDED} trial files; score a sample of them");
+        }
+    }
+    Ok(files)
+}
+
+/// Recorded trials scored against `support`: their views and their goals per trial (NaN when
+/// none of them has fishprobe's task record).
+fn recorded_run(support: &SupportModel, label: &str, files: &[PathBuf]) -> Result<ScoredRun> {
+    say!("scoring {} recorded trials of the {label} ...", files.len());
+    let (scores, goals) = score_recorded(support, label, files).map_err(anyhow::Error::msg)?;
+    if scores.scores.is_empty() {
+        bail!("the {label}'s recorded trials hold no tracked fish with the robot");
+    }
+    let counted: Vec<f64> = goals.into_iter().flatten().map(|g| g as f64).collect();
+    Ok(ScoredRun {
+        scores,
+        goals: counted.iter().sum::<f64>() / counted.len() as f64,
+        files: files.to_vec(),
+    })
+}
+
 pub fn run(a: OodReportArgs) -> Result<()> {
     if a.episodes == 0 || a.episodes > 1000 {
         bail!("--episodes must lie in [1, 1000], got {}", a.episodes);
     }
     super::check_minutes("--minutes", f64::from(a.minutes))?;
+    let policy = a.policy.as_deref();
     let _lock = super::lock_out(&a.out, "ood-report")?;
-    let recorded = run_dir(&a.policy).map(Trainer::recorded_spec).transpose()?;
+    let recorded = policy
+        .and_then(run_dir)
+        .map(Trainer::recorded_spec)
+        .transpose()?;
     let model = match (&a.model, &recorded) {
         (Some(m), _) => ModelSpec::by_name(m)?,
         (None, Some(spec)) => spec.model.clone(),
-        (None, None) => bail!("--model is required when --policy is not a training directory"),
+        (None, None) => bail!("--model is required unless --policy is a training directory"),
     };
     let support = model
         .support()
@@ -164,12 +240,32 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         .as_ref()
         .map(|s| s.env.clone())
         .unwrap_or_else(EnvConfig::default);
-    let ood_c = fishprobe_learn::controller(&a.policy, false)
-        .with_context(|| format!("loading --policy {}", a.policy))?;
+    let ood_src = match (a.trials.is_empty(), policy) {
+        (false, _) => Source::Recorded(recorded_files(&a.trials, "--trials")?),
+        (true, Some(p)) => Source::Simulated(
+            fishprobe_learn::controller(p, false)
+                .with_context(|| format!("loading --policy {p}"))?,
+        ),
+        (true, None) => bail!("--policy or --trials is required"),
+    };
     // Read before the episodes: a corrupt record fails at once, not after minutes.
-    let trained = trained_yardstick(&a.policy)?;
-    let goal_c = fishprobe_learn::controller(&a.compare, false)
-        .with_context(|| format!("loading --compare {}", a.compare))?;
+    let trained = policy.map(trained_yardstick).transpose()?.flatten();
+    let goal_src = if a.compare_trials.is_empty() {
+        Source::Simulated(
+            fishprobe_learn::controller(&a.compare, false)
+                .with_context(|| format!("loading --compare {}", a.compare))?,
+        )
+    } else {
+        Source::Recorded(recorded_files(&a.compare_trials, "--compare-trials")?)
+    };
+    let describe = |src: &Source, name: Option<&str>| match src {
+        Source::Simulated(c) => format!("{} ({})", name.unwrap_or("?"), c.describe()),
+        Source::Recorded(f) => match name {
+            Some(n) => format!("{} recorded trials of {n}", f.len()),
+            None => format!("{} recorded trials", f.len()),
+        },
+    };
+    let compare_name = a.compare_trials.is_empty().then_some(a.compare.as_str());
     // The training recordings too: a bad --data fails before minutes of episodes.
     let data = if !a.data.is_empty() {
         a.data.clone()
@@ -195,36 +291,45 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     let mut sources = Vec::new();
     let mut goals = [0.0; 2];
     let mut first_files = Vec::new();
-    for (k, (c, name)) in [(&ood_c, "ood"), (&goal_c, "goal")].into_iter().enumerate() {
-        let e = Evaluation {
-            model: model.clone(),
-            env: env.clone(),
-            episodes: a.episodes,
-            minutes: a.minutes,
-            seed: a.seed,
-            start: None,
-            out: a.out.join("episodes").join(name),
-            prefix: name.into(),
+    let both = [
+        (&ood_src, "ood", "OOD policy"),
+        (&goal_src, "goal", "lead-to-goal policy"),
+    ];
+    for (k, (src, name, label)) in both.into_iter().enumerate() {
+        let run = match src {
+            Source::Recorded(files) => recorded_run(&support, label, files)?,
+            Source::Simulated(c) => {
+                let e = Evaluation {
+                    model: model.clone(),
+                    env: env.clone(),
+                    episodes: a.episodes,
+                    minutes: a.minutes,
+                    seed: a.seed,
+                    start: None,
+                    out: a.out.join("episodes").join(name),
+                    prefix: name.into(),
+                };
+                score_policy(c.as_ref(), &e, &support, label)?
+            }
         };
-        let label = if k == 0 {
-            "OOD policy"
-        } else {
-            "lead-to-goal policy"
-        };
-        let run = score_policy(c.as_ref(), &e, &support, label)?;
         goals[k] = run.goals;
         first_files.push(run.files[0].clone());
         sources.push(run.scores);
     }
     let cap = env.task.ood_score_cap;
     let goal_p95 = quantile(&sources[1].scores, 0.95);
+    let count = |src: &Source| match src {
+        Source::Recorded(f) => Some(f.len()),
+        Source::Simulated(_) => None,
+    };
     let report = OodReport {
         model: model.name().to_string(),
-        ood_policy: format!("{} ({})", a.policy, ood_c.describe()),
-        goal_policy: format!("{} ({})", a.compare, goal_c.describe()),
+        ood_policy: describe(&ood_src, policy),
+        goal_policy: describe(&goal_src, compare_name),
         episodes: a.episodes,
         minutes: a.minutes,
         seed: a.seed,
+        recorded_trials: [count(&ood_src), count(&goal_src)],
         distributions: training.iter().chain(&sources).map(distribution).collect(),
         goal_policy_p95: goal_p95,
         ood_share_beyond_goal_p95: share_at_least(&sources[0].scores, goal_p95),
@@ -250,7 +355,10 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         ("lead-to-goal policy", &first_files[1]),
     ]
     .into_iter()
-    .map(|(title, file)| scored_episode(&support, file, format!("{title}, episode 0")))
+    .map(|(title, file)| {
+        let name = file.file_name().unwrap_or_default().to_string_lossy();
+        scored_episode(&support, file, format!("{title}, {name}"))
+    })
     .collect::<Result<Vec<_>>>()?;
     fishprobe_report::write_figure(&ood_trajectories(&examples, cap), &a.out, 2.0)?;
     let json = serde_json::to_string_pretty(&report)? + "\n";
@@ -266,6 +374,70 @@ pub fn run(a: OodReportArgs) -> Result<()> {
 
 fn pct(v: f64) -> String {
     format!("{:.1} %", 100.0 * v)
+}
+
+/// Goals per episode or trial; "–" for recordings that do not say.
+fn goals_text(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.1}")
+    } else {
+        "–".into()
+    }
+}
+
+/// Where each policy's views came from, in words.
+fn sources_text(r: &OodReport) -> String {
+    let simulated = format!(
+        "{} episodes of {} min (seed {}; the evaluation task's random starts and corner goals)",
+        r.episodes, r.minutes, r.seed
+    );
+    match r.recorded_trials {
+        [None, None] => format!("{simulated} per policy"),
+        [ood, goal] => {
+            let one =
+                |n: Option<usize>| n.map_or(simulated.clone(), |n| format!("{n} recorded trials"));
+            format!(
+                "OOD policy: {}; lead-to-goal policy: {}",
+                one(ood),
+                one(goal)
+            )
+        }
+    }
+}
+
+/// The command that makes this report again.
+fn command_line(a: &OodReportArgs) -> String {
+    let paths = |v: &[PathBuf]| {
+        v.iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let mut c = String::from("fishprobe ood-report");
+    if let Some(p) = &a.policy {
+        c += &format!(" --policy {p}");
+    }
+    if !a.trials.is_empty() {
+        c += &format!(" --trials {}", paths(&a.trials));
+    }
+    if a.compare_trials.is_empty() {
+        c += &format!(" --compare {}", a.compare);
+    } else {
+        c += &format!(" --compare-trials {}", paths(&a.compare_trials));
+    }
+    if let Some(m) = &a.model {
+        c += &format!(" --model {m}");
+    }
+    if !a.data.is_empty() {
+        c += &format!(" --data {}", paths(&a.data));
+    }
+    if a.trials.is_empty() || a.compare_trials.is_empty() {
+        c += &format!(
+            " --episodes {} --minutes {} --seed {}",
+            a.episodes, a.minutes, a.seed
+        );
+    }
+    c
 }
 
 fn distributions_table(r: &OodReport) -> String {
@@ -319,14 +491,14 @@ fn yardstick_note(r: &OodReport) -> String {
 fn summary(r: &OodReport, out: &Path) -> String {
     format!(
         "{}\nThe OOD policy's fish spent {} of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}).{} Goals per episode: OOD {:.1}, lead-to-goal \
-         {:.1}.\n\nData wishlist (record these next):\n{}\nwrote {}\n",
+         policy's 95th-percentile score ({:.2}).{} Goals per episode or trial: OOD {}, \
+         lead-to-goal {}.\n\nData wishlist (record these next):\n{}\nwrote {}\n",
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
         yardstick_note(r),
-        r.goals_per_episode[0],
-        r.goals_per_episode[1],
+        goals_text(r.goals_per_episode[0]),
+        goals_text(r.goals_per_episode[1]),
         r.wishlist
             .iter()
             .take(5)
@@ -344,38 +516,30 @@ fn summary(r: &OodReport, out: &Path) -> String {
 fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
     format!(
         "# What the OOD policy finds\n\n\
-         Fish model: {}. OOD policy: {}. Lead-to-goal policy: {}. {} episodes of {} min each \
-         per policy (seed {}; the evaluation task's random starts and corner goals), every \
-         fish view scored against the model's training support (0: the training views' \
-         median, 1: their 95th percentile).\n\n\
+         Fish model: {}. OOD policy: {}. Lead-to-goal policy: {}. {}, every fish view scored \
+         against the model's training support (0: the training views' median, 1: their 95th \
+         percentile).\n\n\
          ## Support scores\n\n{}\n\
          The OOD policy's fish spent **{}** of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}).{} Goals per episode: OOD policy {:.1}, \
-         lead-to-goal policy {:.1}.\n\n\
+         policy's 95th-percentile score ({:.2}).{} Goals per episode or trial: OOD policy {}, \
+         lead-to-goal policy {}.\n\n\
          ![score distributions](ood-scores.png)\n\n\
          ![example episodes](ood-trajectories.png)\n\n\
          ## Data wishlist\n\n\
          The situations beyond the support where the OOD policy drove the fish, ranked by \
          its time there weighted by score: what the lab should record next.\n\n{}\n\
-         Made by `fishprobe ood-report --policy {} --compare {} --episodes {} --minutes {} \
-         --seed {}`.\n",
+         Made by `{}`.\n",
         r.model,
         r.ood_policy,
         r.goal_policy,
-        r.episodes,
-        r.minutes,
-        r.seed,
+        sources_text(r),
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
         yardstick_note(r),
-        r.goals_per_episode[0],
-        r.goals_per_episode[1],
+        goals_text(r.goals_per_episode[0]),
+        goals_text(r.goals_per_episode[1]),
         wishlist_table(r),
-        a.policy,
-        a.compare,
-        a.episodes,
-        a.minutes,
-        a.seed
+        command_line(a),
     )
 }
