@@ -17,7 +17,7 @@ import gymnasium as _gym
 
 from . import _native
 from .env import LeadToGoalEnv
-from .files import Policy, load_results, read_trial
+from .files import Policy, load_results, read_trial, support_scores
 from .models import FishModel
 from .training import train
 from .vector import VectorEnv
@@ -36,6 +36,7 @@ __all__ = [
     "VectorEnv",
     "load_results",
     "read_trial",
+    "support_scores",
     "train",
 ]
 

@@ -104,3 +104,22 @@ class Policy:
 
     def __repr__(self) -> str:
         return f"Policy({self.path!r}, name={self.name!r})"
+
+
+def support_scores(path: str | os.PathLike, model: Any = None) -> dict[str, np.ndarray]:
+    """How far each view of the fish in a trial file lies outside a data-driven model's training
+    support (the OOD objective's score, ``docs/guide/ood.md``): 0 at the training views'
+    median, 1 at their 95th percentile. The views ``fishprobe ood-report --trials`` scores: one
+    per fish and tracked frame, from the start of closed-loop control.
+
+    Args:
+        path: a trial file (e.g. a live trial recorded under an OOD policy).
+        model: the model whose support to score against (default ``"ConvNet"``, the shipped
+            M_ConvNet; ``"convnet:FILE"`` or ``"onnx:FILE"`` with their support file).
+
+    Returns:
+        ``{"frame": int64 (n,), "fish": int64 (n,), "score": float32 (n,),
+        "position": float32 (n, 2) cm}``.
+    """
+    return dict(_native.support_scores(os.fspath(path), model))
+

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -72,3 +74,24 @@ def test_training_on_the_ood_task_needs_a_data_driven_model(tmp_path):
     with pytest.raises(ValueError, match="not data-driven"):
         fishprobe.train("Zone", tmp_path / "run", preset="smoke", settings={"task": {"objective": "ood"}})
     assert not (tmp_path / "run").exists()
+
+
+def test_support_scores_of_a_trial_are_what_ood_report_scores(tmp_path, cli):
+    trial = tmp_path / "t.hdf5"
+    cli("simulate", "--model", "ConvNet", "--robot", "goals", "--minutes", "0.5", "--seed", "2",
+        "--out", trial)
+    s = fishprobe.support_scores(trial)
+    n = len(s["score"])
+    assert n == 751 and s["position"].shape == (n, 2)  # the start pose, then 750 frames
+    assert (s["fish"] == 0).all() and (np.diff(s["frame"]) == 1).all()
+    assert s["score"].dtype == np.float32 and (s["score"] >= 0).all()
+    r = cli("ood-report", "--trials", trial, "--compare-trials", trial, "--model", "ConvNet",
+            "--out", tmp_path / "report", "--json")
+    d = [x for x in json.loads(r.stdout)["distributions"] if x["label"] == "OOD policy"][0]
+    scores = s["score"].astype(np.float64)
+    assert d["views"] == n
+    assert d["median"] == pytest.approx(np.quantile(scores, 0.5), abs=1e-9)
+    assert d["p95"] == pytest.approx(np.quantile(scores, 0.95), abs=1e-9)
+    assert d["beyond_support"] == pytest.approx(np.mean(scores > 1.0), abs=1e-12)
+    with pytest.raises(ValueError, match="not data-driven"):
+        fishprobe.support_scores(trial, model="Zone")

@@ -591,14 +591,49 @@ impl Policy {
 /// values and numpy arrays.
 #[pyfunction]
 fn read_trial<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    let trial = match fishprobe_io::read_trial(&path) {
-        Ok(t) => t,
-        Err(first) => match fishprobe_io::read_legacy(&path) {
-            Ok(t) => t,
-            Err(_) => return Err(io_err(first)),
-        },
+    trial_dict(py, &read_any_trial(&path)?)
+}
+
+/// A trial file in robofish.io 1.0 or, failing that, the lab's pre-2020 layout (the first
+/// format's error when neither reads).
+fn read_any_trial(path: &std::path::Path) -> PyResult<TrialFile> {
+    match fishprobe_io::read_trial(path) {
+        Ok(t) => Ok(t),
+        Err(first) => fishprobe_io::read_legacy(path).map_err(|_| io_err(first)),
+    }
+}
+
+/// The support scores of the fish's views in a trial file against `model`'s training support
+/// (issue 23), from the start of closed-loop control, one entry per fish and tracked frame:
+/// `frame`, `fish` (int64), `score` (float32), `position` ((n, 2) cm). The views `fishprobe
+/// ood-report --trials` scores.
+#[pyfunction]
+#[pyo3(signature = (path, model=None))]
+fn support_scores<'py>(
+    py: Python<'py>,
+    path: std::path::PathBuf,
+    model: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let spec = match model.filter(|m| !m.is_none()) {
+        Some(m) => Model::resolve(m)?.spec,
+        None => ModelSpec::by_name("ConvNet").map_err(model_err)?,
     };
-    trial_dict(py, &trial)
+    let support = spec.support().map_err(model_err)?;
+    let trial = read_any_trial(&path)?;
+    let views = py.detach(|| fishprobe_analysis::ood::trial_views(&support, &trial));
+    let d = PyDict::new(py);
+    let frames: Vec<i64> = views.iter().map(|v| v.frame as i64).collect();
+    let fish: Vec<i64> = views.iter().map(|v| v.fish as i64).collect();
+    let scores: Vec<f32> = views.iter().map(|v| v.score).collect();
+    let positions: Vec<f32> = views.iter().flat_map(|v| v.position).collect();
+    d.set_item("frame", PyArray1::from_vec(py, frames))?;
+    d.set_item("fish", PyArray1::from_vec(py, fish))?;
+    d.set_item("score", PyArray1::from_vec(py, scores))?;
+    d.set_item(
+        "position",
+        PyArray1::from_vec(py, positions).reshape([views.len(), 2])?,
+    )?;
+    Ok(d)
 }
 
 fn attrs_dict<'py>(
@@ -847,6 +882,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<VecEnv>()?;
     m.add_class::<Policy>()?;
     m.add_function(wrap_pyfunction!(read_trial, m)?)?;
+    m.add_function(wrap_pyfunction!(support_scores, m)?)?;
     m.add_function(wrap_pyfunction!(model_names, m)?)?;
     m.add_function(wrap_pyfunction!(train, m)?)?;
     m.add_function(wrap_pyfunction!(results_path, m)?)?;

@@ -105,7 +105,12 @@ pub fn ood_trajectories(episodes: &[ScoredEpisode], cap: f32) -> Figure {
             TextStyle::new(12.0, Anchor::Middle).bold(),
         );
     }
-    colour_bar(&mut svg, (30.0, side + 70.0), "score 0", &format!("{cap:.2}+"));
+    colour_bar(
+        &mut svg,
+        (30.0, side + 70.0),
+        "score 0",
+        &format!("{cap:.2}+"),
+    );
     svg.text(
         30.0,
         side + 120.0,
