@@ -23,10 +23,7 @@ fn episode(path: &Path, cfg: &AnalysisConfig) -> Result<Episode, String> {
         .as_ref()
         .and_then(|k| k.goals.first().copied())
         .unwrap_or(cfg.approach_goal);
-    let start = t
-        .task
-        .as_ref()
-        .map_or(0, |k| k.control_start_frame as usize);
+    let start = t.control_start();
     let frames = robot.frames().min(fish.frames());
     let d = (start..frames)
         .map(|i| {

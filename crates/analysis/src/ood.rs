@@ -59,10 +59,7 @@ pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
         (p[0].is_finite() && p[1].is_finite() && h.is_finite())
             .then(|| AgentState::at(p[0], p[1], h))
     };
-    let control = t
-        .task
-        .as_ref()
-        .map_or(0, |k| k.control_start_frame as usize);
+    let control = t.control_start();
     for i in control..frames {
         for me in first_fish..agents.len() {
             let Some(s) = state(&agents[me], i) else {

@@ -181,11 +181,7 @@ pub fn load_trial(
         .map(|f| f.frames())
         .fold(robot.frames(), usize::min);
     let rate = f64::from(t.frame_rate_hz);
-    let control_start = t
-        .task
-        .as_ref()
-        .map_or(0, |k| k.control_start_frame as usize)
-        .min(frames);
+    let control_start = t.control_start().min(frames);
     let (active, events) = goal_timeline(&t, &fish, control_start, frames, cfg);
 
     let control_minutes = ((frames - control_start) as f64 / rate / 60.0 + 1e-9).floor() as usize;

@@ -288,6 +288,14 @@ impl TrialFile {
             .filter(|e| e.category == Category::Fish)
     }
 
+    /// The first frame of closed-loop control (0 without fishprobe's task record, and in
+    /// simulation): a live trial's frames before it are habituation, not the policy's.
+    pub fn control_start(&self) -> usize {
+        self.task
+            .as_ref()
+            .map_or(0, |k| k.control_start_frame as usize)
+    }
+
     /// Duration (s) of the longest entity.
     pub fn duration_s(&self) -> f32 {
         let frames = self.entities.iter().map(Entity::frames).max().unwrap_or(0);

@@ -349,10 +349,7 @@ fn track(path: &Path, cfg: &ReportConfig) -> Result<Track, String> {
     if fish.is_empty() {
         return Err("no fish".into());
     }
-    let start = t
-        .task
-        .as_ref()
-        .map_or(0, |k| k.control_start_frame as usize);
+    let start = t.control_start();
     let frames = fish
         .iter()
         .map(|f| f.frames())
@@ -412,10 +409,7 @@ fn approach_episode(
     let t = read_trial(path).map_err(|e| e.to_string())?;
     let robot = t.robot().ok_or("no robot")?;
     let fish = t.fish().next().ok_or("no fish")?;
-    let start = t
-        .task
-        .as_ref()
-        .map_or(0, |k| k.control_start_frame as usize);
+    let start = t.control_start();
     let frames = robot.frames().min(fish.frames());
     if start >= frames {
         return Err("no frame of control".into());

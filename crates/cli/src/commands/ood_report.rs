@@ -122,10 +122,7 @@ fn trained_yardstick(policy: &str) -> Result<Option<TrainedYardstick>> {
 /// from the start of closed-loop control: a live trial's habituation is not the policy's).
 fn scored_episode(support: &SupportModel, file: &Path, title: String) -> Result<ScoredEpisode> {
     let t = fishprobe_io::read_trial(file)?;
-    let control = t
-        .task
-        .as_ref()
-        .map_or(0, |k| k.control_start_frame as usize);
+    let control = t.control_start();
     Ok(ScoredEpisode {
         title,
         robot: t
