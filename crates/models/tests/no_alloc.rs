@@ -4,6 +4,7 @@
 
 // A counting GlobalAlloc cannot be written without unsafe; it only forwards to System.
 #![allow(unsafe_code)]
+#![allow(clippy::unwrap_used)] // a failure is a test failure
 
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{Env, EnvConfig, Objective, TankEnv, TaskMode};
