@@ -197,6 +197,10 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "{}",
         stderr(&o)
     );
+    assert!(
+        !dir.join("never-report").exists(),
+        "a refused report leaves no --out behind"
+    );
 
     // A reward that counts time beyond a lead-to-goal policy's 95th percentile: measured before
     // training on `ood-report`'s episodes, so the report's yardstick is the reward's floor.

@@ -223,7 +223,6 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     }
     super::check_minutes("--minutes", f64::from(a.minutes))?;
     let policy = a.policy.as_deref();
-    let _lock = super::lock_out(&a.out, "ood-report")?;
     let recorded = policy
         .and_then(run_dir)
         .map(Trainer::recorded_spec)
@@ -288,6 +287,8 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
         Some(score_views(&support, "training recordings", &d.x, 50_000))
     };
+    // Locked (and so created) only now: a refused report leaves no empty --out behind.
+    let _lock = super::lock_out(&a.out, "ood-report")?;
     let mut sources = Vec::new();
     let mut goals = [0.0; 2];
     let mut first_files = Vec::new();
