@@ -35,6 +35,7 @@ pub mod onnx;
 pub mod policy;
 pub mod ppo;
 pub mod trainer;
+pub mod yardstick;
 
 pub use config::PpoConfig;
 pub use controller::{controller, named, PolicyController};

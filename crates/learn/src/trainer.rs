@@ -38,6 +38,21 @@ pub struct RunSpec {
     pub program_version: String,
 }
 
+impl RunSpec {
+    /// Checks the run before anything is written: the PPO and environment settings, and, for
+    /// the OOD task, that the fish model's support file exists and belongs to its weights (the
+    /// reward scores the fish's views against it). `Trainer::create` checks the same; callers
+    /// check first so that a refused run leaves no directory behind.
+    pub fn check(&self) -> Result<(), LearnError> {
+        self.ppo.validate()?;
+        self.env.validate()?;
+        if self.env.task.objective == Objective::Ood {
+            self.model.support()?;
+        }
+        Ok(())
+    }
+}
+
 /// One iteration's log line.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IterationStats {

@@ -31,7 +31,6 @@ mod simulate;
 mod support;
 pub(crate) mod synth;
 mod train;
-mod yardstick;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};

@@ -7,10 +7,11 @@
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_analysis::ood::{
-    distribution, quantile, score_recorded, score_trials, score_views, share_at_least, trial_views,
-    wishlist, Distribution, SourceScores, WishItem,
+    distribution, quantile, score_recorded, score_views, share_at_least, trial_views, wishlist,
+    Distribution, SourceScores, WishItem,
 };
 use fishprobe_learn::bc::{load_pairs, CloneConfig};
+use fishprobe_learn::yardstick::ScoredRun;
 use fishprobe_learn::{Evaluation, Trainer};
 use fishprobe_models::support::SupportModel;
 use fishprobe_models::ModelSpec;
@@ -137,34 +138,18 @@ fn scored_episode(support: &SupportModel, file: &Path, title: String) -> Result<
     })
 }
 
-/// A policy's episodes, every fish view scored against the support.
-pub(crate) struct ScoredRun {
-    /// The scored views.
-    pub scores: SourceScores,
-    /// Goals per episode (mean).
-    pub goals: f64,
-    /// The episodes' trial files.
-    pub files: Vec<PathBuf>,
-}
-
 /// Runs `c` on the episodes of `e` (their trial files in `e.out`) and scores every fish view
-/// against `support`: what `ood-report` compares, and what `train --ood-yardstick` takes its
-/// yardstick from.
-pub(crate) fn score_policy(
+/// against `support` (`fishprobe_learn::yardstick::score_policy`, on `--jobs`' pool).
+fn score_policy(
     c: &dyn Controller,
     e: &Evaluation,
     support: &SupportModel,
     label: &str,
 ) -> Result<ScoredRun> {
-    std::fs::create_dir_all(&e.out).with_context(|| format!("creating {}", e.out.display()))?;
     say!("running {} episodes of {} ...", e.episodes, c.describe());
-    let results = super::with_jobs(None, || fishprobe_learn::evaluate(c, e))??;
-    let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
-    Ok(ScoredRun {
-        scores: score_trials(support, label, &files).map_err(anyhow::Error::msg)?,
-        goals: fishprobe_learn::goals_mean_sd(&results).0,
-        files,
-    })
+    Ok(super::with_jobs(None, || {
+        fishprobe_learn::yardstick::score_policy(c, e, support, label)
+    })??)
 }
 
 /// Most recorded trials one source may hold (as many as `--episodes` allows).

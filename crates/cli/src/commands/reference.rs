@@ -110,7 +110,7 @@ pub fn reference() -> String {
         "Support model (`fishprobe support`; `fit-convnet` writes one with these defaults)",
         "How the OOD objective's support of a model's training views is estimated.",
     );
-    section::<super::yardstick::OodYardstickConfig>(
+    section::<fishprobe_learn::yardstick::OodYardstickConfig>(
         &mut o,
         "The OOD reward's yardstick (`fishprobe train --task ood --ood-yardstick POLICY`)",
         "How the lead-to-goal policy's percentile is measured and the reward shaped from it; \

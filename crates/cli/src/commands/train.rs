@@ -2,6 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use fishprobe_learn::yardstick::{self, OodYardstickConfig};
 use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::FishModel;
@@ -11,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::config::SimSettings;
-use super::{emit, yardstick};
+use super::emit;
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -86,7 +87,7 @@ struct Fresh {
     spec: RunSpec,
     model: Arc<dyn FishModel>,
     /// The yardstick policy and how to measure it (`--ood-yardstick`).
-    yardstick: Option<(String, yardstick::OodYardstickConfig)>,
+    yardstick: Option<(String, OodYardstickConfig)>,
 }
 
 /// The new run the flags ask for: settings, model, task, PPO, all checked and the fish built,
@@ -127,15 +128,15 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
             bail!("--ood-yardstick applies to --task ood only")
         }
         Some(policy) => {
-            let d = yardstick::OodYardstickConfig::default();
-            let config = yardstick::OodYardstickConfig {
+            let d = OodYardstickConfig::default();
+            let config = OodYardstickConfig {
                 quantile: a.ood_yardstick_quantile.unwrap_or(d.quantile),
                 band: a.ood_yardstick_band.unwrap_or(d.band),
                 episodes: a.ood_yardstick_episodes.unwrap_or(d.episodes),
                 minutes: a.ood_yardstick_minutes.unwrap_or(d.minutes),
                 ..d
             };
-            config.validate()?;
+            yardstick::check(policy, &config)?;
             Some((policy.clone(), config))
         }
     };
@@ -154,26 +155,23 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
         ppo.total_timesteps = s;
     }
     ppo.validate().context("the PPO settings")?;
-    if settings.env.task.objective == Objective::Ood {
-        // The OOD reward needs the model's support: a missing or foreign file is refused here.
-        settings
-            .fish
-            .support()
-            .with_context(|| format!("the support of fish model {}", settings.fish.name()))?;
-    }
-    let model = settings
-        .fish
+    let spec = RunSpec {
+        ppo,
+        env: settings.env,
+        model: settings.fish,
+        seed: a.seed,
+        preset: a.preset.clone(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+    };
+    // The OOD reward needs the model's support: a missing or foreign file is refused here.
+    spec.check()
+        .with_context(|| format!("the run against fish model {}", spec.model.name()))?;
+    let model = spec
+        .model
         .build()
-        .with_context(|| format!("building fish model {}", settings.fish.name()))?;
+        .with_context(|| format!("building fish model {}", spec.model.name()))?;
     Ok(Fresh {
-        spec: RunSpec {
-            ppo,
-            env: settings.env,
-            model: settings.fish,
-            seed: a.seed,
-            preset: a.preset.clone(),
-            program_version: env!("CARGO_PKG_VERSION").into(),
-        },
+        spec,
         model,
         yardstick,
     })
@@ -181,35 +179,30 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
 
 /// Starts the new run `f` in `out` (locked by the caller): measures its yardstick, if any,
 /// then writes the run's files.
-fn start(out: &Path, mut f: Fresh) -> Result<Trainer> {
-    Trainer::ensure_new(out)?;
-    let yardstick = match &f.yardstick {
-        None => None,
-        Some((policy, config)) => {
-            let y = yardstick::apply(
-                policy,
-                config,
-                &f.spec.model,
-                &mut f.spec.env,
-                &out.join("yardstick"),
-            )?;
-            let task = &f.spec.env.task;
-            say!(
-                "yardstick: {policy}'s {}th-percentile support score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
-                (100.0 * config.quantile).round(),
-                y.score,
-                task.ood_score_floor,
-                y.cap,
-                y.weight
-            );
-            Some(y)
-        }
-    };
-    let trainer = Trainer::create_with_model(out, f.spec, f.model)
-        .with_context(|| format!("starting a run in {}", out.display()))?;
-    if let Some(y) = yardstick {
-        let json = serde_json::to_string_pretty(&y)? + "\n";
-        fishprobe_io::write_atomically(&out.join("yardstick.json"), json.as_bytes())?;
+fn start(out: &Path, f: Fresh) -> Result<Trainer> {
+    let yardstick = f.yardstick.as_ref().map(|(p, c)| (p.as_str(), c));
+    if let Some((policy, config)) = yardstick {
+        Trainer::ensure_new(out)?;
+        say!(
+            "yardstick: running {} episodes of {policy} ...",
+            config.episodes
+        );
+    }
+    let (trainer, measured) = super::with_jobs(None, || {
+        yardstick::start_run(out, f.spec, f.model, yardstick)
+    })?
+    .with_context(|| format!("starting a run in {}", out.display()))?;
+    if let Some(y) = &measured {
+        let task = &trainer.spec().env.task;
+        say!(
+            "yardstick: {}'s {}th-percentile support score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
+            y.policy,
+            (100.0 * y.config.quantile).round(),
+            y.score,
+            task.ood_score_floor,
+            y.cap,
+            y.weight
+        );
     }
     Ok(trainer)
 }
