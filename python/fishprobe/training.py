@@ -29,6 +29,8 @@ def train(
     ppo: dict | None = None,
     resume: bool = False,
     callback: Callable[[dict], Any] | None = _print_progress,
+    ood_yardstick: str | os.PathLike | None = None,
+    yardstick: dict | None = None,
 ) -> str:
     """Trains a robot policy against ``model`` with fishprobe's PPO, exactly as
     ``fishprobe train`` does, and writes the same run directory to ``out`` (``params.json``,
@@ -46,6 +48,15 @@ def train(
         resume: continue the run in ``out`` from its last checkpoint (pass the same model).
         callback: called with each iteration's statistics (a dict, as a line of
             ``result.json``); by default a line on stderr. ``None``: silent.
+        ood_yardstick: with the OOD task (``settings={"task": {"objective": "ood"}}``), a
+            lead-to-goal policy (a training directory, ``"onnx:FILE"`` or ``"scripted:NAME"``)
+            whose support-score percentile the reward counts time beyond, measured before
+            training, as ``fishprobe train --ood-yardstick`` does (its episodes in
+            ``out/yardstick/``, what was measured in ``out/yardstick.json``;
+            ``docs/guide/ood.md``).
+        yardstick: how the yardstick is measured, overriding its defaults by field
+            (``{"quantile": 0.95, "band": 0.15, "episodes": 6, "minutes": 5.0, "seed": 0}``,
+            the ``[ood_yardstick]`` section of ``docs/settings.md``).
 
     Returns:
         The path of the trained policy file. Ctrl+C stops between iterations; ``resume=True``
@@ -61,4 +72,6 @@ def train(
         ppo=ppo,
         resume=resume,
         callback=callback,
+        ood_yardstick=None if ood_yardstick is None else os.fspath(ood_yardstick),
+        yardstick=yardstick,
     )

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import fishprobe
+from fishprobe.models import Attractor
 
 # With floor 0 and a cap no score reaches, the OOD reward of a step is exactly the mean support
 # score of the fish's views in it, less the wall penalty when the robot came near a wall.
@@ -95,3 +96,49 @@ def test_support_scores_of_a_trial_are_what_ood_report_scores(tmp_path, cli):
     assert d["beyond_support"] == pytest.approx(np.mean(scores > 1.0), abs=1e-12)
     with pytest.raises(ValueError, match="not data-driven"):
         fishprobe.support_scores(trial, model="Zone")
+    with pytest.raises(ValueError, match="not data-driven"):
+        fishprobe.support_scores(trial, model=Attractor())
+
+
+def test_training_with_a_yardstick_measures_what_the_cli_measures(tmp_path, cli):
+    yard = {"episodes": 1, "minutes": 0.2, "band": 0.2}
+    ood = {"task": {"objective": "ood"}}
+    out = tmp_path / "py"
+    fishprobe.train("ConvNet", out, preset="smoke", steps=500, settings=ood, callback=None,
+                    ood_yardstick="scripted:goal-seeker", yardstick=yard)
+    cli("train", "--model", "ConvNet", "--task", "ood", "--preset", "smoke", "--steps", "500",
+        "--ood-yardstick", "scripted:goal-seeker", "--ood-yardstick-episodes", "1",
+        "--ood-yardstick-minutes", "0.2", "--ood-yardstick-band", "0.2", "--out", tmp_path / "cli")
+    measured = json.loads((out / "yardstick.json").read_text())
+    assert measured == json.loads((tmp_path / "cli" / "yardstick.json").read_text())
+    assert measured["config"]["band"] == pytest.approx(0.2) and measured["views"] > 0
+    task = json.loads((out / "params.json").read_text())["env"]["task"]
+    assert task["ood_score_floor"] == pytest.approx(max(measured["score"], 0.0), abs=1e-6)
+    assert task["ood_score_cap"] == pytest.approx(task["ood_score_floor"] + 0.2, abs=1e-5)
+    assert task["ood_weight"] == pytest.approx(5.0, abs=1e-5)
+    assert (out / "yardstick" / "yardstick_000.hdf5").is_file()
+    assert (out / "policy.safetensors").read_bytes() == (
+        tmp_path / "cli" / "policy.safetensors").read_bytes()
+
+
+def test_bad_yardsticks_are_refused_before_the_run_exists(tmp_path):
+    ood = {"task": {"objective": "ood"}}
+    cases = [
+        (dict(settings=ood, ood_yardstick="scripted:goal-seeker", yardstick={"band": 0}),
+         "ood_yardstick.band"),
+        (dict(settings=ood, ood_yardstick="scripted:goal-seeker", yardstick={"bnad": 0.1}),
+         "bnad"),
+        (dict(settings=ood, ood_yardstick="scripted:goal-seeker", yardstick={"band": float("nan")}),
+         "numbers must be finite"),
+        (dict(ood_yardstick="scripted:goal-seeker"), "OOD task only"),
+        (dict(settings=ood, yardstick={"band": 0.1}), "need ood_yardstick"),
+    ]
+    for k, (kwargs, why) in enumerate(cases):
+        with pytest.raises(ValueError, match=why):
+            fishprobe.train("ConvNet", tmp_path / f"run{k}", preset="smoke", callback=None, **kwargs)
+        assert not (tmp_path / f"run{k}").exists()
+    # A yardstick policy that does not exist: refused naming it, no run written.
+    with pytest.raises(RuntimeError, match="no-such-policy"):
+        fishprobe.train("ConvNet", tmp_path / "missing", preset="smoke", settings=ood,
+                        callback=None, ood_yardstick=str(tmp_path / "no-such-policy"))
+    assert not (tmp_path / "missing").exists()

@@ -15,6 +15,7 @@ mod render;
 
 use fish::PyFish;
 use fishprobe_io::{IoError, TrialFile};
+use fishprobe_learn::yardstick::OodYardstickConfig;
 use fishprobe_learn::{LearnError, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::{ModelError, ModelSpec, PythonParams};
 use fishprobe_sim::{
@@ -49,7 +50,8 @@ fn model_err(e: ModelError) -> PyErr {
 
 fn learn_err(e: LearnError) -> PyErr {
     match e {
-        LearnError::Config(_) => PyValueError::new_err(e.to_string()),
+        // A fish model that cannot be used is a bad argument, as everywhere (`model_err`).
+        LearnError::Config(_) | LearnError::Model(_) => PyValueError::new_err(e.to_string()),
         LearnError::Io(_) => PyOSError::new_err(e.to_string()),
         other => PyRuntimeError::new_err(other.to_string()),
     }
@@ -96,18 +98,7 @@ impl Model {
     /// A name (`"Zone"`, `"onnx:PATH"`), a spec dict (`{"model": "Zone", "speed_cm_s": 5}`), or
     /// a Python object with `decide(views)`.
     fn resolve(obj: &Bound<'_, PyAny>) -> PyResult<Self> {
-        if let Ok(name) = obj.extract::<String>() {
-            let spec = ModelSpec::by_name(&name).map_err(model_err)?;
-            return Self::from_spec(spec);
-        }
-        if obj.cast::<PyDict>().is_ok() {
-            let text = to_json(obj, "model")?;
-            let spec: ModelSpec = serde_json::from_str(&text).map_err(|e| {
-                PyValueError::new_err(format!(
-                    "model spec {text}: {e} (a spec is {{\"model\": NAME, field: value, ...}}; fields: \
-                     `fishprobe models --model NAME`)"
-                ))
-            })?;
+        if let Some(spec) = Self::spec_of(obj)? {
             return Self::from_spec(spec);
         }
         let fish = Arc::new(PyFish::new(obj)?);
@@ -120,6 +111,25 @@ impl Model {
             model: fish.clone(),
             python: Some(fish),
         })
+    }
+
+    /// The spec a name or a spec dict stands for, without building the model; `None` for a
+    /// Python fish model object.
+    fn spec_of(obj: &Bound<'_, PyAny>) -> PyResult<Option<ModelSpec>> {
+        if let Ok(name) = obj.extract::<String>() {
+            return ModelSpec::by_name(&name).map(Some).map_err(model_err);
+        }
+        if obj.cast::<PyDict>().is_ok() {
+            let text = to_json(obj, "model")?;
+            let spec: ModelSpec = serde_json::from_str(&text).map_err(|e| {
+                PyValueError::new_err(format!(
+                    "model spec {text}: {e} (a spec is {{\"model\": NAME, field: value, ...}}; fields: \
+                     `fishprobe models --model NAME`)"
+                ))
+            })?;
+            return Ok(Some(spec));
+        }
+        Ok(None)
     }
 
     fn from_spec(spec: ModelSpec) -> PyResult<Self> {
@@ -615,7 +625,12 @@ fn support_scores<'py>(
     model: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let spec = match model.filter(|m| !m.is_none()) {
-        Some(m) => Model::resolve(m)?.spec,
+        Some(m) => Model::spec_of(m)?.ok_or_else(|| {
+            PyValueError::new_err(
+                "a fish model written in Python is not data-driven: it has no training support \
+                 (give a data-driven model's name or spec, e.g. \"ConvNet\")",
+            )
+        })?,
         None => ModelSpec::by_name("ConvNet").map_err(model_err)?,
     };
     let support = spec.support().map_err(model_err)?;
@@ -751,7 +766,7 @@ fn model_names() -> Vec<&'static str> {
 /// Trains a PPO policy (fishprobe's own trainer) against `model` into `out`; `callback` gets
 /// each iteration's statistics as a dict. Returns the policy file's path.
 #[pyfunction]
-#[pyo3(signature = (model, out, preset="paper", seed=0, steps=None, settings=None, ppo=None, resume=false, callback=None))]
+#[pyo3(signature = (model, out, preset="paper", seed=0, steps=None, settings=None, ppo=None, resume=false, callback=None, ood_yardstick=None, yardstick=None))]
 #[allow(clippy::too_many_arguments)]
 fn train(
     py: Python<'_>,
@@ -764,11 +779,35 @@ fn train(
     ppo: Option<&Bound<'_, PyAny>>,
     resume: bool,
     callback: Option<&Bound<'_, PyAny>>,
+    ood_yardstick: Option<String>,
+    yardstick: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     let resolved = Model::resolve(model)?;
     let resuming = || resume && out.join("params.json").exists();
     // A new run is checked before its directory is created: a refused `train` leaves none.
-    let fresh_spec = || fresh_run(&resolved.spec, preset, seed, steps, settings, ppo);
+    let fresh_spec = || {
+        let spec = fresh_run(&resolved.spec, preset, seed, steps, settings, ppo)?;
+        let measure = match &ood_yardstick {
+            None if yardstick.is_some_and(|y| !y.is_none()) => {
+                return Err(PyValueError::new_err(
+                    "yardstick: settings of a yardstick need ood_yardstick (the policy to measure)",
+                ))
+            }
+            None => None,
+            Some(_) if spec.env.task.objective != Objective::Ood => {
+                return Err(PyValueError::new_err(
+                    "ood_yardstick applies to the OOD task only (settings={\"task\": {\"objective\": \"ood\"}})",
+                ))
+            }
+            Some(policy) => {
+                let config: OodYardstickConfig =
+                    overrides(OodYardstickConfig::default(), yardstick, "yardstick")?;
+                fishprobe_learn::yardstick::check(policy, &config).map_err(learn_err)?;
+                Some((policy.clone(), config))
+            }
+        };
+        Ok((spec, measure))
+    };
     let mut fresh = if resuming() {
         None
     } else {
@@ -796,11 +835,15 @@ fn train(
         Trainer::resume_with_model(&out, model).map_err(learn_err)?
     } else {
         // (Checked above unless the run's params.json vanished since.)
-        let spec = match fresh.take() {
+        let (spec, measure) = match fresh.take() {
             Some(s) => s,
             None => fresh_spec()?,
         };
-        Trainer::create_with_model(&out, spec, resolved.model.clone()).map_err(learn_err)?
+        let model = resolved.model.clone();
+        let measure = measure.as_ref().map(|(p, c)| (p.as_str(), c));
+        py.detach(|| fishprobe_learn::yardstick::start_run(&out, spec, model, measure))
+            .map_err(learn_err)?
+            .0
     };
     while !trainer.done() {
         let t = &mut trainer;
@@ -834,36 +877,45 @@ fn fresh_run(
             "unknown preset `{preset}`: use paper, published, quick or smoke"
         )));
     };
-    if let Some(p) = ppo.filter(|p| !p.is_none()) {
-        let mut base =
-            serde_json::to_value(&cfg).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-        let over: serde_json::Value = serde_json::from_str(&to_json(p, "ppo")?)
-            .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-        let (Some(b), serde_json::Value::Object(o)) = (base.as_object_mut(), over) else {
-            return Err(PyTypeError::new_err("ppo must be a dict of PPO settings"));
-        };
-        b.extend(o);
-        cfg =
-            serde_json::from_value(base).map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-    }
+    cfg = overrides(cfg, ppo, "ppo")?;
     if let Some(s) = steps {
         cfg.total_timesteps = s;
     }
     cfg.validate()
         .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-    let env = env_config(settings, "training", None)?;
-    if env.task.objective == Objective::Ood {
-        // The OOD reward needs the model's support: a missing or foreign file is refused here.
-        model.support().map_err(model_err)?;
-    }
-    Ok(RunSpec {
+    let spec = RunSpec {
         ppo: cfg,
-        env,
+        env: env_config(settings, "training", None)?,
         model: model.clone(),
         seed,
         preset: preset.to_string(),
         program_version: env!("CARGO_PKG_VERSION").into(),
-    })
+    };
+    // The OOD reward needs the model's support: a missing or foreign file is refused here.
+    spec.check().map_err(learn_err)?;
+    Ok(spec)
+}
+
+/// `base` with the fields of the dict `over` (if given) replaced, for the argument `what`.
+fn overrides<T: serde::Serialize + serde::de::DeserializeOwned>(
+    base: T,
+    over: Option<&Bound<'_, PyAny>>,
+    what: &str,
+) -> PyResult<T> {
+    let Some(over) = over.filter(|p| !p.is_none()) else {
+        return Ok(base);
+    };
+    let mut merged =
+        serde_json::to_value(&base).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    let fields: serde_json::Value = serde_json::from_str(&to_json(over, what)?)
+        .map_err(|e| PyValueError::new_err(format!("{what}: {e}")))?;
+    let (Some(m), serde_json::Value::Object(o)) = (merged.as_object_mut(), fields) else {
+        return Err(PyTypeError::new_err(format!(
+            "{what} must be a dict of settings"
+        )));
+    };
+    m.extend(o);
+    serde_json::from_value(merged).map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
 }
 
 /// Whether `path` names a directory holding a study's results.
