@@ -309,6 +309,15 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     );
     // Refused before its directory is made: nothing left behind.
     assert!(!dir.join("yard-bad").exists());
+    let mut missing = yard_args(&dir.join("yard-missing"), &[]);
+    missing[10] = s(&dir.join("no-such-policy")).to_string();
+    let o = run_with(missing);
+    assert!(
+        !o.status.success() && stderr(&o).contains("no-such-policy"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("yard-missing").exists());
     let mut goal_task = yard_args(&dir.join("yard-goal"), &[]);
     goal_task[4] = "goal".into();
     let o = run_with(goal_task);
