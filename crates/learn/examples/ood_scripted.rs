@@ -4,7 +4,7 @@
 //! docs/validation.md, "The OOD objective", cites it.
 //!
 //! ```sh
-//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD [MODEL [PREFIX]]
+//! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD [MODEL [PREFIX [FRAMES_PER_ACTION]]]
 //! ```
 //!
 //! Every strategy meets the same training-task episodes (41 s, random starts; master seed 0,
@@ -37,7 +37,9 @@
 //!   it turns toward the point O cm to the fish's right (O = 3, 6, 10), once behind it toward
 //!   the point D cm ahead of the fish and O cm to its right (D = 15, 25), to come round again.
 //!
-//! A fourth argument keeps only the strategies whose names start with it (`weave`).
+//! A fourth argument keeps only the strategies whose names start with it (`weave`); a fifth sets
+//! the frames per action (default 25, the paper's 1 Hz; the episode stays 41 s): a robot that
+//! re-aims more often, to see whether the policy's action rate limits the OOD objective.
 
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{
@@ -77,6 +79,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     cfg.task.objective = Objective::Ood;
     cfg.task.ood_score_every_frames = 1;
     cfg.task.ood_score_cap = 100.0;
+    if let Some(f) = args.get(4) {
+        cfg.frames_per_action = f.parse()?;
+        let seconds = cfg.task.training_episode_actions as f32;
+        cfg.task.training_episode_actions =
+            (seconds * cfg.frame_rate_hz / cfg.frames_per_action as f32).round() as _;
+        cfg.validate()?;
+    }
     let mut pilots: Vec<String> = [
         "seek", "chase", "ahead5", "ahead10", "ahead20", "behind10", "side8", "flee", "corner",
         "random", "pin4", "pin8", "wallpin",
