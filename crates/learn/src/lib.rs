@@ -1,5 +1,6 @@
 //! Reinforcement learning for the robot: PPO with the paper's settings (SPEC §7), evaluation
-//! of trained policies on the 15-minute task, and ONNX export for the robot PC.
+//! of trained policies on the 15-minute task, ONNX export for the robot PC, and the OOD
+//! reward's yardstick measured from a lead-to-goal policy's episodes ([`yardstick`]).
 //!
 //! ```no_run
 //! use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
