@@ -4,10 +4,19 @@ use crate::error::LearnError;
 use fishprobe_io::{write_trial, TrialFile, TrialKind, TrialMeta};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{
-    derive_seed, stream, ControlInput, Controller, Env, EnvConfig, StartPoses, TankEnv,
+    derive_seed, stream, ControlInput, Controller, Env, EnvConfig, FishModel, StartPoses, TankEnv,
 };
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Longest evaluation episode, in minutes (24 hours): the simulator reserves an episode's
+/// trajectory up front (`--minutes 1e9` asked for 1.2 TB), and trial files of up to 48 hours
+/// are read back (`fishprobe_io::ReadLimits::max_frames`).
+pub const MAX_MINUTES: f32 = 24.0 * 60.0;
+
+/// Most episodes one evaluation runs (each is one trial file).
+pub const MAX_EPISODES: usize = 100_000;
 
 /// One evaluation episode's outcome.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -54,12 +63,24 @@ pub fn run_episode(
     k: usize,
     file: &Path,
 ) -> Result<EpisodeResult, LearnError> {
+    run_episode_with(c, e, k, file, e.model.build()?)
+}
+
+/// [`run_episode`] with the fish model given rather than built from `e.model`, which then
+/// only records what it is (a fish model written in Python, `ModelSpec::Python`).
+pub fn run_episode_with(
+    c: &dyn Controller,
+    e: &Evaluation,
+    k: usize,
+    file: &Path,
+    fish: Arc<dyn FishModel>,
+) -> Result<EpisodeResult, LearnError> {
     // The lead-to-goal task, whatever the policy was trained for (an OOD policy too).
     let mut cfg = e.env.clone().evaluation();
     let seconds_per_action = cfg.frames_per_action as f32 / cfg.frame_rate_hz;
     cfg.task.evaluation_episode_actions =
         ((e.minutes * 60.0 / seconds_per_action).ceil() as u32).max(1);
-    let mut env = TankEnv::new(cfg.clone(), e.model.build()?)?;
+    let mut env = TankEnv::new(cfg.clone(), fish)?;
     c.check_observation(env.observation_space().dim())
         .map_err(LearnError::Policy)?;
     let mut c = c.boxed_clone();
@@ -162,9 +183,25 @@ pub fn approach_assay(
 
 /// Runs the episodes in parallel; writes the trial files and `summary.csv` into `e.out`.
 pub fn evaluate(c: &dyn Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>, LearnError> {
+    evaluate_with_model(c, e, None)
+}
+
+/// [`evaluate`] with the fish model given (`Some`) rather than built from `e.model` for each
+/// episode: a model that only its caller can build (a fish model written in Python).
+pub fn evaluate_with_model(
+    c: &dyn Controller,
+    e: &Evaluation,
+    fish: Option<Arc<dyn FishModel>>,
+) -> Result<Vec<EpisodeResult>, LearnError> {
     let results: Vec<EpisodeResult> = (0..e.episodes)
         .into_par_iter()
-        .map(|k| run_episode(c, e, k, &e.out.join(format!("{}_{k:03}.hdf5", e.prefix))))
+        .map(|k| {
+            let file = e.out.join(format!("{}_{k:03}.hdf5", e.prefix));
+            match &fish {
+                Some(f) => run_episode_with(c, e, k, &file, f.clone()),
+                None => run_episode(c, e, k, &file),
+            }
+        })
         .collect::<Result<_, _>>()?;
     let mut csv =
         String::from("episode,seed,goals_reached,mean_time_to_goal_s,wall_contacts,file\n");

@@ -42,7 +42,8 @@ pub use config::PpoConfig;
 pub use controller::{controller, named, PolicyController};
 pub use error::LearnError;
 pub use evaluate::{
-    approach_assay, evaluate, goals_mean_sd, run_episode, EpisodeResult, Evaluation,
+    approach_assay, evaluate, evaluate_with_model, goals_mean_sd, run_episode, EpisodeResult,
+    Evaluation,
 };
 pub use policy::{to_env_action, GaussianPolicy};
 pub use trainer::{IterationStats, RunSpec, Trainer};

@@ -10,6 +10,7 @@
 //! --ood-yardstick POLICY` and the Python package's `train(..., ood_yardstick=POLICY)` both
 //! start their runs through [`start_run`].
 
+use crate::evaluate::MAX_MINUTES;
 use crate::{Evaluation, LearnError, RunSpec, Trainer};
 use fishprobe_analysis::ood::{quantile, score_trials, SourceScores};
 use fishprobe_models::support::SupportModel;
@@ -18,9 +19,6 @@ use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{Controller, EnvConfig, FishModel, Objective};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-
-/// Longest yardstick episode, in minutes (24 hours, as every episode length fishprobe takes).
-pub const MAX_MINUTES: f32 = 24.0 * 60.0;
 
 fishprobe_sim::documented_params! {
     /// How `train --ood-yardstick` measures its yardstick and shapes the reward from it.

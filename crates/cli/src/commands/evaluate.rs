@@ -3,15 +3,13 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use fishprobe_learn::evaluate::MAX_EPISODES;
 use fishprobe_learn::{controller, evaluate, goals_mean_sd, Evaluation};
 use fishprobe_models::ModelSpec;
 use std::path::PathBuf;
 
 use super::config::SimSettings;
 use super::emit;
-
-/// Most episodes one `evaluate` runs (each is one trial file).
-const MAX_EPISODES: usize = 100_000;
 
 #[derive(Debug, Args)]
 pub struct EvaluateArgs {

@@ -183,10 +183,9 @@ pub fn note(line: &str) {
     }
 }
 
-/// Longest episode or trial a command accepts, in minutes (24 hours): the simulator
-/// reserves an episode's trajectory up front (`--minutes 1e9` asked for 1.2 TB), and trial
-/// files of up to 48 hours are read back (`fishprobe_io::ReadLimits::max_frames`).
-pub const MAX_MINUTES: f64 = 24.0 * 60.0;
+/// Longest episode or trial a command accepts, in minutes (24 hours; see
+/// [`fishprobe_learn::evaluate::MAX_MINUTES`]).
+pub const MAX_MINUTES: f64 = fishprobe_learn::evaluate::MAX_MINUTES as f64;
 
 /// Checks a `--minutes` value: positive, finite, at most [`MAX_MINUTES`].
 pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
