@@ -19,7 +19,7 @@ from . import _native
 from .env import LeadToGoalEnv
 from .files import Policy, load_results, read_trial, support_scores
 from .models import FishModel
-from .training import train
+from .training import evaluate, train
 from .vector import VectorEnv
 
 __version__ = _native.__version__
@@ -34,6 +34,7 @@ __all__ = [
     "MODELS",
     "Policy",
     "VectorEnv",
+    "evaluate",
     "load_results",
     "read_trial",
     "support_scores",

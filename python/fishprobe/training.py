@@ -1,4 +1,4 @@
-"""fishprobe's own PPO trainer from Python."""
+"""fishprobe's own PPO trainer, and the evaluation task, from Python."""
 
 from __future__ import annotations
 
@@ -74,4 +74,42 @@ def train(
         callback=callback,
         ood_yardstick=None if ood_yardstick is None else os.fspath(ood_yardstick),
         yardstick=yardstick,
+    )
+
+
+def evaluate(
+    policy: str | os.PathLike,
+    model: Any,
+    out: str | os.PathLike,
+    episodes: int = 18,
+    minutes: float = 15.0,
+    seed: int = 0,
+    settings: dict | None = None,
+) -> dict:
+    """Runs a policy on the paper's evaluation task against ``model``, exactly as
+    ``fishprobe evaluate`` does: ``episodes`` episodes of ``minutes`` (the paper: 15), one
+    robofish.io trial file per episode (``out/trial_000.hdf5``, ...) and ``out/summary.csv``.
+
+    Args:
+        policy: a training directory, ``"onnx:FILE"`` (e.g. a Stable-Baselines3 policy) or
+            ``"scripted:goal-seeker"`` / ``"scripted:fetch-and-lead"``; its mean action.
+        model: as for :func:`train`, including a fish model written in Python (which the
+            command line cannot run).
+        out: the output directory (one writer at a time).
+        episodes, minutes, seed: the episodes; the same seed gives the same episodes.
+        settings: environment settings dict (``env`` table of a settings file).
+
+    Returns:
+        A dict: ``goals``, ``mean_time_to_goal_s`` (NaN for an episode without a goal) and
+        ``wall_contacts`` per episode (numpy arrays), ``files`` (the trial files),
+        ``goals_mean`` and ``goals_sd`` (sample s.d.), ``policy`` and ``model``.
+    """
+    return _native.evaluate(
+        os.fspath(policy),
+        model,
+        os.fspath(out),
+        episodes=int(episodes),
+        minutes=float(minutes),
+        seed=int(seed),
+        settings=settings,
     )

@@ -107,3 +107,43 @@ def test_the_paper_preset_trains_a_python_fish_at_the_published_budget(tmp_path)
         fishprobe.train(model, out, preset="paper", steps=64, ppo=tiny, callback=None)
         ppo = json.loads((out / "params.json").read_text())["ppo"]
         assert ppo["num_sgd_iter"] == epochs, model
+
+
+def test_evaluate_runs_the_clis_episodes(tmp_path, cli, smoke_policy):
+    r = fishprobe.evaluate(smoke_policy, "Zone", tmp_path / "py", episodes=3, minutes=0.5, seed=4)
+    cli("evaluate", "--policy", smoke_policy, "--model", "Zone", "--episodes", "3",
+        "--minutes", "0.5", "--seed", "4", "--out", tmp_path / "cli")
+    # The same episodes as `fishprobe evaluate`: the same summary, goal for goal.
+    assert (tmp_path / "py" / "summary.csv").read_text() == (
+        tmp_path / "cli" / "summary.csv").read_text()
+    assert r["goals"].dtype == np.int64 and len(r["goals"]) == 3
+    assert r["goals_mean"] == pytest.approx(r["goals"].mean())
+    assert r["goals_sd"] == pytest.approx(r["goals"].std(ddof=1))
+    assert [p.rsplit("/", 1)[-1] for p in r["files"]] == [f"trial_{k:03}.hdf5" for k in range(3)]
+    trial = fishprobe.read_trial(r["files"][0])
+    assert len(trial.fishprobe["goal_frames"]) == r["goals"][0]
+
+
+def test_evaluate_against_a_python_fish(tmp_path):
+    r = fishprobe.evaluate("scripted:fetch-and-lead", Attractor(), tmp_path / "ev", episodes=2,
+                           minutes=0.3, seed=1)
+    assert r["model"] == "Attractor" and len(r["files"]) == 2
+    again = fishprobe.evaluate("scripted:fetch-and-lead", Attractor(), tmp_path / "ev2",
+                               episodes=2, minutes=0.3, seed=1)
+    assert (again["goals"] == r["goals"]).all()  # same seed, same episodes
+    assert np.isnan(r["mean_time_to_goal_s"][r["goals"] == 0]).all()
+
+
+def test_bad_evaluations_are_refused_before_the_directory_exists(tmp_path):
+    cases = [
+        (dict(policy="scripted:goal-seeker", model="Zone", episodes=0), ValueError, "episodes"),
+        (dict(policy="scripted:goal-seeker", model="Zone", minutes=float("nan")), ValueError,
+         "minutes"),
+        (dict(policy="scripted:goal-seeker", model="Zone", minutes=1e9), ValueError, "minutes"),
+        (dict(policy=tmp_path / "nothing", model="Zone"), RuntimeError, "nothing"),
+        (dict(policy="scripted:goal-seeker", model="Nope"), ValueError, "Nope"),
+    ]
+    for k, (kwargs, kind, why) in enumerate(cases):
+        with pytest.raises(kind, match=why):
+            fishprobe.evaluate(out=tmp_path / f"ev{k}", **kwargs)
+        assert not (tmp_path / f"ev{k}").exists()

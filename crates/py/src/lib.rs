@@ -863,6 +863,76 @@ fn train(
     Ok(path.display().to_string())
 }
 
+/// Runs `policy` on the evaluation task against `model`, one trial file per episode and
+/// `summary.csv` in `out`, exactly as `fishprobe evaluate` does (a fish model written in Python
+/// too). Returns the per-episode results as a dict.
+#[pyfunction]
+#[pyo3(signature = (policy, model, out, episodes=18, minutes=15.0, seed=0, settings=None))]
+#[allow(clippy::too_many_arguments)]
+fn evaluate<'py>(
+    py: Python<'py>,
+    policy: &str,
+    model: &Bound<'_, PyAny>,
+    out: std::path::PathBuf,
+    episodes: usize,
+    minutes: f32,
+    seed: u64,
+    settings: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    use fishprobe_learn::evaluate::{MAX_EPISODES, MAX_MINUTES};
+    if !(1..=MAX_EPISODES).contains(&episodes) {
+        return Err(PyValueError::new_err(format!(
+            "episodes = {episodes}: must lie in [1, {MAX_EPISODES}]"
+        )));
+    }
+    if !(minutes.is_finite() && minutes > 0.0 && minutes <= MAX_MINUTES) {
+        return Err(PyValueError::new_err(format!(
+            "minutes = {minutes}: must lie in (0, {MAX_MINUTES}] (24 hours)"
+        )));
+    }
+    let resolved = Model::resolve(model)?;
+    let c = fishprobe_learn::controller(policy, false).map_err(learn_err)?;
+    let e = fishprobe_learn::Evaluation {
+        model: resolved.spec.clone(),
+        env: env_config(settings, "evaluation", None)?,
+        episodes,
+        minutes,
+        seed,
+        start: None,
+        out: out.clone(),
+        prefix: "trial".into(),
+    };
+    // Checked before the directory exists: a refused evaluation leaves none.
+    let _lock = fishprobe_io::DirLock::acquire(&out, "fishprobe.evaluate")
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    // A Python fish is shared by the episodes; every other model is built as the CLI builds it.
+    let fish = resolved.python.is_some().then(|| resolved.model.clone());
+    let r = py.detach(|| fishprobe_learn::evaluate_with_model(c.as_ref(), &e, fish));
+    resolved.check()?;
+    let results = r.map_err(learn_err)?;
+    let (mean, sd) = fishprobe_learn::goals_mean_sd(&results);
+    let d = PyDict::new(py);
+    let goals: Vec<i64> = results.iter().map(|r| r.goals as i64).collect();
+    let waits: Vec<f64> = results
+        .iter()
+        .map(|r| r.mean_time_to_goal_s.unwrap_or(f64::NAN))
+        .collect();
+    let walls: Vec<i64> = results.iter().map(|r| i64::from(r.wall_contacts)).collect();
+    let files: Vec<String> = results
+        .iter()
+        .map(|r| r.file.display().to_string())
+        .collect();
+    d.set_item("policy", c.describe())?;
+    d.set_item("model", resolved.spec.label())?;
+    d.set_item("goals", PyArray1::from_vec(py, goals))?;
+    d.set_item("mean_time_to_goal_s", PyArray1::from_vec(py, waits))?;
+    d.set_item("wall_contacts", PyArray1::from_vec(py, walls))?;
+    d.set_item("files", PyList::new(py, files)?)?;
+    d.set_item("goals_mean", mean)?;
+    d.set_item("goals_sd", sd)?;
+    Ok(d)
+}
+
 /// The spec of a new training run, every setting checked.
 fn fresh_run(
     model: &ModelSpec,
@@ -937,6 +1007,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(support_scores, m)?)?;
     m.add_function(wrap_pyfunction!(model_names, m)?)?;
     m.add_function(wrap_pyfunction!(train, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate, m)?)?;
     m.add_function(wrap_pyfunction!(results_path, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("MAX_NUM_ENVS", MAX_NUM_ENVS)?;
