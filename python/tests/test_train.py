@@ -147,3 +147,15 @@ def test_bad_evaluations_are_refused_before_the_directory_exists(tmp_path):
         with pytest.raises(kind, match=why):
             fishprobe.evaluate(out=tmp_path / f"ev{k}", **kwargs)
         assert not (tmp_path / f"ev{k}").exists()
+
+
+def test_a_python_model_that_fails_during_evaluation(tmp_path):
+    class Broken(fishprobe.FishModel):
+        name = "Broken"
+
+        def decide(self, views):
+            raise KeyError("evaluation bug")
+
+    with pytest.raises(RuntimeError, match="evaluation bug") as e:
+        fishprobe.evaluate("scripted:goal-seeker", Broken(), tmp_path / "ev", episodes=3, minutes=0.2)
+    assert isinstance(e.value.__cause__, KeyError)
