@@ -37,16 +37,6 @@ class Shy(fishprobe.FishModel):
         return np.full(len(me), self.speed), turn
 
 
-def goals_per_episode(policy: fishprobe.Policy, model, episodes: int = 6) -> float:
-    env = fishprobe.VectorEnv(episodes, model=model, mode="evaluation", seed=1)
-    obs, _ = env.reset()
-    goals = np.zeros(episodes)
-    for _ in range(env.max_episode_steps):
-        obs, _, _, _, info = env.step(policy.act(obs))
-        goals += info["goals_reached"]
-    return float(goals.mean())
-
-
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--out", default="runs/Shy")
@@ -54,11 +44,12 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=None)
     a = p.parse_args()
     fishprobe.train(Shy(), a.out, preset=a.preset, steps=a.steps, seed=0)
-    policy = fishprobe.Policy(a.out)
     for model in (Shy(), "Follow", "Zone", "Force"):
         name = getattr(model, "name", model)
-        print(f"pi_{policy.name} leading {name}: "
-              f"{goals_per_episode(policy, model):.1f} goals per 15-minute episode")
+        # fishprobe evaluate's episodes (6 of 15 minutes), trial files in OUT/eval-NAME/.
+        r = fishprobe.evaluate(a.out, model, f"{a.out}/eval-{name}", episodes=6)
+        print(f"pi_Shy leading {name}: {r['goals_mean']:.1f} ± {r['goals_sd']:.1f} "
+              "goals per 15-minute episode")
 
 
 if __name__ == "__main__":
