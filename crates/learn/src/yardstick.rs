@@ -125,10 +125,24 @@ pub fn score_policy(
     })
 }
 
-/// Checks a yardstick before anything runs: its settings, and that `policy` loads.
-pub fn check(policy: &str, config: &OodYardstickConfig) -> Result<(), LearnError> {
-    config.validate()?;
+/// Checks a yardstick before anything runs: that the run's task in `env` is the OOD task
+/// (whose reward it shapes), its settings, and that `policy` loads.
+pub fn check(policy: &str, config: &OodYardstickConfig, env: &EnvConfig) -> Result<(), LearnError> {
+    check_settings(config, env)?;
     load(policy).map(|_| ())
+}
+
+fn check_settings(config: &OodYardstickConfig, env: &EnvConfig) -> Result<(), LearnError> {
+    if env.task.objective != Objective::Ood {
+        return Err(ConfigError::new(
+            "task",
+            "objective",
+            "goal",
+            "a yardstick shapes the OOD reward: it applies to the OOD task only (objective = ood)",
+        )
+        .into());
+    }
+    Ok(config.validate()?)
 }
 
 fn load(policy: &str) -> Result<Box<dyn Controller>, LearnError> {
@@ -146,7 +160,7 @@ pub fn measure(
     env: &mut EnvConfig,
     dir: &Path,
 ) -> Result<Yardstick, LearnError> {
-    config.validate()?;
+    check_settings(config, env)?;
     let support = model.support()?;
     let c = load(policy)?;
     let e = Evaluation {
@@ -197,11 +211,6 @@ pub fn start_run(
     Trainer::ensure_new(dir)?;
     let measured = match yardstick {
         None => None,
-        Some(_) if spec.env.task.objective != Objective::Ood => {
-            return Err(LearnError::Run(
-                "a yardstick shapes the OOD reward: it applies to the OOD task only".into(),
-            ))
-        }
         Some((policy, config)) => Some(measure(
             policy,
             config,
@@ -261,5 +270,18 @@ mod tests {
             let e = c.validate().unwrap_err();
             assert_eq!(e.field, format!("ood_yardstick.{f}"), "{c:?}");
         }
+        // A yardstick on the lead-to-goal task is refused by name, before its policy loads.
+        let goal_task = EnvConfig::default();
+        match check("no-such-policy", &d, &goal_task) {
+            Err(LearnError::Config(e)) => assert_eq!(e.field, "task.objective"),
+            other => panic!("{other:?}"),
+        }
+        let mut ood = goal_task;
+        ood.task.objective = Objective::Ood;
+        assert!(matches!(
+            check("no-such-policy", &d, &ood),
+            Err(LearnError::Policy(_))
+        ));
+        assert!(check("scripted:goal-seeker", &d, &ood).is_ok());
     }
 }

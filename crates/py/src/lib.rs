@@ -794,15 +794,10 @@ fn train(
                 ))
             }
             None => None,
-            Some(_) if spec.env.task.objective != Objective::Ood => {
-                return Err(PyValueError::new_err(
-                    "ood_yardstick applies to the OOD task only (settings={\"task\": {\"objective\": \"ood\"}})",
-                ))
-            }
             Some(policy) => {
                 let config: OodYardstickConfig =
                     overrides(OodYardstickConfig::default(), yardstick, "yardstick")?;
-                fishprobe_learn::yardstick::check(policy, &config).map_err(learn_err)?;
+                fishprobe_learn::yardstick::check(policy, &config, &spec.env).map_err(learn_err)?;
                 Some((policy.clone(), config))
             }
         };

@@ -136,7 +136,7 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
                 minutes: a.ood_yardstick_minutes.unwrap_or(d.minutes),
                 ..d
             };
-            yardstick::check(policy, &config)?;
+            yardstick::check(policy, &config, &settings.env)?;
             Some((policy.clone(), config))
         }
     };
