@@ -187,22 +187,26 @@ pub fn evaluate(c: &dyn Controller, e: &Evaluation) -> Result<Vec<EpisodeResult>
 }
 
 /// [`evaluate`] with the fish model given (`Some`) rather than built from `e.model` for each
-/// episode: a model that only its caller can build (a fish model written in Python).
+/// episode: a model that only its caller can build (a fish model written in Python). A model
+/// without [`FishModel::concurrent_inference`] runs its episodes one after another.
 pub fn evaluate_with_model(
     c: &dyn Controller,
     e: &Evaluation,
     fish: Option<Arc<dyn FishModel>>,
 ) -> Result<Vec<EpisodeResult>, LearnError> {
-    let results: Vec<EpisodeResult> = (0..e.episodes)
-        .into_par_iter()
-        .map(|k| {
-            let file = e.out.join(format!("{}_{k:03}.hdf5", e.prefix));
-            match &fish {
-                Some(f) => run_episode_with(c, e, k, &file, f.clone()),
-                None => run_episode(c, e, k, &file),
-            }
-        })
-        .collect::<Result<_, _>>()?;
+    let run = |k: usize| {
+        let file = e.out.join(format!("{}_{k:03}.hdf5", e.prefix));
+        match &fish {
+            Some(f) => run_episode_with(c, e, k, &file, f.clone()),
+            None => run_episode(c, e, k, &file),
+        }
+    };
+    // A fish behind a lock runs fastest on one thread (`FishModel::concurrent_inference`).
+    let results: Result<Vec<EpisodeResult>, LearnError> = match &fish {
+        Some(f) if !f.concurrent_inference() => (0..e.episodes).map(run).collect(),
+        _ => (0..e.episodes).into_par_iter().map(run).collect(),
+    };
+    let results = results?;
     let mut csv =
         String::from("episode,seed,goals_reached,mean_time_to_goal_s,wall_contacts,file\n");
     for r in &results {
@@ -235,4 +239,66 @@ pub fn goals_mean_sd(r: &[EpisodeResult]) -> (f64, f64) {
         .sum::<f64>()
         / (n - 1.0).max(1.0);
     (mean, var.sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fishprobe_sim::{FishMind, FishMotion, FishView, SimRng};
+    use std::sync::Mutex;
+    use std::thread::ThreadId;
+
+    /// M_Follow, answering `false` to `concurrent_inference`, noting the thread of every call.
+    #[derive(Debug)]
+    struct Locked {
+        inner: Arc<dyn FishModel>,
+        threads: Mutex<Vec<ThreadId>>,
+    }
+
+    impl FishModel for Locked {
+        fn name(&self) -> &str {
+            "Locked"
+        }
+        fn concurrent_inference(&self) -> bool {
+            false
+        }
+        fn decide(&self, v: &FishView, i: &[f32], m: &mut FishMind, r: &mut SimRng) -> FishMotion {
+            if let Ok(mut t) = self.threads.lock() {
+                t.push(std::thread::current().id());
+            }
+            self.inner.decide(v, i, m, r)
+        }
+    }
+
+    #[test]
+    fn a_fish_behind_a_lock_runs_its_episodes_on_the_callers_thread_with_the_same_goals() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-locked-{}", std::process::id()));
+        let e = |out: &str| Evaluation {
+            model: ModelSpec::by_name("Follow").unwrap(),
+            env: EnvConfig::default(),
+            episodes: 4,
+            minutes: 2.0,
+            seed: 7,
+            start: None,
+            out: dir.join(out),
+            prefix: "trial".into(),
+        };
+        let c = crate::controller("scripted:goal-seeker", false).unwrap();
+        let locked = Arc::new(Locked {
+            inner: ModelSpec::by_name("Follow").unwrap().build().unwrap(),
+            threads: Mutex::new(Vec::new()),
+        });
+        for out in ["a", "b"] {
+            std::fs::create_dir_all(dir.join(out)).unwrap();
+        }
+        let serial = evaluate_with_model(c.as_ref(), &e("a"), Some(locked.clone())).unwrap();
+        let parallel = evaluate(c.as_ref(), &e("b")).unwrap();
+        let threads = locked.threads.lock().unwrap();
+        assert_eq!(threads.len(), 4 * 120 * 25);
+        assert!(threads.iter().all(|t| *t == std::thread::current().id()));
+        let goals = |r: &[EpisodeResult]| r.iter().map(|x| x.goals).collect::<Vec<_>>();
+        assert!(goals(&serial).iter().sum::<usize>() > 0);
+        assert_eq!(goals(&serial), goals(&parallel));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -170,6 +170,11 @@ impl FishModel for PyFish {
         2
     }
 
+    /// Python runs one thread at a time (the GIL): one call per frame for all fish is fastest.
+    fn concurrent_inference(&self) -> bool {
+        false
+    }
+
     fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
         out.fill(0.0);
         let failed = self.error.lock().map_or(true, |e| e.is_some());

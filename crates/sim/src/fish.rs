@@ -164,6 +164,16 @@ pub trait FishModel: Send + Sync + std::fmt::Debug {
         let _ = (views, out);
     }
 
+    /// Whether concurrent [`FishModel::infer_batch`] calls run in parallel. A model serialised
+    /// by a global lock answers `false` (a fish written in Python, behind the GIL): the vector
+    /// environment then asks it once per frame for all its fish, on one thread, and evaluation
+    /// runs its episodes one after another, because threads taking turns at a lock run slower
+    /// than one thread alone (two threads ran a Python fish at 30,600 steps/s where one ran it at
+    /// 79,800: docs/validation.md, "A fish behind a lock"). Results do not depend on it.
+    fn concurrent_inference(&self) -> bool {
+        true
+    }
+
     /// The fish's motion for this frame. `inferred` is this fish's slice of `infer_batch`'s
     /// output (empty when `inference_width` is 0).
     fn decide(

@@ -209,7 +209,8 @@ impl VecEnv {
     /// Batched models: the environments are split into one part per core (each of at least
     /// [`MIN_FISH_PER_INFERENCE`] fish), and each part advances its environments frame by
     /// frame together, the model's inference running once per frame over the part's fish. The
-    /// parts meet only at the end of the action, not at every frame.
+    /// parts meet only at the end of the action, not at every frame. A model without
+    /// [`FishModel::concurrent_inference`] gets one part.
     fn step_lockstep(&mut self, actions: &[f32]) -> Result<(), SimError> {
         let d = self.obs_dim;
         self.envs
@@ -223,12 +224,12 @@ impl VecEnv {
             width: model.inference_width(),
             model: &*model,
         };
-        lockstep.run(
-            &mut self.envs,
-            &mut self.views,
-            &mut self.inferred,
-            rayon::current_num_threads(),
-        )?;
+        let parts = if model.concurrent_inference() {
+            rayon::current_num_threads()
+        } else {
+            1
+        };
+        lockstep.run(&mut self.envs, &mut self.views, &mut self.inferred, parts)?;
         self.envs
             .par_iter_mut()
             .zip(self.obs.par_chunks_mut(d))

@@ -161,3 +161,66 @@ fn snapshot_and_restore_continue_exactly() {
     let mut small = small;
     assert!(small.restore(&snap, &obs).is_err());
 }
+
+/// [`Chaser`]'s batched path, recording the size of every inference batch; `concurrent` is
+/// what it answers to `concurrent_inference`.
+#[derive(Debug)]
+struct Locked {
+    concurrent: bool,
+    batches: std::sync::Mutex<Vec<usize>>,
+}
+
+impl FishModel for Locked {
+    fn name(&self) -> &str {
+        "Locked"
+    }
+    fn inference_width(&self) -> usize {
+        1
+    }
+    fn concurrent_inference(&self) -> bool {
+        self.concurrent
+    }
+    fn infer_batch(&self, views: &[FishView], out: &mut [f32]) {
+        if let Ok(mut b) = self.batches.lock() {
+            b.push(views.len());
+        }
+        Chaser { batched: true }.infer_batch(views, out);
+    }
+    fn decide(&self, v: &FishView, i: &[f32], m: &mut FishMind, rng: &mut SimRng) -> FishMotion {
+        Chaser { batched: true }.decide(v, i, m, rng)
+    }
+}
+
+#[test]
+fn a_fish_behind_a_lock_is_asked_once_per_frame_for_every_fish_with_the_same_results() {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let n = 64;
+    let run = |concurrent: bool| {
+        let model = Arc::new(Locked {
+            concurrent,
+            batches: Default::default(),
+        });
+        let mut vec = VecEnv::new(EnvConfig::default(), model.clone(), n).unwrap();
+        vec.reset(3).unwrap();
+        let mut seen = Vec::new();
+        pool.install(|| {
+            for t in 0..45 {
+                vec.step(&actions(t, n)).unwrap();
+                seen.push((vec.observations().to_vec(), vec.transitions().to_vec()));
+            }
+        });
+        let batches = model.batches.lock().unwrap().clone();
+        (seen, batches)
+    };
+    let (locked, locked_batches) = run(false);
+    let (free, free_batches) = run(true);
+    // One call per frame, all 64 fish in it; split in two parts (one per thread) otherwise.
+    assert_eq!(locked_batches.len(), 45 * 25);
+    assert!(locked_batches.iter().all(|&b| b == n));
+    assert_eq!(free_batches.len(), 2 * 45 * 25);
+    assert!(free_batches.iter().all(|&b| b == n / 2));
+    assert_eq!(locked, free);
+}
