@@ -28,8 +28,9 @@ class FishModel:
 
     ``decide`` returns ``(speed, turn_rate)``: two arrays of ``n`` finite numbers, cm/s (>= 0;
     negative values are taken as 0) and rad/s. The answer for one fish should depend only on
-    that fish's views (the vector environment may split the batch, and ``fishprobe.evaluate``
-    runs several episodes side by side with one model object).
+    that fish's views (how fish are batched is not promised: today the vector environment asks
+    for all its fish at once, and ``fishprobe.evaluate`` runs its episodes one after another
+    with one model object).
 
     Calling Python every frame costs time: measured figures are in ``python/README.md``.
     """
