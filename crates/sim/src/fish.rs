@@ -168,8 +168,8 @@ pub trait FishModel: Send + Sync + std::fmt::Debug {
     /// by a global lock answers `false` (a fish written in Python, behind the GIL): the vector
     /// environment then asks it once per frame for all its fish, on one thread, and evaluation
     /// runs its episodes one after another, because threads taking turns at a lock run slower
-    /// than one thread alone (two threads ran a Python fish at 30,600 steps/s where one ran it at
-    /// 79,800: docs/validation.md, "A fish behind a lock"). Results do not depend on it.
+    /// than one thread alone (two threads ran a Python fish at about a third of one thread's
+    /// speed: docs/validation.md, "A fish behind a lock"). Results do not depend on it.
     fn concurrent_inference(&self) -> bool {
         true
     }
