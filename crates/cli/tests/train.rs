@@ -439,3 +439,79 @@ fn the_paper_preset_trains_an_expensive_fish_at_the_published_budget() {
         assert_eq!(params["ppo"]["hidden"], serde_json::json!([8]), "{model}");
     }
 }
+
+#[test]
+fn a_settings_files_fish_keeps_its_parameters_under_a_model_flag_of_the_same_model() {
+    let d = fresh_dir("model-flag");
+    let file = d.join("zone.toml");
+    std::fs::write(
+        &file,
+        "[fish]\nmodel = \"Zone\"\nwall_attraction_strength = 0.0\n",
+    )
+    .unwrap();
+    let train = |model: &str, run: &str| {
+        let out = d.join(run);
+        let o = fishprobe(&[
+            "train",
+            "--model",
+            model,
+            "--preset",
+            "smoke",
+            "--steps",
+            "64",
+            "--settings",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let params: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("params.json")).unwrap())
+                .unwrap();
+        (params["model"].clone(), stderr(&o))
+    };
+    // The same model (any spelling): the file's fish, parameters and all.
+    let (model, err) = train("zone", "same");
+    assert_eq!(model["model"], "Zone");
+    assert_eq!(model["wall_attraction_strength"], 0.0);
+    assert!(!err.contains("replaces"), "{err}");
+    // Another model replaces the fish, and says that the file's parameters are dropped.
+    let (model, err) = train("Follow", "other");
+    assert_eq!(model["model"], "Follow");
+    assert!(
+        err.contains("--model Follow replaces the settings file's fish (Zone)"),
+        "{err}"
+    );
+
+    // `evaluate` reads the file's fish too: the scripted fetch-and-lead meets the file's fish,
+    // so its trial files differ from those with the default M_Zone.
+    let eval = |settings: bool, run: &str| {
+        let out = d.join(run);
+        let mut args = vec![
+            "evaluate",
+            "--policy",
+            "scripted:fetch-and-lead",
+            "--model",
+            "Zone",
+            "--episodes",
+            "1",
+            "--minutes",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if settings {
+            args.extend(["--settings", file.to_str().unwrap()]);
+        }
+        let o = fishprobe(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        std::fs::read(out.join("trial_000.hdf5")).unwrap()
+    };
+    let default = eval(false, "ev-default");
+    assert_eq!(
+        default,
+        eval(false, "ev-default-again"),
+        "trial files are reproducible"
+    );
+    assert_ne!(eval(true, "ev-file"), default);
+}

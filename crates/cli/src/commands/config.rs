@@ -63,6 +63,26 @@ impl SimSettings {
             .with_context(|| format!("in {} (section fish)", path.display()))?;
         Ok(s)
     }
+
+    /// Applies a `--model` flag to the fish. A flag naming the model the settings already
+    /// describe keeps their parameters: `--model Zone --settings zone.toml` runs the Zone fish
+    /// the file sets up, not the default one (before, the file's parameters were dropped without
+    /// a word). A flag naming another model, or a file (`convnet:PATH`, `onnx:PATH`), replaces
+    /// the fish, with a note when that drops parameters the file set.
+    pub fn apply_model_flag(&mut self, flag: &str) -> Result<()> {
+        let named = ModelSpec::by_name(flag)?;
+        if !flag.contains(':') && named.name() == self.fish.name() {
+            return Ok(());
+        }
+        if self.fish != default_fish() && self.fish != named {
+            say!(
+                "note: --model {flag} replaces the settings file's fish ({}) and the parameters it sets",
+                self.fish.name()
+            );
+        }
+        self.fish = named;
+        Ok(())
+    }
 }
 
 #[derive(Debug, Args)]

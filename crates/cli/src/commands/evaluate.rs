@@ -5,7 +5,6 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_learn::evaluate::MAX_EPISODES;
 use fishprobe_learn::{controller, evaluate, goals_mean_sd, Evaluation};
-use fishprobe_models::ModelSpec;
 use std::path::PathBuf;
 
 use super::config::SimSettings;
@@ -38,7 +37,8 @@ pub struct EvaluateArgs {
     /// Master seed of the episodes.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Settings file for the environment (see `fishprobe config show`).
+    /// Settings file for the environment and the fish (see `fishprobe config show`); a fish it
+    /// describes keeps its parameters when --model names the same model.
     #[arg(long)]
     settings: Option<PathBuf>,
     /// Threads (default: all cores).
@@ -54,10 +54,11 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         );
     }
     super::check_minutes("--minutes", f64::from(a.minutes))?;
-    let env = match &a.settings {
-        Some(p) => SimSettings::load(p)?.env,
-        None => SimSettings::default().env,
+    let mut settings = match &a.settings {
+        Some(p) => SimSettings::load(p)?,
+        None => SimSettings::default(),
     };
+    settings.apply_model_flag(&a.model)?;
     if a.stochastic && !std::path::Path::new(&a.policy).is_dir() {
         bail!(
             "--stochastic samples from a policy directory's Gaussian; `{}` gives one action per observation",
@@ -67,8 +68,8 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
     let c = controller(&a.policy, a.stochastic)
         .with_context(|| format!("loading --policy {}", a.policy))?;
     let e = Evaluation {
-        model: ModelSpec::by_name(&a.model)?,
-        env,
+        model: settings.fish,
+        env: settings.env,
         episodes: a.episodes,
         minutes: a.minutes,
         seed: a.seed,

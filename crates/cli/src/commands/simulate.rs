@@ -4,7 +4,6 @@
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_io::{write_trial, TrialFile, TrialKind, TrialMeta};
-use fishprobe_models::ModelSpec;
 use fishprobe_sim::{Env, RobotScript, ScriptParams, TankEnv, TaskMode};
 use serde_json::json;
 use std::path::PathBuf;
@@ -14,7 +13,8 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct SimulateArgs {
-    /// Fish model (Follow, Zone, Force, ConvNet, Stationary, Guppy); overrides the settings file's.
+    /// Fish model (Follow, Zone, Force, ConvNet, Stationary, Guppy). Replaces the settings
+    /// file's fish unless it names the same model, whose parameters from the file are kept.
     #[arg(long)]
     model: Option<String>,
     /// Scripted robot: `still` (stands where it starts), `circle` (drives a 30 cm circle
@@ -43,7 +43,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         None => SimSettings::default(),
     };
     if let Some(m) = &a.model {
-        settings.fish = ModelSpec::by_name(m)?;
+        settings.apply_model_flag(m)?;
     }
     super::check_minutes("--minutes", f64::from(a.minutes))?;
     if let Some(dir) = a.robot.strip_prefix("policy:") {

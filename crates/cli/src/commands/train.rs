@@ -4,7 +4,6 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_learn::yardstick::{self, OodYardstickConfig};
 use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
-use fishprobe_models::ModelSpec;
 use fishprobe_sim::FishModel;
 use fishprobe_sim::Objective;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -16,7 +15,8 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
-    /// Fish model to train against (Follow, Zone, Force, ...); overrides the settings file's.
+    /// Fish model to train against (Follow, Zone, Force, ...). Replaces the settings file's
+    /// fish unless it names the same model, whose parameters from the file are then kept.
     #[arg(long)]
     model: Option<String>,
     /// Master seed.
@@ -104,7 +104,7 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
         None => SimSettings::default(),
     };
     match &a.model {
-        Some(m) => settings.fish = ModelSpec::by_name(m)?,
+        Some(m) => settings.apply_model_flag(m)?,
         None if a.settings.is_none() => {
             bail!("--model is required (or a --settings file naming the fish)")
         }
