@@ -130,6 +130,8 @@ def test_bad_yardsticks_are_refused_before_the_run_exists(tmp_path):
          "bnad"),
         (dict(settings=ood, ood_yardstick="scripted:goal-seeker", yardstick={"band": float("nan")}),
          "numbers must be finite"),
+        (dict(settings=ood, ood_yardstick="scripted:goal-seeker", yardstick={"seed": 2**70}),
+         r"seed = 1180591620717411303424 is too large for a whole number"),
         (dict(ood_yardstick="scripted:goal-seeker"), "OOD task only"),
         (dict(settings=ood, yardstick={"band": 0.1}), "need ood_yardstick"),
     ]

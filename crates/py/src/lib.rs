@@ -979,8 +979,32 @@ fn overrides<T: serde::Serialize + serde::de::DeserializeOwned>(
             "{what} must be a dict of settings"
         )));
     };
+    let too_large = integers_too_large(&o);
     m.extend(o);
-    serde_json::from_value(merged).map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
+    serde_json::from_value(merged).map_err(|e| match too_large.first() {
+        Some(_) if !e.to_string().contains("floating point") => {
+            PyValueError::new_err(format!("{what}: {e}"))
+        }
+        // JSON has no integer type: an integer past u64 arrives as a float, and serde's own
+        // message ("invalid type: floating point, expected u64") names neither field nor cause.
+        Some((key, v)) => PyValueError::new_err(format!(
+            "{what}: {key} = {v:.0} is too large for a whole number (at most {})",
+            u64::MAX
+        )),
+        None => PyValueError::new_err(format!("{what}: {e}")),
+    })
+}
+
+/// The top-level fields of `fields` holding a whole number beyond the range of u64 (JSON turns
+/// a Python integer such as `2**70` into a float).
+fn integers_too_large(fields: &serde_json::Map<String, serde_json::Value>) -> Vec<(String, f64)> {
+    fields
+        .iter()
+        .filter_map(|(k, v)| {
+            let x = v.as_f64().filter(|_| v.is_f64())?;
+            (x.fract() == 0.0 && x.abs() >= u64::MAX as f64).then(|| (k.clone(), x))
+        })
+        .collect()
 }
 
 /// Whether `path` names a directory holding a study's results.
