@@ -49,8 +49,10 @@ use std::path::{Path, PathBuf};
 /// policies start with about half their states above it, so every policy's trials changed).
 /// Then babfa8ca… until every training seed's policy got its approach assay (issue 20:
 /// `approach_stability/` trial files joined the digest, `seeds` and two analysis settings
-/// joined results.json).
-const GOLDEN: &str = "db63f14ed88f9670";
+/// joined results.json). Then db63f14e… until `task.progress_shaping` and
+/// `task.progress_shaping_gamma` joined the recorded settings (issue 20's fidelity sweep;
+/// inert at their default: the report's digest, over every figure, stayed ccd1f03b…).
+const GOLDEN: &str = "09ddfedb8e770522";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…

@@ -281,6 +281,9 @@ pub struct TankEnv {
     support: Option<Arc<dyn InputSupport>>,
     /// Sums over the current action: capped scores, uncapped scores, samples.
     support_acc: (f32, f32, u32),
+    /// Distance of the fish nearest the active goal when the current action began (cm), for
+    /// the progress shaping ([`crate::TaskParams::progress_shaping`]).
+    shaping_from_cm: f32,
     summary: EpisodeSummary,
     start_poses: Option<StartPoses>,
     recording: bool,
@@ -319,6 +322,7 @@ impl TankEnv {
             acc: StepInfo::default(),
             support: None,
             support_acc: (0.0, 0.0, 0),
+            shaping_from_cm: 0.0,
             summary: EpisodeSummary::default(),
             start_poses: None,
             recording: false,
@@ -610,7 +614,27 @@ impl TankEnv {
         }
         self.acc = StepInfo::default();
         self.support_acc = (0.0, 0.0, 0);
+        if self.shaping() {
+            self.shaping_from_cm = self.fish_to_goal_cm();
+        }
         Ok(())
+    }
+
+    /// Whether this episode's reward has the progress shaping (training, lead-to-goal task).
+    fn shaping(&self) -> bool {
+        let t = &self.cfg.task;
+        t.progress_shaping > 0.0
+            && t.objective == Objective::Goal
+            && self.cfg.mode == TaskMode::Training
+    }
+
+    /// Distance of the fish nearest the active goal (cm).
+    fn fish_to_goal_cm(&self) -> f32 {
+        let [gx, gy] = self.goals.active;
+        self.fish
+            .iter()
+            .map(|f| (f.x - gx).hypot(f.y - gy))
+            .fold(f32::INFINITY, f32::min)
     }
 
     /// What each fish perceives at the start of the coming frame (into the env's buffer).
@@ -725,6 +749,17 @@ impl TankEnv {
                 t.ood_weight * capped / n + t.ood_goal_weight * goals
             }
         };
+        if self.shaping() {
+            // Potential Φ = -d / L (L the tank's side); a reached goal ends its potential at 0.
+            let to = if self.acc.goals_reached > 0 {
+                0.0
+            } else {
+                self.fish_to_goal_cm()
+            };
+            let side = 2.0 * self.cfg.tank.half_size_cm;
+            reward +=
+                t.progress_shaping * (self.shaping_from_cm - t.progress_shaping_gamma * to) / side;
+        }
         if self.acc.robot_near_wall {
             reward -= t.wall_penalty;
         }

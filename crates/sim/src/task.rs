@@ -103,6 +103,19 @@ crate::documented_params! {
         /// OOD task: weight of the goal reward added to the OOD reward, in [0, 10] (choice: 0,
         /// the pure OOD objective; e.g. 1 for a robot that also keeps leading).
         pub ood_goal_weight: f32 = 0.0; "1",
+        /// *Training* episodes, lead-to-goal task: weight w of a potential-based shaping reward
+        /// (Ng, Harada & Russell 1999) for the fish's progress toward the active goal, in
+        /// [0, 10]: each action adds w · (d − γ_s · d′) / L (L the tank's side, 100 cm), d and d′ the distance of the
+        /// fish nearest the goal before and after the action (d′ = 0 when a goal was reached:
+        /// reaching it is never penalised by the next goal's distance). Potential-based, so it
+        /// leaves the optimal policies of the goal reward unchanged while paying for progress
+        /// the sparse goal reward pays only at the end. **Choice: 0, the paper's reward** (+1
+        /// per goal and the wall penalty only). A reading of the fidelity sweep (issue 20,
+        /// `progress-shaping`).
+        pub progress_shaping: f32 = 0.0; "1",
+        /// Discount γ_s of the shaping potential, in (0, 1] (choice: 0.9453, the paper's PPO
+        /// γ, which the shaping must match to leave the optimal policies unchanged).
+        pub progress_shaping_gamma: f32 = 0.9453; "1",
     }
 }
 
@@ -243,6 +256,15 @@ impl TaskParams {
         check::within(prefix, "ood_weight", self.ood_weight, 0.0, 100.0)?;
         check::within(prefix, "ood_score_cap", self.ood_score_cap, 0.1, 1000.0)?;
         check::within(prefix, "ood_goal_weight", self.ood_goal_weight, 0.0, 10.0)?;
+        check::within(prefix, "progress_shaping", self.progress_shaping, 0.0, 10.0)?;
+        if !(self.progress_shaping_gamma > 0.0 && self.progress_shaping_gamma <= 1.0) {
+            return Err(ConfigError::new(
+                prefix,
+                "progress_shaping_gamma",
+                self.progress_shaping_gamma,
+                "must lie in (0, 1]: a discount",
+            ));
+        }
         if !(self.ood_score_floor >= 0.0 && self.ood_score_floor < self.ood_score_cap) {
             return Err(ConfigError::new(
                 prefix,

@@ -100,6 +100,14 @@ const READINGS: &[Reading] = &[
         ppo: none,
     },
     Reading {
+        name: "zone-no-wall-pull",
+        what: "M_Zone with wall repulsion only, the paper's published wall parameters (no pull back to a wall it heads away from, SPEC's choice)",
+        models: &["Zone"],
+        env: none,
+        model: || json!({"wall_attraction_strength": 0.0}),
+        ppo: none,
+    },
+    Reading {
         name: "force-noise-per-frame",
         what: "M_Force's noise amplitudes read per frame",
         models: &["Force"],
@@ -178,6 +186,14 @@ const READINGS: &[Reading] = &[
         env: none,
         model: none,
         ppo: || json!({"vf_clip_param": 1.0e9}),
+    },
+    Reading {
+        name: "progress-shaping",
+        what: "training rewards the fish's progress toward the goal too (potential-based shaping, weight 1; not in the paper)",
+        models: &[],
+        env: || json!({"task": {"progress_shaping": 1.0}}),
+        model: none,
+        ppo: none,
     },
     Reading {
         name: "budget-4x",
@@ -599,4 +615,69 @@ fn with_finished_cells(a: &FidelityArgs, rows: &[Value]) -> Vec<Value> {
     }
     others.sort_by_key(key);
     rows.iter().cloned().chain(others).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every reading's overrides name real fields: merged into the defaults of each model it
+    /// runs on, they give valid settings that differ from the defaults where the reading says
+    /// it changes something (a misspelt field would otherwise be a silent no-op, or fail only
+    /// after the cells before it had trained).
+    #[test]
+    fn every_reading_changes_valid_settings() {
+        let models = ["Follow", "Zone", "Force", "ConvNet"];
+        for r in READINGS {
+            let mut changed = false;
+            for m in models
+                .iter()
+                .filter(|m| r.models.is_empty() || r.models.contains(m))
+            {
+                let base = ModelSpec::by_name(m).unwrap_or_else(|e| panic!("{m}: {e}"));
+                let spec: ModelSpec =
+                    with(&base, &(r.model)()).unwrap_or_else(|e| panic!("{}: {m}: {e}", r.name));
+                assert!(spec.validate().is_ok(), "{}: {m}", r.name);
+                changed |= spec != base;
+            }
+            let env: EnvConfig = with(&EnvConfig::default(), &(r.env)())
+                .unwrap_or_else(|e| panic!("{}: {e}", r.name));
+            assert!(env.validate().is_ok(), "{}", r.name);
+            changed |= env != EnvConfig::default();
+            let ppo = PpoConfig::preset("paper").unwrap_or_else(|| panic!("paper preset"));
+            let over: PpoConfig =
+                with(&ppo, &(r.ppo)()).unwrap_or_else(|e| panic!("{}: {e}", r.name));
+            changed |= serde_json::to_value(&over).ok() != serde_json::to_value(&ppo).ok();
+            // The readings that spell out a default change nothing, by design.
+            let spelt_out = [
+                "baseline",
+                "random-start",
+                "follow-4cm-s",
+                "budget-8x",
+                "epochs-2",
+            ];
+            assert_eq!(changed, !spelt_out.contains(&r.name), "{}", r.name);
+        }
+    }
+
+    #[test]
+    fn the_wall_pull_reading_removes_only_the_pull() {
+        let r = READINGS
+            .iter()
+            .find(|r| r.name == "zone-no-wall-pull")
+            .unwrap_or_else(|| panic!("reading listed"));
+        assert_eq!(r.models, ["Zone"]);
+        let spec: ModelSpec = with(
+            &ModelSpec::by_name("Zone").unwrap_or_else(|e| panic!("{e}")),
+            &(r.model)(),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let ModelSpec::Zone(p) = spec else {
+            panic!("a Zone spec")
+        };
+        let d = fishprobe_models::ZoneParams::default();
+        assert_eq!(p.wall_attraction_strength, 0.0);
+        assert_eq!(p.wall_repulsion_strength, d.wall_repulsion_strength);
+        assert_eq!(p.wall_repulsion_radius_cm, d.wall_repulsion_radius_cm);
+    }
 }
