@@ -52,7 +52,9 @@ use std::path::{Path, PathBuf};
 /// joined results.json). Then db63f14e… until `task.progress_shaping` and
 /// `task.progress_shaping_gamma` joined the recorded settings (issue 20's fidelity sweep;
 /// inert at their default: the report's digest, over every figure, stayed ccd1f03b…).
-const GOLDEN: &str = "09ddfedb8e770522";
+/// Then 09ddfedb… until M_Zone lost SPEC's wall pull by default (issue 20: every trial with an
+/// M_Zone fish or π_Zone changed, and so results.json).
+const GOLDEN: &str = "8b2a1083af946902";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
@@ -62,8 +64,9 @@ const GOLDEN: &str = "09ddfedb8e770522";
 /// default speed became 4 cm/s (its trials, and so the figures, changed); 1f452965… until
 /// M_ConvNet stayed off the walls (issue 20, item 4: its trials, and so the figures, changed);
 /// 5f7b3f96… until the log-s.d. bound stopped trapping the policy (every policy's trials
-/// changed); e6019e8e… until the "Every training seed" table joined the report and summary.
-const GOLDEN_REPORT: &str = "ccd1f03babfdd91f";
+/// changed); e6019e8e… until the "Every training seed" table joined the report and summary;
+/// ccd1f03b… until M_Zone lost SPEC's wall pull by default (its trials, and so the figures).
+const GOLDEN_REPORT: &str = "dd4c923bb9e4b2fa";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {

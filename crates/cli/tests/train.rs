@@ -446,7 +446,7 @@ fn a_settings_files_fish_keeps_its_parameters_under_a_model_flag_of_the_same_mod
     let file = d.join("zone.toml");
     std::fs::write(
         &file,
-        "[fish]\nmodel = \"Zone\"\nwall_attraction_strength = 0.0\n",
+        "[fish]\nmodel = \"Zone\"\nwall_attraction_strength = 1.0\n",
     )
     .unwrap();
     let train = |model: &str, run: &str| {
@@ -473,7 +473,7 @@ fn a_settings_files_fish_keeps_its_parameters_under_a_model_flag_of_the_same_mod
     // The same model (any spelling): the file's fish, parameters and all.
     let (model, err) = train("zone", "same");
     assert_eq!(model["model"], "Zone");
-    assert_eq!(model["wall_attraction_strength"], 0.0);
+    assert_eq!(model["wall_attraction_strength"], 1.0);
     assert!(!err.contains("replaces"), "{err}");
     // Another model replaces the fish, and says that the file's parameters are dropped.
     let (model, err) = train("Follow", "other");

@@ -179,26 +179,25 @@ mod tests {
         assert!((s.p90 - 3.7).abs() < 1e-6);
     }
 
-    /// Solitary Zone and Force fish follow walls: their mean distance to the nearest wall is
-    /// clearly below the 16.7 cm of a uniform spread, and they never touch a wall.
+    /// Solitary fish never touch a wall. M_Force and M_Zone with SPEC's wall pull follow
+    /// walls: their mean distance to the nearest wall is clearly below the 16.7 cm of a uniform
+    /// spread. M_Zone by default (the paper's repulsion only, no pull) swims in open water.
     #[test]
-    fn solitary_fish_follow_walls_without_contacts() {
-        for name in ["Zone", "Force"] {
-            let m = measure(
-                &ModelSpec::by_name(name).unwrap(),
-                Condition::Solitary,
-                4,
-                5.0,
-                11,
-            )
-            .unwrap();
-            assert!(
-                m.wall_distance.mean < 13.0,
-                "{name}: mean wall distance {}",
-                m.wall_distance.mean
-            );
-            assert_eq!(m.wall_contacts_per_min, 0.0, "{name} touched a wall");
-            assert!(m.speed.mean > 2.0, "{name} swims: {}", m.speed.mean);
+    fn solitary_fish_keep_off_the_walls_and_the_pulled_ones_follow_them() {
+        let pulled = ModelSpec::Zone(crate::ZoneParams {
+            wall_attraction_strength: 1.0,
+            ..crate::ZoneParams::default()
+        });
+        for (spec, follows) in [
+            (ModelSpec::by_name("Force").unwrap(), true),
+            (pulled, true),
+            (ModelSpec::by_name("Zone").unwrap(), false),
+        ] {
+            let m = measure(&spec, Condition::Solitary, 4, 5.0, 11).unwrap();
+            let mean = m.wall_distance.mean;
+            assert_eq!(mean < 13.0, follows, "{spec:?}: mean wall distance {mean}");
+            assert_eq!(m.wall_contacts_per_min, 0.0, "{spec:?} touched a wall");
+            assert!(m.speed.mean > 2.0, "{spec:?} swims: {}", m.speed.mean);
         }
     }
 

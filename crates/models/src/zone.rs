@@ -53,10 +53,22 @@ fishprobe_sim::documented_params! {
         /// Push strength at the wall, falling linearly to 0 at the radius (paper: 40.51).
         pub wall_repulsion_strength: f32 = 40.51; "1",
         /// Heading away from a wall within this multiple of the radius pulls the fish back
-        /// (choice: 2, i.e. 16.78 cm).
+        /// with `wall_attraction_strength` (choice: 2, i.e. 16.78 cm; inert at the default
+        /// strength 0).
         pub wall_attraction_band: f32 = 2.0; "1",
-        /// Strength of that pull (choice: 1, a unit vector like the social direction).
-        pub wall_attraction_strength: f32 = 1.0; "1",
+        /// Strength of the pull back to a wall the fish heads away from (1: a unit vector
+        /// like the social direction). **Decision: 0, no pull**, the wall module the paper
+        /// publishes (its M_Zone lists wall repulsion parameters only); SPEC §6 added the pull
+        /// as a choice, to make the fish follow walls as real guppies do. Issue 20's fidelity
+        /// sweep (docs/validation.md, "M_Zone without the wall pull") found that without it
+        /// π_Zone goes to the still fish, the paper's pattern, in 5 of 11 training seeds (both
+        /// fidelity seeds: closest 1.0 and 3.7 cm, 20.8 and 29.1 % of the time nearer the fish
+        /// than the goal, the paper 4 cm and 22.3 %; 3 of 9 `train` seeds), against 1 of 11
+        /// with the pull, and leads as well (0.78-0.96 of fetch-and-lead, mean 0.89 over the
+        /// `train` seeds; with the pull 0.75-0.89, mean 0.87). Without the pull the fish swims
+        /// in open water (3.5 % of its time within 10 cm of a wall, against 47 %); 1 restores
+        /// SPEC's wall-following fish.
+        pub wall_attraction_strength: f32 = 0.0; "1",
     }
 }
 

@@ -101,10 +101,18 @@ const READINGS: &[Reading] = &[
     },
     Reading {
         name: "zone-no-wall-pull",
-        what: "M_Zone with wall repulsion only, the paper's published wall parameters (no pull back to a wall it heads away from, SPEC's choice)",
+        what: "M_Zone with wall repulsion only, the paper's published wall parameters (the default since this sweep)",
         models: &["Zone"],
         env: none,
         model: || json!({"wall_attraction_strength": 0.0}),
+        ppo: none,
+    },
+    Reading {
+        name: "zone-wall-pull",
+        what: "M_Zone pulled back to a wall it heads away from, SPEC's wall-following choice (the default before this sweep)",
+        models: &["Zone"],
+        env: none,
+        model: || json!({"wall_attraction_strength": 1.0}),
         ppo: none,
     },
     Reading {
@@ -653,6 +661,7 @@ mod tests {
                 "baseline",
                 "random-start",
                 "follow-4cm-s",
+                "zone-no-wall-pull",
                 "budget-8x",
                 "epochs-2",
             ];
@@ -661,23 +670,29 @@ mod tests {
     }
 
     #[test]
-    fn the_wall_pull_reading_removes_only_the_pull() {
-        let r = READINGS
-            .iter()
-            .find(|r| r.name == "zone-no-wall-pull")
-            .unwrap_or_else(|| panic!("reading listed"));
-        assert_eq!(r.models, ["Zone"]);
-        let spec: ModelSpec = with(
-            &ModelSpec::by_name("Zone").unwrap_or_else(|e| panic!("{e}")),
-            &(r.model)(),
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
-        let ModelSpec::Zone(p) = spec else {
-            panic!("a Zone spec")
+    fn the_wall_pull_readings_change_only_the_pull() {
+        let zone = |name: &str| {
+            let r = READINGS
+                .iter()
+                .find(|r| r.name == name)
+                .unwrap_or_else(|| panic!("{name} listed"));
+            assert_eq!(r.models, ["Zone"]);
+            let base = ModelSpec::by_name("Zone").unwrap_or_else(|e| panic!("{e}"));
+            match with(&base, &(r.model)()).unwrap_or_else(|e| panic!("{e}")) {
+                ModelSpec::Zone(p) => p,
+                other => panic!("a Zone spec, not {other:?}"),
+            }
         };
         let d = fishprobe_models::ZoneParams::default();
-        assert_eq!(p.wall_attraction_strength, 0.0);
-        assert_eq!(p.wall_repulsion_strength, d.wall_repulsion_strength);
-        assert_eq!(p.wall_repulsion_radius_cm, d.wall_repulsion_radius_cm);
+        assert_eq!(zone("zone-no-wall-pull"), d, "the default since the sweep");
+        let pulled = zone("zone-wall-pull");
+        assert_eq!(pulled.wall_attraction_strength, 1.0);
+        assert_eq!(
+            fishprobe_models::ZoneParams {
+                wall_attraction_strength: d.wall_attraction_strength,
+                ..pulled
+            },
+            d
+        );
     }
 }
