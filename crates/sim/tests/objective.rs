@@ -4,14 +4,11 @@
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
-use fishprobe_sim::{
-    Env, EnvConfig, FishMind, FishModel, FishMotion, FishView, InputSupport, Objective, SimError,
-    SimRng, TankEnv, VecEnv,
-};
+use fishprobe_sim::{Env, EnvConfig, FishView, InputSupport, Objective, SimError, TankEnv, VecEnv};
 use std::sync::Arc;
 
 mod common;
-use common::Still;
+use common::{Still, Straight};
 
 /// Scores a view by its fish's x coordinate (cm / 10): a known answer per frame.
 #[derive(Debug)]
@@ -133,29 +130,13 @@ fn the_vector_env_passes_the_support_on_and_settings_are_checked() {
     }
 }
 
-/// A fish swimming straight along its heading at 25 cm/s: 1 cm per frame at 25 Hz.
-#[derive(Debug)]
-struct Straight;
-
-impl FishModel for Straight {
-    fn name(&self) -> &str {
-        "Straight"
-    }
-    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
-        FishMotion {
-            heading: v.me.heading,
-            speed: 25.0,
-        }
-    }
-}
-
 #[test]
 fn the_views_are_scored_every_nth_frame() {
     for (every, want) in [(1u32, 1.2f32), (5, 1.0)] {
         let mut cfg = EnvConfig::default();
         cfg.task.objective = Objective::Ood;
         cfg.task.ood_score_every_frames = every;
-        let mut e = TankEnv::new(cfg, Arc::new(Straight)).unwrap();
+        let mut e = TankEnv::new(cfg, Arc::new(Straight(25.0))).unwrap();
         e.set_support(Some(Arc::new(ByX)));
         e.set_start_poses(Some(fishprobe_sim::StartPoses {
             robot: [0.0, -30.0, 0.0],

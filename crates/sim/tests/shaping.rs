@@ -5,30 +5,11 @@
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
-use fishprobe_sim::{
-    Env, EnvConfig, FishMind, FishModel, FishMotion, FishView, SimRng, StartPoses, TankEnv,
-    TaskMode,
-};
+use fishprobe_sim::{Env, EnvConfig, FishModel, StartPoses, TankEnv, TaskMode};
 use std::sync::Arc;
 
 mod common;
-use common::Still;
-
-/// A fish that swims straight on at 10 cm/s.
-#[derive(Debug)]
-struct Straight;
-
-impl FishModel for Straight {
-    fn name(&self) -> &str {
-        "Straight"
-    }
-    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
-        FishMotion {
-            heading: v.me.heading,
-            speed: 10.0,
-        }
-    }
-}
+use common::{Still, Straight};
 
 fn env(model: Arc<dyn FishModel>, mode: TaskMode, w: f32, gamma: f32) -> TankEnv {
     let mut cfg = EnvConfig {
@@ -76,7 +57,7 @@ fn a_still_fish_pays_its_discounted_distance() {
 #[test]
 fn a_moving_fish_pays_its_progress() {
     // γ = 1: the shaping is the fish's progress toward the goal, w · (d − d′) / 100 cm.
-    let mut e = env(Arc::new(Straight), TaskMode::Training, 1.5, 1.0);
+    let mut e = env(Arc::new(Straight(10.0)), TaskMode::Training, 1.5, 1.0);
     let mut obs = start(&mut e, [-40.0, 0.0, 0.0], 5);
     let mut total = 0.0;
     let d_start = distance(&e);
@@ -101,7 +82,7 @@ fn a_reached_goal_ends_the_potential_at_zero() {
     // Find the seed's first goal, then start the fish 8 cm before it, swimming at it: the goal
     // is reached within the first action, which pays +1 and w · 8 / 100 cm (d′ = 0), not the
     // distance to the next goal.
-    let mut e = env(Arc::new(Straight), TaskMode::Training, 1.0, 0.9);
+    let mut e = env(Arc::new(Straight(10.0)), TaskMode::Training, 1.0, 0.9);
     start(&mut e, [45.0, 45.0, 0.0], 11);
     let [gx, gy] = e.active_goal();
     let mut obs = start(&mut e, [gx - 8.0, gy, 0.0], 11);
@@ -115,7 +96,7 @@ fn a_reached_goal_ends_the_potential_at_zero() {
 #[test]
 fn evaluation_and_the_default_have_no_shaping() {
     for (mode, w) in [(TaskMode::Evaluation, 1.0), (TaskMode::Training, 0.0)] {
-        let mut e = env(Arc::new(Straight), mode, w, 0.9);
+        let mut e = env(Arc::new(Straight(10.0)), mode, w, 0.9);
         let mut obs = start(&mut e, [-40.0, 0.0, 0.0], 5);
         let t = e.step(&[0.0], &mut obs).unwrap();
         assert_eq!(t.reward, t.info.goals_reached as f32, "{mode:?}");

@@ -17,3 +17,20 @@ impl FishModel for Still {
         }
     }
 }
+
+/// A fish swimming straight along its heading at the given speed (cm/s).
+#[derive(Debug)]
+#[allow(dead_code)] // not every test file uses every fish
+pub struct Straight(pub f32);
+
+impl FishModel for Straight {
+    fn name(&self) -> &str {
+        "Straight"
+    }
+    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
+        FishMotion {
+            heading: v.me.heading,
+            speed: self.0,
+        }
+    }
+}
