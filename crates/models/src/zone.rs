@@ -61,11 +61,12 @@ fishprobe_sim::documented_params! {
         /// publishes (its M_Zone lists wall repulsion parameters only); SPEC §6 added the pull
         /// as a choice, to make the fish follow walls as real guppies do. Issue 20's fidelity
         /// sweep (docs/validation.md, "M_Zone without the wall pull") found that without it
-        /// π_Zone goes to the still fish, the paper's pattern, in 5 of 11 training seeds (both
+        /// π_Zone goes to the still fish, the paper's pattern, in 6 of 17 training seeds (both
         /// fidelity seeds: closest 1.0 and 3.7 cm, 20.8 and 29.1 % of the time nearer the fish
-        /// than the goal, the paper 4 cm and 22.3 %; 3 of 9 `train` seeds), against 1 of 11
-        /// with the pull, and leads as well (0.78-0.96 of fetch-and-lead, mean 0.89 over the
-        /// `train` seeds; with the pull 0.75-0.89, mean 0.87). Without the pull the fish swims
+        /// than the goal, the paper 4 cm and 22.3 %; 3 of 9 `train` seeds; 1 of the paper
+        /// study's 6), against 3 of 17 with the pull: more often, not reliably. It leads as well
+        /// (0.78-0.96 of fetch-and-lead, mean 0.89 over the `train` seeds, 0.88-0.92 in the
+        /// study; with the pull 0.75-0.92, mean 0.87). Without the pull the fish swims
         /// in open water (3.5 % of its time within 10 cm of a wall, against 47 %); 1 restores
         /// SPEC's wall-following fish.
         pub wall_attraction_strength: f32 = 0.0; "1",
