@@ -979,32 +979,29 @@ fn overrides<T: serde::Serialize + serde::de::DeserializeOwned>(
             "{what} must be a dict of settings"
         )));
     };
-    let too_large = integers_too_large(&o);
+    let too_large = integer_too_large(&o);
     m.extend(o);
-    serde_json::from_value(merged).map_err(|e| match too_large.first() {
-        Some(_) if !e.to_string().contains("floating point") => {
-            PyValueError::new_err(format!("{what}: {e}"))
-        }
+    serde_json::from_value(merged).map_err(|e| {
         // JSON has no integer type: an integer past u64 arrives as a float, and serde's own
         // message ("invalid type: floating point, expected u64") names neither field nor cause.
-        Some((key, v)) => PyValueError::new_err(format!(
-            "{what}: {key} = {v:.0} is too large for a whole number (at most {})",
-            u64::MAX
-        )),
-        None => PyValueError::new_err(format!("{what}: {e}")),
+        let msg = match too_large.filter(|_| e.to_string().contains("floating point")) {
+            Some((key, v)) => format!(
+                "{what}: {key} = {v:.0} is too large for a whole number (at most {})",
+                u64::MAX
+            ),
+            None => format!("{what}: {e}"),
+        };
+        PyValueError::new_err(msg)
     })
 }
 
-/// The top-level fields of `fields` holding a whole number beyond the range of u64 (JSON turns
-/// a Python integer such as `2**70` into a float).
-fn integers_too_large(fields: &serde_json::Map<String, serde_json::Value>) -> Vec<(String, f64)> {
-    fields
-        .iter()
-        .filter_map(|(k, v)| {
-            let x = v.as_f64().filter(|_| v.is_f64())?;
-            (x.fract() == 0.0 && x.abs() >= u64::MAX as f64).then(|| (k.clone(), x))
-        })
-        .collect()
+/// The first top-level field of `fields` holding a whole number beyond the range of u64 (JSON
+/// turns a Python integer such as `2**70` into a float).
+fn integer_too_large(fields: &serde_json::Map<String, serde_json::Value>) -> Option<(String, f64)> {
+    fields.iter().find_map(|(k, v)| {
+        let x = v.as_f64().filter(|_| v.is_f64())?;
+        (x.fract() == 0.0 && x.abs() >= u64::MAX as f64).then(|| (k.clone(), x))
+    })
 }
 
 /// Whether `path` names a directory holding a study's results.

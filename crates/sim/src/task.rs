@@ -105,9 +105,10 @@ crate::documented_params! {
         pub ood_goal_weight: f32 = 0.0; "1",
         /// *Training* episodes, lead-to-goal task: weight w of a potential-based shaping reward
         /// (Ng, Harada & Russell 1999) for the fish's progress toward the active goal, in
-        /// [0, 10]: each action adds w · (d − γ_s · d′) / L (L the tank's side, 100 cm), d and d′ the distance of the
-        /// fish nearest the goal before and after the action (d′ = 0 when a goal was reached:
-        /// reaching it is never penalised by the next goal's distance). Potential-based, so it
+        /// [0, 10]: each action adds w · (d − γ_s · d′) / L (L the tank's side, 100 cm), d and
+        /// d′ the distance of the fish nearest the goal before and after the action (d′ = 0
+        /// when a goal was reached: reaching it is never penalised by the next goal's
+        /// distance). Potential-based, so it
         /// leaves the optimal policies of the goal reward unchanged while paying for progress
         /// the sparse goal reward pays only at the end. **Choice: 0, the paper's reward** (+1
         /// per goal and the wall penalty only). A reading of the fidelity sweep (issue 20,
