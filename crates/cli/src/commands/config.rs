@@ -67,11 +67,34 @@ impl SimSettings {
     /// Applies a `--model` flag to the fish. A flag naming the model the settings already
     /// describe keeps their parameters: `--model Zone --settings zone.toml` runs the Zone fish
     /// the file sets up, not the default one (before, the file's parameters were dropped without
-    /// a word). A flag naming another model, or a file (`convnet:PATH`, `onnx:PATH`), replaces
-    /// the fish, with a note when that drops parameters the file set.
+    /// a word). A file flag (`convnet:PATH`, `onnx:PATH`) on a file describing the same kind of
+    /// model replaces only the weights or network file and keeps the file's other parameters
+    /// (`wall_redraws`), with a note when the file named other weights. A flag naming another
+    /// model replaces the fish, with a note when that drops parameters the file set.
     pub fn apply_model_flag(&mut self, flag: &str) -> Result<()> {
         let named = ModelSpec::by_name(flag)?;
-        if !flag.contains(':') && named.name() == self.fish.name() {
+        if named.name() == self.fish.name() {
+            if !flag.contains(':') {
+                // A built-in model by its name: the file's parameters stand.
+                return Ok(());
+            }
+            let (old, new) = match (&mut self.fish, named) {
+                (ModelSpec::ConvNet(p), ModelSpec::ConvNet(n)) => (
+                    std::mem::replace(&mut p.weights, n.weights.clone()),
+                    n.weights,
+                ),
+                (ModelSpec::Onnx(p), ModelSpec::Onnx(n)) => {
+                    p.sha256 = n.sha256;
+                    (std::mem::replace(&mut p.path, n.path.clone()), n.path)
+                }
+                (_, named) => {
+                    self.fish = named;
+                    return Ok(());
+                }
+            };
+            if !old.is_empty() && old != new {
+                say!("note: --model {flag} replaces the settings file's {old}; its other parameters stand");
+            }
             return Ok(());
         }
         if self.fish != default_fish() && self.fish != named {
@@ -137,5 +160,77 @@ pub fn run(a: ConfigArgs) -> Result<()> {
                 serde_json::to_string_pretty(&s)?
             ))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fishprobe_models::{ConvNetParams, OnnxParams, ZoneParams};
+
+    fn with_fish(fish: ModelSpec) -> SimSettings {
+        SimSettings {
+            fish,
+            ..SimSettings::default()
+        }
+    }
+
+    #[test]
+    fn a_weights_flag_keeps_the_files_other_convnet_parameters() {
+        let mut s = with_fish(ModelSpec::ConvNet(ConvNetParams {
+            weights: "old.safetensors".into(),
+            wall_redraws: 0,
+        }));
+        s.apply_model_flag("convnet:new.safetensors").unwrap();
+        assert_eq!(
+            s.fish,
+            ModelSpec::ConvNet(ConvNetParams {
+                weights: "new.safetensors".into(),
+                wall_redraws: 0,
+            })
+        );
+        // The model's name alone keeps the file's weights too.
+        s.apply_model_flag("ConvNet").unwrap();
+        assert_eq!(
+            s.fish,
+            ModelSpec::ConvNet(ConvNetParams {
+                weights: "new.safetensors".into(),
+                wall_redraws: 0,
+            })
+        );
+    }
+
+    #[test]
+    fn a_network_flag_keeps_the_files_other_onnx_parameters() {
+        let mut s = with_fish(ModelSpec::Onnx(OnnxParams {
+            path: "old.onnx".into(),
+            sha256: "ab".repeat(32),
+            wall_redraws: 3,
+        }));
+        s.apply_model_flag("onnx:no-such-file.onnx").unwrap();
+        // The hash is the new file's (none here: the file does not exist, and loading it
+        // later says so), never the old file's, which would refuse the new one.
+        assert_eq!(
+            s.fish,
+            ModelSpec::Onnx(OnnxParams {
+                path: "no-such-file.onnx".into(),
+                sha256: String::new(),
+                wall_redraws: 3,
+            })
+        );
+    }
+
+    #[test]
+    fn another_model_replaces_the_fish_and_the_same_one_keeps_it() {
+        let zone = ModelSpec::Zone(ZoneParams {
+            wall_attraction_strength: 1.0,
+            ..ZoneParams::default()
+        });
+        let mut s = with_fish(zone.clone());
+        s.apply_model_flag("zone").unwrap();
+        assert_eq!(s.fish, zone);
+        s.apply_model_flag("convnet:w.safetensors").unwrap();
+        assert_eq!(s.fish, ModelSpec::by_name("convnet:w.safetensors").unwrap());
+        assert!(s.apply_model_flag("Zonk").is_err());
     }
 }
