@@ -69,6 +69,7 @@ pub use sandbox::Sandbox;
 pub use script::{RobotScript, ScriptParams};
 pub use support::InputSupport;
 pub use task::{
-    GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, TaskMode, TaskParams, TrainingStart,
+    GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, TaskMode, TaskParams, TrainingGoals,
+    TrainingStart,
 };
 pub use vector::{AutoresetMode, VecEnv};

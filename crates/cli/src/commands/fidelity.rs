@@ -196,6 +196,14 @@ const READINGS: &[Reading] = &[
         ppo: || json!({"vf_clip_param": 1.0e9}),
     },
     Reading {
+        name: "evaluation-goals",
+        what: "training goals are the evaluation's two corner goals, alternating, not random ones (not in the paper)",
+        models: &[],
+        env: || json!({"task": {"training_goals": "evaluation"}}),
+        model: none,
+        ppo: none,
+    },
+    Reading {
         name: "progress-shaping",
         what: "training rewards the fish's progress toward the goal too (potential-based shaping, weight 1; not in the paper)",
         models: &[],
