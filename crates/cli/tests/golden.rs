@@ -53,8 +53,11 @@ use std::path::{Path, PathBuf};
 /// `task.progress_shaping_gamma` joined the recorded settings (issue 20's fidelity sweep;
 /// inert at their default: the report's digest, over every figure, stayed ccd1f03b…).
 /// Then 09ddfedb… until M_Zone lost SPEC's wall pull by default (issue 20: every trial with an
-/// M_Zone fish or π_Zone changed, and so results.json).
-const GOLDEN: &str = "8b2a1083af946902";
+/// M_Zone fish or π_Zone changed, and so results.json). Then 8b2a1083… until
+/// `task.training_goals` joined the recorded settings (issue 20's reading `evaluation-goals`;
+/// inert at its default, which draws as before: the report's digest, over every figure,
+/// stayed dd4c923b…).
+const GOLDEN: &str = "6e425b0286f29d64";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
