@@ -376,9 +376,17 @@ impl ConvNet {
     /// Loads a weights file written by `fishprobe fit-convnet`.
     pub fn load(path: &Path) -> Result<Self, WeightsError> {
         let name = path.display().to_string();
-        let (t, meta) = fishprobe_nn::store::load(path).map_err(|e| WeightsError {
-            source_name: name.clone(),
-            what: e.to_string(),
+        let (t, meta) = fishprobe_nn::store::load(path).map_err(|e| {
+            // The store's error names the file it could not read (the weights or their
+            // sidecar); the weights' own name is said once, by `source_name`.
+            let what = e.to_string();
+            let what = what
+                .strip_prefix(&format!("{name}: "))
+                .map_or(what.clone(), str::to_string);
+            WeightsError {
+                source_name: name.clone(),
+                what,
+            }
         })?;
         Self::from_parts(&t, &meta, &name)
     }
@@ -905,5 +913,26 @@ mod tests {
         assert!(e.contains("x.safetensors") && e.contains("conv"), "{e}");
         let e = ConvNet::from_parts(&net.to_tensors(), &serde_json::json!({}), "y").unwrap_err();
         assert!(e.to_string().contains("arch"), "{e}");
+    }
+
+    #[test]
+    fn a_missing_weights_file_is_named_once_and_a_missing_sidecar_by_its_own_name() {
+        let dir =
+            std::env::temp_dir().join(format!("fishprobe-convnet-load-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("none.safetensors");
+        let e = ConvNet::load(&path).unwrap_err().to_string();
+        let name = path.display().to_string();
+        assert_eq!(e.matches(name.as_str()).count(), 1, "{e}");
+        // Weights without their sidecar: the sidecar's path says which file is missing.
+        let net = ConvNet::shipped().unwrap();
+        std::fs::write(
+            &path,
+            fishprobe_nn::store::to_bytes(&net.to_tensors()).unwrap(),
+        )
+        .unwrap();
+        let e = ConvNet::load(&path).unwrap_err().to_string();
+        assert!(e.contains(&format!("{name}.json")), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
