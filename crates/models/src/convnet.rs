@@ -382,7 +382,8 @@ impl ConvNet {
             let what = e.to_string();
             let what = what
                 .strip_prefix(&format!("{name}: "))
-                .map_or(what.clone(), str::to_string);
+                .map(str::to_string)
+                .unwrap_or(what);
             WeightsError {
                 source_name: name.clone(),
                 what,

@@ -72,39 +72,37 @@ impl SimSettings {
     /// (`wall_redraws`), with a note when the file named other weights. A flag naming another
     /// model replaces the fish, with a note when that drops parameters the file set.
     pub fn apply_model_flag(&mut self, flag: &str) -> Result<()> {
-        let named = ModelSpec::by_name(flag)?;
-        if named.name() == self.fish.name() {
-            if !flag.contains(':') {
-                // A built-in model by its name: the file's parameters stand.
-                return Ok(());
+        let by_file = flag.contains(':');
+        match (&mut self.fish, ModelSpec::by_name(flag)?) {
+            // A built-in model by its name: the file's parameters stand.
+            (fish, named) if !by_file && fish.name() == named.name() => {}
+            (ModelSpec::ConvNet(p), ModelSpec::ConvNet(n)) => {
+                swap_file(&mut p.weights, n.weights, flag)
             }
-            let (old, new) = match (&mut self.fish, named) {
-                (ModelSpec::ConvNet(p), ModelSpec::ConvNet(n)) => (
-                    std::mem::replace(&mut p.weights, n.weights.clone()),
-                    n.weights,
-                ),
-                (ModelSpec::Onnx(p), ModelSpec::Onnx(n)) => {
-                    p.sha256 = n.sha256;
-                    (std::mem::replace(&mut p.path, n.path.clone()), n.path)
-                }
-                (_, named) => {
-                    self.fish = named;
-                    return Ok(());
-                }
-            };
-            if !old.is_empty() && old != new {
-                say!("note: --model {flag} replaces the settings file's {old}; its other parameters stand");
+            (ModelSpec::Onnx(p), ModelSpec::Onnx(n)) => {
+                p.sha256 = n.sha256;
+                swap_file(&mut p.path, n.path, flag)
             }
-            return Ok(());
+            (fish, named) => {
+                if *fish != default_fish() && *fish != named {
+                    say!(
+                        "note: --model {flag} replaces the settings file's fish ({}) and the parameters it sets",
+                        fish.name()
+                    );
+                }
+                *fish = named;
+            }
         }
-        if self.fish != default_fish() && self.fish != named {
-            say!(
-                "note: --model {flag} replaces the settings file's fish ({}) and the parameters it sets",
-                self.fish.name()
-            );
-        }
-        self.fish = named;
         Ok(())
+    }
+}
+
+/// Puts the file of a `--model convnet:PATH` / `onnx:PATH` flag in place of the one a settings
+/// file named, saying so when it named another.
+fn swap_file(slot: &mut String, new: String, flag: &str) {
+    let old = std::mem::replace(slot, new);
+    if !old.is_empty() && old != *slot {
+        say!("note: --model {flag} replaces the settings file's {old}; its other parameters stand");
     }
 }
 
