@@ -385,4 +385,57 @@ fn the_approach_assay_of_one_policy() {
         "0",
     ]);
     assert!(!o.status.success() && stderr(&o).contains("--episodes"));
+    // A scripted robot has no Gaussian to sample.
+    let o = fishprobe(&[
+        "assay",
+        "approach",
+        "--policy",
+        "scripted:goal-seeker",
+        "--stochastic",
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("--stochastic"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// `--stochastic` runs the assay with the policy's sampled actions (RLlib's default when a
+/// policy is deployed): other paths than its mean action's, and the JSON says which.
+#[test]
+fn the_approach_assay_samples_a_policy_on_request() {
+    let dir = fresh_dir("assay-stochastic");
+    let pol = dir.join("pol");
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        "Zone",
+        "--preset",
+        "smoke",
+        "--steps",
+        "2048",
+        "--out",
+        pol.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let assay = |extra: &[&str]| {
+        let args = [
+            &["assay", "approach", "--policy", pol.to_str().unwrap()][..],
+            &["--episodes", "2", "--minutes", "0.2", "--json"],
+            extra,
+        ]
+        .concat();
+        let o = fishprobe(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_str::<serde_json::Value>(&stdout(&o)).unwrap()
+    };
+    let (mean, sampled) = (assay(&[]), assay(&["--stochastic"]));
+    assert_eq!(mean["stochastic"], false);
+    assert_eq!(sampled["stochastic"], true);
+    assert_ne!(
+        mean["mean_distance_cm"], sampled["mean_distance_cm"],
+        "{mean} {sampled}"
+    );
+    // The same seed samples the same actions.
+    assert_eq!(sampled, assay(&["--stochastic"]));
 }

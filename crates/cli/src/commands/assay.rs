@@ -1,7 +1,7 @@
 //! `fishprobe assay approach`: the approach assay of SPEC §8 for one policy, so a single
 //! policy's strategy can be checked without a study (issue 20): does it go to the fish first?
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::{Args, Subcommand};
 use fishprobe_analysis::approach::assay_files;
 use fishprobe_analysis::seeds::goes_to_fish;
@@ -43,6 +43,10 @@ struct ApproachArgs {
     /// Keep the episodes' trial files here (default: a temporary directory, removed after).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Sample the policy's actions instead of taking its mean (RLlib's default when a policy
+    /// is deployed with `compute_single_action`; a policy directory only).
+    #[arg(long)]
+    stochastic: bool,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
@@ -62,8 +66,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
         Some(p) => super::analysis_settings(&AnalysisConfig::default(), p)?,
         None => AnalysisConfig::default(),
     };
-    let c = fishprobe_learn::controller(&a.policy, false)
-        .with_context(|| format!("loading --policy {}", a.policy))?;
+    let c = super::policy_controller(&a.policy, a.stochastic)?;
     // The still fish is observed as the policy was trained to observe: with the group's
     // centroid bins (issue 22) when it takes those, as a study's approach step does.
     let mut obs = fishprobe_sim::ObservationParams::default();
@@ -98,6 +101,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
             "episodes": r.episodes,
             "minutes": a.minutes,
             "seed": a.seed,
+            "stochastic": a.stochastic,
             "closest_cm": r.min_iid,
             "mean_distance_cm": r.mean_iid,
             "fraction_nearer_fish_than_goal": r.frac_closer_to_fish,
@@ -109,8 +113,9 @@ pub fn run(a: AssayArgs) -> Result<()> {
         }))? + "\n"
     } else {
         format!(
-            "approach assay of {}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episode{} of {} min, seed {})\n{} (the paper's pattern: closest at most {} cm and nearer the fish in at least {:.0} % of frames)\n",
+            "approach assay of {}{}: closest {:.1} cm, mean {:.1} cm from the fish; nearer the fish than the goal in {:.1} % of frames ({} episode{} of {} min, seed {})\n{} (the paper's pattern: closest at most {} cm and nearer the fish in at least {:.0} % of frames)\n",
             c.describe(),
+            if a.stochastic { " (sampled actions)" } else { "" },
             r.min_iid,
             r.mean_iid,
             100.0 * r.frac_closer_to_fish,

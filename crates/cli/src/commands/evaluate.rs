@@ -1,10 +1,10 @@
 //! `fishprobe evaluate`: a trained policy (or the scripted baseline) on the 15-minute
 //! evaluation task, one trial file per episode.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::Args;
 use fishprobe_learn::evaluate::MAX_EPISODES;
-use fishprobe_learn::{controller, evaluate, goals_mean_sd, Evaluation};
+use fishprobe_learn::{evaluate, goals_mean_sd, Evaluation};
 use std::path::PathBuf;
 
 use super::config::SimSettings;
@@ -59,14 +59,7 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         None => SimSettings::default(),
     };
     settings.apply_model_flag(&a.model)?;
-    if a.stochastic && !std::path::Path::new(&a.policy).is_dir() {
-        bail!(
-            "--stochastic samples from a policy directory's Gaussian; `{}` gives one action per observation",
-            a.policy
-        );
-    }
-    let c = controller(&a.policy, a.stochastic)
-        .with_context(|| format!("loading --policy {}", a.policy))?;
+    let c = super::policy_controller(&a.policy, a.stochastic)?;
     let e = Evaluation {
         model: settings.fish,
         env: settings.env,

@@ -195,6 +195,22 @@ pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The controller of a `--policy` argument, sampling its actions with `stochastic`
+/// (`--stochastic`; only a policy directory has a Gaussian to sample).
+pub fn policy_controller(
+    policy: &str,
+    stochastic: bool,
+) -> anyhow::Result<Box<dyn fishprobe_sim::Controller>> {
+    if stochastic && !std::path::Path::new(policy).is_dir() {
+        anyhow::bail!(
+            "--stochastic samples from a policy directory's Gaussian; `{policy}` gives one action per observation"
+        );
+    }
+    use anyhow::Context;
+    fishprobe_learn::controller(policy, stochastic)
+        .with_context(|| format!("loading --policy {policy}"))
+}
+
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
