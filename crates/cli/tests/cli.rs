@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir, stderr, stdout};
+use common::{fishprobe, fresh_dir, stderr, stdout, train_smoke};
 use std::path::PathBuf;
 
 fn temp_file(name: &str, text: &str) -> PathBuf {
@@ -406,18 +406,7 @@ fn the_approach_assay_of_one_policy() {
 fn the_approach_assay_samples_a_policy_on_request() {
     let dir = fresh_dir("assay-stochastic");
     let pol = dir.join("pol");
-    let o = fishprobe(&[
-        "train",
-        "--model",
-        "Zone",
-        "--preset",
-        "smoke",
-        "--steps",
-        "2048",
-        "--out",
-        pol.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    train_smoke("Zone", &pol, &["--steps", "2048"]);
     let assay = |extra: &[&str]| {
         let args = [
             &["assay", "approach", "--policy", pol.to_str().unwrap()][..],

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir as dir, stderr, stdout};
+use common::{fishprobe, fresh_dir as dir, stderr, stdout, train_smoke};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -283,18 +283,7 @@ fn convnet_can_be_refitted_for_the_study() {
 fn a_study_evaluates_a_policy_trained_elsewhere_without_training_it() {
     let base = dir("run-external");
     let p = base.join("trained_elsewhere");
-    let o = fishprobe(&[
-        "train",
-        "--model",
-        "Zone",
-        "--preset",
-        "smoke",
-        "--seed",
-        "9",
-        "--out",
-        p.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    train_smoke("Zone", &p, &["--seed", "9"]);
     let onnx = base.join("zone.onnx");
     let o = fishprobe(&[
         "export",

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir, stderr, stdout};
+use common::{fishprobe, fresh_dir, stderr, stdout, train_smoke};
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -108,17 +108,7 @@ fn a_killed_run_resumes_to_the_same_result() {
 fn evaluate_export_and_simulate_a_trained_policy() {
     let d = fresh_dir("eval");
     let run = d.join("run");
-    assert!(fishprobe(&[
-        "train",
-        "--model",
-        "Follow",
-        "--preset",
-        "smoke",
-        "--out",
-        run.to_str().unwrap()
-    ])
-    .status
-    .success());
+    train_smoke("Follow", &run, &[]);
     let ev = d.join("ev");
     let o = fishprobe(&[
         "evaluate",

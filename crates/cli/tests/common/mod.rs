@@ -2,7 +2,7 @@
 
 #![allow(dead_code)] // each test file uses a subset
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// Runs the `fishprobe` binary.
@@ -29,4 +29,17 @@ pub fn fresh_dir(tag: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).expect("the temp dir is writable");
     d
+}
+
+/// Trains a `smoke`-preset policy of `model` into `out` (`extra`: more `train` arguments) and
+/// checks that the run succeeded.
+pub fn train_smoke(model: &str, out: &Path, extra: &[&str]) {
+    let out = out.to_str().expect("a UTF-8 temp path");
+    let args = [
+        &["train", "--model", model, "--preset", "smoke", "--out", out][..],
+        extra,
+    ]
+    .concat();
+    let o = fishprobe(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
 }
