@@ -90,6 +90,14 @@ def test_policy_acts_on_batches_like_the_cli_policy(smoke_policy, tmp_path, cli)
     cli("export", "--policy", smoke_policy, "--onnx", onnx)
     q = fishprobe.Policy(f"onnx:{onnx}")
     np.testing.assert_allclose(q.act(obs), a, atol=1e-5)
+    # An ONNX file exports the mean: there is no Gaussian to sample, and asking is an error,
+    # not a silent mean.
+    with pytest.raises(ValueError, match="Gaussian"):
+        fishprobe.Policy(f"onnx:{onnx}", stochastic=True)
+    # A directory samples: same seed, same actions; another seed, others.
+    s0, s0b, s1 = (fishprobe.Policy(smoke_policy, stochastic=True, seed=k) for k in (0, 0, 1))
+    np.testing.assert_array_equal(s0.act(obs), s0b.act(obs))
+    assert not np.array_equal(s0.act(obs), s1.act(obs))
 
 
 def test_policy_errors(tmp_path, smoke_policy):

@@ -83,10 +83,19 @@ impl Controller for PolicyController {
 }
 
 /// A controller from a `--policy` argument: a policy directory (`fishprobe train`'s output),
-/// `onnx:PATH` (an ONNX file of the policy contract, `docs/onnx-models.md`; always its
-/// deterministic output, so `stochastic` does not apply), or a scripted baseline
-/// (`scripted:goal-seeker`, `scripted:fetch-and-lead`).
+/// `onnx:PATH` (an ONNX file of the policy contract, `docs/onnx-models.md`; its one
+/// deterministic output), or a scripted baseline (`scripted:goal-seeker`,
+/// `scripted:fetch-and-lead`). `stochastic` samples a policy directory's Gaussian instead of
+/// taking its mean; for an ONNX file or a scripted controller, which give one action per
+/// observation, it is refused rather than silently ignored.
 pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, LearnError> {
+    if stochastic && (arg.starts_with("scripted:") || arg.starts_with("onnx:")) {
+        return Err(LearnError::Policy(format!(
+            "stochastic actions sample a policy directory's Gaussian; `{arg}` gives one \
+             action per observation (an ONNX file exports the mean: export the directory's \
+             policy, or run it without sampling)"
+        )));
+    }
     if let Some(name) = arg.strip_prefix("scripted:") {
         return fishprobe_sim::scripted(name).ok_or_else(|| {
             LearnError::Policy(format!(
@@ -141,5 +150,30 @@ impl Controller for Named {
 
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
         self.inner.act(input, rng)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Sampling is refused, before any file is read, for the controllers that give one action
+    /// per observation: the CLI and the Python `Policy` share this refusal.
+    #[test]
+    fn stochastic_is_refused_where_there_is_nothing_to_sample() {
+        for arg in ["scripted:goal-seeker", "onnx:/nonexistent/policy.onnx"] {
+            let e = controller(arg, true).err().expect("refused");
+            let msg = e.to_string();
+            assert!(
+                matches!(e, LearnError::Policy(_)) && msg.contains(arg) && msg.contains("Gaussian"),
+                "{msg}"
+            );
+        }
+        assert!(controller("scripted:goal-seeker", false).is_ok());
+        // Without sampling, the ONNX path is read (and here found missing).
+        assert!(!matches!(
+            controller("onnx:/nonexistent/policy.onnx", false),
+            Err(LearnError::Policy(_)) | Ok(_)
+        ));
     }
 }

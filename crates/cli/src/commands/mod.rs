@@ -201,14 +201,10 @@ pub fn policy_controller(
     policy: &str,
     stochastic: bool,
 ) -> anyhow::Result<Box<dyn fishprobe_sim::Controller>> {
-    if stochastic && !std::path::Path::new(policy).is_dir() {
-        anyhow::bail!(
-            "--stochastic samples from a policy directory's Gaussian; `{policy}` gives one action per observation"
-        );
-    }
     use anyhow::Context;
+    let flag = if stochastic { " --stochastic" } else { "" };
     fishprobe_learn::controller(policy, stochastic)
-        .with_context(|| format!("loading --policy {policy}"))
+        .with_context(|| format!("loading --policy {policy}{flag}"))
 }
 
 /// Runs the parsed command.
