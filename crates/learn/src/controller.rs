@@ -92,8 +92,8 @@ pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, Le
     if stochastic && (arg.starts_with("scripted:") || arg.starts_with("onnx:")) {
         return Err(LearnError::Policy(format!(
             "stochastic actions sample a policy directory's Gaussian; `{arg}` gives one \
-             action per observation (an ONNX file exports the mean: export the directory's \
-             policy, or run it without sampling)"
+             action per observation (an ONNX file holds only the mean action: sample from the \
+             policy directory it was exported from, or run it without sampling)"
         )));
     }
     if let Some(name) = arg.strip_prefix("scripted:") {
