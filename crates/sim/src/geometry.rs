@@ -8,6 +8,8 @@ crate::documented_params! {
     /// The tank (SPEC §2).
     pub struct TankParams {
         /// Half the side of the square tank: walls at x, y = ±half_size_cm (paper: 100 x 100 cm).
+        /// At most [`MAX_HALF_SIZE_CM`] (a 100 m tank): farther from the centre an `f32`
+        /// position no longer resolves a fish's step, and the fish would silently stand still.
         pub half_size_cm: f32 = 50.0; "cm",
         /// Agents are kept this far inside the walls; a step that would cross the line is clipped
         /// onto it and counted as a wall contact (SPEC choice).
@@ -15,10 +17,22 @@ crate::documented_params! {
     }
 }
 
+/// The largest `half_size_cm` accepted (choice): at 5,000 cm an `f32` position resolves about
+/// 0.5 mm, a tenth of a slow fish's step at 25 Hz; a tank of 1e30 cm would freeze every agent
+/// in place without an error.
+pub const MAX_HALF_SIZE_CM: f32 = 5_000.0;
+
 impl TankParams {
     /// Checks the ranges; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
         check::positive(prefix, "half_size_cm", self.half_size_cm)?;
+        check::within(
+            prefix,
+            "half_size_cm",
+            self.half_size_cm,
+            0.0,
+            MAX_HALF_SIZE_CM,
+        )?;
         check::within(
             prefix,
             "wall_margin_cm",
@@ -158,6 +172,23 @@ impl Tank {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tank_too_large_for_f32_positions_is_refused() {
+        let ok = TankParams {
+            half_size_cm: MAX_HALF_SIZE_CM,
+            ..TankParams::default()
+        };
+        assert!(ok.validate("tank").is_ok());
+        let e = TankParams {
+            half_size_cm: 1e30,
+            ..TankParams::default()
+        }
+        .validate("tank")
+        .unwrap_err();
+        assert_eq!(e.field, "tank.half_size_cm");
+        assert!(e.to_string().contains("5000"), "{e}");
+    }
 
     #[test]
     fn wrap_is_half_open() {
