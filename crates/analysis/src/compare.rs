@@ -574,6 +574,7 @@ mod tests {
             time_to_goal_s: None,
             goals_per_minute: Vec::new(),
             metrics: None,
+            time_to_reach_s: None,
             fish,
             untracked_fish_frames: untracked,
         }

@@ -23,6 +23,28 @@ pub(crate) fn mean_goals(files: &[PathBuf], loaded: &Loaded) -> Option<(f64, usi
     (!goals.is_empty()).then(|| (goals.iter().sum::<f64>() / goals.len() as f64, goals.len()))
 }
 
+/// Median seconds to reach the fish over the valid trials of `files` (a trial that never
+/// reached it counts as later than any that did); `None` without trials or when the median
+/// trial never reached it.
+pub(crate) fn median_reach(files: &[PathBuf], loaded: &Loaded) -> Option<f64> {
+    let mut t: Vec<f64> = files
+        .iter()
+        .filter_map(|f| loaded.get(f)?.as_ref().ok())
+        .map(|t| t.time_to_reach_s.unwrap_or(f64::INFINITY))
+        .collect();
+    if t.is_empty() {
+        return None;
+    }
+    t.sort_by(f64::total_cmp);
+    let n = t.len();
+    let m = if n % 2 == 1 {
+        t[n / 2]
+    } else {
+        0.5 * (t[n / 2 - 1] + t[n / 2])
+    };
+    m.is_finite().then_some(m)
+}
+
 /// One policy's competence from its mean goals and its baselines' (controller → mean goals).
 pub fn competence_of(
     policy_goals: f64,
@@ -47,6 +69,8 @@ pub fn competence_of(
         best_goals,
         ratio,
         weak: ratio < threshold,
+        reach_s: None,
+        baselines_reach_s: BTreeMap::new(),
     })
 }
 
@@ -71,10 +95,14 @@ pub(crate) fn competence(
             continue;
         };
         let mut baselines = BTreeMap::new();
+        let mut baselines_reach_s = BTreeMap::new();
         for (c, files) in by {
             match mean_goals(files, loaded) {
                 Some((g, _)) => {
                     baselines.insert(c.clone(), g);
+                    if let Some(t) = median_reach(files, loaded) {
+                        baselines_reach_s.insert(c.clone(), t);
+                    }
                 }
                 None => skipped.push(Skipped {
                     what: format!("baselines/{p}/{c}"),
@@ -82,7 +110,12 @@ pub(crate) fn competence(
                 }),
             }
         }
-        if let Some(c) = competence_of(goals, trials, baselines, cfg.competence_threshold) {
+        if let Some(mut c) = competence_of(goals, trials, baselines, cfg.competence_threshold) {
+            c.reach_s = study
+                .rollouts
+                .get(&(p.clone(), p.clone()))
+                .and_then(|f| median_reach(f, loaded));
+            c.baselines_reach_s = baselines_reach_s;
             res.competence.insert(p.clone(), c);
         }
     }
@@ -109,5 +142,49 @@ mod tests {
             competence_of(3.0, 18, BTreeMap::from([("GoalSeeker".into(), 0.0)]), 0.8).unwrap();
         assert!(zero.ratio.is_nan() && !zero.weak);
         assert!(competence_of(3.0, 18, BTreeMap::new(), 0.8).is_none());
+    }
+
+    #[test]
+    fn the_median_time_to_reach_counts_never_as_latest() {
+        use crate::trial::TrialData;
+        let trial = |t: Option<f64>| TrialData {
+            path: PathBuf::new(),
+            kind: None,
+            policy: None,
+            goals_reached: 0,
+            time_to_goal_s: None,
+            goals_per_minute: Vec::new(),
+            metrics: None,
+            time_to_reach_s: t,
+            fish: 1,
+            untracked_fish_frames: 0,
+        };
+        let load = |times: &[Option<f64>]| -> (Vec<PathBuf>, Loaded) {
+            let files: Vec<PathBuf> = (0..times.len())
+                .map(|i| PathBuf::from(format!("t{i}.hdf5")))
+                .collect();
+            let mut loaded: Loaded = times
+                .iter()
+                .zip(&files)
+                .map(|(t, f)| (f.clone(), Ok(trial(*t))))
+                .collect();
+            // An unreadable trial does not count.
+            loaded.insert("bad.hdf5".into(), Err("corrupt".into()));
+            let mut files = files;
+            files.push("bad.hdf5".into());
+            (files, loaded)
+        };
+        let (f, l) = load(&[Some(9.0), None, Some(1.0)]);
+        assert_eq!(median_reach(&f, &l), Some(9.0));
+        let (f, l) = load(&[Some(4.0), Some(2.0), None, Some(8.0)]);
+        assert_eq!(median_reach(&f, &l), Some(6.0));
+        let (f, l) = load(&[Some(4.0), None, None]);
+        assert_eq!(
+            median_reach(&f, &l),
+            None,
+            "the median trial never reached the fish"
+        );
+        let (f, l) = load(&[]);
+        assert_eq!(median_reach(&f, &l), None);
     }
 }

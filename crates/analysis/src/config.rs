@@ -43,8 +43,9 @@ fishprobe_sim::documented_params! {
         /// ... and is nearer the fish than the goal in at least this fraction of the frames
         /// (choice, issue 20: 0.1; the paper's π_Zone 22.3 %, π_Force 56.1 %, π_ConvNet 4.6 %).
         pub approach_nearer_share: f64 = 0.1; "1",
-        /// Groups: a fish this close to the robot counts as within its reach for the group
-        /// metric `fish_near_robot` (choice: 15 cm, M_Force's interaction range and near
+        /// A fish this close to the robot counts as within its reach: for the group metric
+        /// `fish_near_robot`, and for the time a probe takes to reach its fish (probe
+        /// competence, `time_to_reach_s`) (choice: 15 cm, M_Force's interaction range and near
         /// M_Zone's outer attraction radius of 18 cm).
         pub robot_reach_cm: f32 = 15.0; "cm",
     }

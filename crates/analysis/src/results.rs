@@ -200,6 +200,17 @@ pub struct Competence {
     pub ratio: f64,
     /// Below `AnalysisConfig::competence_threshold`: a weak probe.
     pub weak: bool,
+    /// Median seconds the policy took to reach its fish (within
+    /// `AnalysisConfig::robot_reach_cm`) in those episodes; `None` without trials or when the
+    /// median episode never reached it (results of versions before this measure too).
+    #[serde(default)]
+    pub reach_s: Option<f64>,
+    /// The same median for each scripted controller on the same episodes (those with one). A
+    /// probe that reaches its fish no sooner than the goal-seeker waits for it at the goal; one
+    /// near fetch-and-lead's fetches it. The goal count alone hides the difference when the
+    /// probe holds the fish once it has it.
+    #[serde(default)]
+    pub baselines_reach_s: BTreeMap<String, f64>,
 }
 
 /// The approach assay of one policy.
@@ -232,6 +243,9 @@ pub struct SeedProbe {
     /// Stability episodes behind `goals`.
     #[serde(default)]
     pub episodes: usize,
+    /// Median seconds to reach its fish in those episodes ([`Competence::reach_s`]).
+    #[serde(default)]
+    pub reach_s: Option<f64>,
     /// `goals` over the best scripted controller's mean goals on the model's evaluation
     /// episodes (the same kind of episode, not the same ones; NaN without baselines).
     #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
@@ -365,6 +379,7 @@ impl Results {
                 .iter()
                 .flat_map(|(p, c)| {
                     c.baselines.iter().map(move |(b, g)| {
+                        let reach = |t: Option<&f64>| t.map_or(String::new(), f64::to_string);
                         vec![
                             p.clone(),
                             c.policy_goals.to_string(),
@@ -373,6 +388,8 @@ impl Results {
                             (c.policy_goals / g).to_string(),
                             (b == &c.best).to_string(),
                             c.weak.to_string(),
+                            reach(c.reach_s.as_ref()),
+                            reach(c.baselines_reach_s.get(b)),
                         ]
                     })
                 })
@@ -388,6 +405,8 @@ impl Results {
                         "ratio",
                         "best",
                         "weak",
+                        "policy_reach_s",
+                        "baseline_reach_s",
                     ],
                     rows,
                 ),
@@ -670,17 +689,35 @@ impl Results {
             s.push('\n');
         }
         if !self.competence.is_empty() {
-            s += "## Probe competence: goals on the own model, next to the best scripted controller\n\n| policy | goals | best scripted | its goals | ratio |\n|---|---|---|---|---|\n";
+            s += "## Probe competence: goals on the own model, next to the best scripted controller\n\n| policy | goals | best scripted | its goals | ratio | reaches its fish (median s) | scripted controllers reach it (median s) |\n|---|---|---|---|---|---|---|\n";
             for (p, c) in &self.competence {
+                let scripted: Vec<String> = c
+                    .baselines_reach_s
+                    .iter()
+                    .map(|(b, t)| format!("{b} {t:.1}"))
+                    .collect();
                 s += &format!(
-                    "| {p} | {:.1} | {} | {:.1} | {:.2}{} |\n",
+                    "| {p} | {:.1} | {} | {:.1} | {:.2}{} | {} | {} |\n",
                     c.policy_goals,
                     c.best,
                     c.best_goals,
                     c.ratio,
-                    if c.weak { " **weak**" } else { "" }
+                    if c.weak { " **weak**" } else { "" },
+                    c.reach_s.map_or("–".into(), |t| format!("{t:.1}")),
+                    if scripted.is_empty() {
+                        "–".into()
+                    } else {
+                        scripted.join(", ")
+                    },
                 );
             }
+            s += &format!(
+                "\nReaching the fish: the first moment a fish is within {} cm of the robot. A probe \
+                 that takes as long as GoalSeeker waits at the goal for its fish to come by; one \
+                 near FetchAndLead fetches it. The goal count hides the difference when the probe \
+                 holds the fish once it has it.\n",
+                self.config.robot_reach_cm
+            );
             let weak: Vec<&str> = self
                 .competence
                 .iter()

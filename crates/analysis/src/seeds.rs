@@ -16,7 +16,7 @@
 //! ```
 
 use crate::approach::assay_files;
-use crate::competence::{mean_goals, Loaded};
+use crate::competence::{mean_goals, median_reach, Loaded};
 use crate::config::AnalysisConfig;
 use crate::results::{f, table, Approach, Results, SeedProbe, Skipped};
 use crate::study::StudyFiles;
@@ -71,6 +71,9 @@ pub(crate) fn seeds(
                     .get(name)
                     .and_then(|files| mean_goals(files, loaded))
                     .unwrap_or((f64::NAN, 0));
+                let reach_s = stability
+                    .get(name)
+                    .and_then(|files| median_reach(files, loaded));
                 let assay = match (name.as_str(), approach.get(name)) {
                     ("seed0", None) => res.approach.get(p).cloned(),
                     (_, Some(files)) => assay_files(files, cfg)
@@ -87,6 +90,7 @@ pub(crate) fn seeds(
                     seed: name.clone(),
                     goals,
                     episodes,
+                    reach_s,
                     ratio: if best > 0.0 { goals / best } else { f64::NAN },
                     goes_to_fish: assay.as_ref().is_some_and(|a| goes_to_fish(a, cfg)),
                     approach: assay,
@@ -110,6 +114,7 @@ pub fn csv(seeds: &BTreeMap<String, Vec<SeedProbe>>) -> String {
                     f(s.goals),
                     s.episodes.to_string(),
                     f(s.ratio),
+                    s.reach_s.map_or(String::new(), f),
                     a.map_or(String::new(), |a| f(a.min_iid)),
                     a.map_or(String::new(), |a| f(a.mean_iid)),
                     a.map_or(String::new(), |a| f(a.frac_closer_to_fish)),
@@ -125,6 +130,7 @@ pub fn csv(seeds: &BTreeMap<String, Vec<SeedProbe>>) -> String {
             "goals",
             "episodes",
             "ratio_to_best_scripted",
+            "reach_s",
             "min_iid_cm",
             "mean_iid_cm",
             "frac_closer_to_fish",
@@ -143,7 +149,7 @@ pub fn approach_count(rows: &[SeedProbe]) -> (usize, usize) {
 /// The summary's section: a table of every seed and, per policy, how many go to the fish.
 pub fn summary_markdown(seeds: &BTreeMap<String, Vec<SeedProbe>>, cfg: &AnalysisConfig) -> String {
     let mut s = String::from(
-        "## Every training seed: competence and the approach assay\n\n| policy | seed | goals (stability) | ratio to best scripted | closest (cm) | nearer the fish | goes to the fish |\n|---|---|---|---|---|---|---|\n",
+        "## Every training seed: competence and the approach assay\n\n| policy | seed | goals (stability) | ratio to best scripted | reaches its fish (median s) | closest (cm) | nearer the fish | goes to the fish |\n|---|---|---|---|---|---|---|---|\n",
     );
     let num = |x: f64, d: usize| {
         if x.is_finite() {
@@ -156,10 +162,11 @@ pub fn summary_markdown(seeds: &BTreeMap<String, Vec<SeedProbe>>, cfg: &Analysis
         for r in rows {
             let a = r.approach.as_ref();
             s += &format!(
-                "| {p} | {} | {} | {} | {} | {} | {} |\n",
+                "| {p} | {} | {} | {} | {} | {} | {} | {} |\n",
                 r.seed,
                 num(r.goals, 1),
                 num(r.ratio, 2),
+                num(r.reach_s.unwrap_or(f64::NAN), 1),
                 a.map_or("–".into(), |a| num(a.min_iid, 1)),
                 a.map_or("–".into(), |a| format!(
                     "{} %",
@@ -235,6 +242,8 @@ mod tests {
                 best_goals: 80.0,
                 ratio: 0.875,
                 weak: false,
+                reach_s: None,
+                baselines_reach_s: BTreeMap::new(),
             },
         );
         // Stability seeds with no readable trial files: goals unknown, but the seeds are
@@ -264,10 +273,10 @@ mod tests {
             .lines()
             .nth(1)
             .unwrap()
-            .starts_with("Zone,seed0,,0,,47.7,40,0,false"));
+            .starts_with("Zone,seed0,,0,,,47.7,40,0,false"));
         let md = summary_markdown(&res.seeds, &cfg);
         assert!(
-            md.contains("| Zone | seed0 | – | – | 47.7 | 0.0 % | no |"),
+            md.contains("| Zone | seed0 | – | – | – | 47.7 | 0.0 % | no |"),
             "{md}"
         );
         assert!(md.contains("Zone in 0 of 1"), "{md}");

@@ -82,6 +82,11 @@ pub struct TrialData {
     /// [`METRICS`] (pooled over the fish of a group), then for a group the six of
     /// [`GROUP_METRICS`] ([`ALL_METRICS`] names them all).
     pub metrics: Option<Vec<Vec<f64>>>,
+    /// Seconds of control until a fish first came within `AnalysisConfig::robot_reach_cm` of
+    /// the robot (0 when one starts there); `None` when none ever did. How fast a probe gets to
+    /// its fish: a policy that waits at the goal for the fish to come by reaches it no sooner
+    /// than the scripted goal-seeker, one that fetches it as soon as fetch-and-lead.
+    pub time_to_reach_s: Option<f64>,
     /// Fish in the trial.
     pub fish: usize,
     /// In a group trial, fish-frames of control in which a fish was untracked (left out of
@@ -208,6 +213,17 @@ pub fn load_trial(
     } else {
         0
     };
+    let reach2 = f64::from(cfg.robot_reach_cm).powi(2);
+    let time_to_reach_s = (control_start..frames)
+        .find(|&i| {
+            let r = robot.positions[i];
+            fish.iter().any(|f| {
+                let p = f.positions[i];
+                let d2 = f64::from(p[0] - r[0]).powi(2) + f64::from(p[1] - r[1]).powi(2);
+                d2 <= reach2 // NaN (untracked) compares false
+            })
+        })
+        .map(|i| (i - control_start) as f64 / rate);
     let metrics = with_metrics.then(|| {
         // Each fish's headings once, for the pair and the group metrics.
         let hf: Vec<Vec<f32>> = fish.iter().map(|f| headings(f)).collect();
@@ -225,6 +241,7 @@ pub fn load_trial(
         time_to_goal_s: (!waits.is_empty()).then(|| waits.iter().sum::<f64>() / waits.len() as f64),
         goals_per_minute,
         metrics,
+        time_to_reach_s,
         fish: fish.len(),
         untracked_fish_frames,
     })

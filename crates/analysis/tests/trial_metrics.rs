@@ -5,6 +5,7 @@
 use fishprobe_analysis::{load_trial, AnalysisConfig, METRICS};
 use fishprobe_io::{write_trial, Category, Entity, TrialFile};
 use std::collections::BTreeMap;
+use std::f32::consts::PI;
 use std::path::PathBuf;
 
 fn entity(name: &str, label: &str, poses: &[[f32; 3]]) -> Entity {
@@ -178,4 +179,29 @@ fn a_group_trial_gives_per_fish_pair_metrics_and_the_group_metrics() {
     let q = write_group("lost.hdf5", &robot, &lost);
     let e = load_trial(&q, &cfg, true).unwrap_err();
     assert!(e.contains("fish_3") && e.contains("NaN"), "{e}");
+}
+
+#[test]
+fn time_to_reach_the_fish_by_hand() {
+    // Robot still at the centre; the fish comes in along x from 40 cm at 1 cm per frame, with
+    // a tracking gap (NaN) at the frames where it would first be within 15 cm.
+    let robot = vec![[0.0, 0.0, 0.0]; 40];
+    let mut fish: Vec<[f32; 3]> = (0..40).map(|k| [40.0 - k as f32, 0.0, PI]).collect();
+    // Frame 25 is at 15 cm, the first within reach (at most 15 cm); 25 and 26 untracked.
+    fish[25] = [f32::NAN, f32::NAN, PI];
+    fish[26] = [f32::NAN, f32::NAN, PI];
+    let p = write("reach.hdf5", &robot, &fish, 25.0);
+    let t = load_trial(&p, &AnalysisConfig::default(), false).unwrap();
+    assert_eq!(t.time_to_reach_s, Some(27.0 / 25.0));
+    // A reach of 30 cm is met at frame 10; one of 0.5 cm never.
+    let cfg = |r: f32| AnalysisConfig {
+        robot_reach_cm: r,
+        ..AnalysisConfig::default()
+    };
+    let t = load_trial(&p, &cfg(30.0), false).unwrap();
+    assert_eq!(t.time_to_reach_s, Some(10.0 / 25.0));
+    assert_eq!(
+        load_trial(&p, &cfg(0.5), false).unwrap().time_to_reach_s,
+        None
+    );
 }

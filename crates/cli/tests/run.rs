@@ -54,6 +54,14 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
             "{c}"
         );
         assert!(a.join(format!("baselines/{p}/FetchAndLead")).is_dir());
+        // How soon each reaches its fish: fetch-and-lead does within any episode.
+        assert!(c["reach_s"].is_number() || c["reach_s"].is_null(), "{c}");
+        assert!(
+            c["baselines_reach_s"]["FetchAndLead"]
+                .as_f64()
+                .is_some_and(|t| t >= 0.0),
+            "{c}"
+        );
     }
     assert!(a.join("analysis/competence.csv").is_file());
     // Every training seed of every policy: its competence and its approach assay.
@@ -76,7 +84,7 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     assert!(a.join("analysis/seeds.csv").is_file());
     let html = std::fs::read_to_string(a.join("report/index.html")).unwrap();
     assert!(html.contains("id=\"virtual\""));
-    assert!(html.contains("id=\"competence\""));
+    assert!(html.contains("id=\"competence\"") && html.contains("reaches its fish"));
     assert!(html.contains("id=\"seeds\"") && html.contains("seeds.csv"));
     // A rerun finds everything complete and changes nothing.
     let before = results(&a);

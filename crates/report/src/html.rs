@@ -597,7 +597,15 @@ impl Page<'_> {
         let (c, threshold) = c;
         o.push_str("<h2 id=\"competence\">Probe competence</h2>\n<p>Goals per evaluation episode of each policy on its own model, next to fishprobe's scripted controllers on the same episodes (<code>baselines/</code>): <i>GoalSeeker</i> drives to the goal, <i>FetchAndLead</i> fetches the fish and keeps ahead of it on its line to the goal. A policy below ");
         let _ = write!(o, "{:.0} %", 100.0 * threshold);
-        o.push_str(" of the best is marked weak: it has not found what its model allows, and its strategy (approach assay, sim-to-sim) reflects the optimiser as much as the model.</p>\n");
+        o.push_str(" of the best is marked weak: it has not found what its model allows, and its strategy (approach assay, sim-to-sim) reflects the optimiser as much as the model. ");
+        if let Some(r) = self.data.results.as_ref() {
+            let _ = write!(
+                o,
+                "<i>Reaches its fish</i>: the median time until a fish is first within {} cm of the robot. A probe that takes as long as GoalSeeker waits at the goal for its fish to come by; one near FetchAndLead fetches it. The goal count hides the difference when the probe holds the fish once it has it.",
+                r.config.robot_reach_cm
+            );
+        }
+        o.push_str("</p>\n");
         let names: Vec<&String> = c
             .values()
             .flat_map(|x| x.baselines.keys())
@@ -618,12 +626,24 @@ impl Page<'_> {
                     f(v.ratio, 2),
                     if v.weak { " (weak)" } else { "" }
                 ));
+                row.push(v.reach_s.map_or("–".into(), |t| f(t, 1)));
+                row.extend(
+                    names
+                        .iter()
+                        .map(|n| v.baselines_reach_s.get(*n).map_or("–".into(), |t| f(*t, 1))),
+                );
                 row
             })
+            .collect();
+        let reach_headers: Vec<String> = names
+            .iter()
+            .map(|n| format!("{n} reaches it (s)"))
             .collect();
         let mut header = vec!["policy", "goals"];
         header.extend(names.iter().map(|n| n.as_str()));
         header.push("ratio to best");
+        header.push("reaches its fish (median s)");
+        header.extend(reach_headers.iter().map(String::as_str));
         table(o, &header, &rows);
     }
 
@@ -706,6 +726,7 @@ impl Page<'_> {
                         s.seed.clone(),
                         f(s.goals, 1),
                         f(s.ratio, 2),
+                        s.reach_s.map_or("–".into(), |t| f(t, 1)),
                         a.map_or("–".into(), |a| f(a.min_iid, 1)),
                         a.map_or("–".into(), |a| f(a.frac_closer_to_fish, 3)),
                         match (a, s.goes_to_fish) {
@@ -724,6 +745,7 @@ impl Page<'_> {
                 "seed",
                 "goals (stability)",
                 "ratio to best scripted",
+                "reaches its fish (median s)",
                 "min distance to fish (cm)",
                 "fraction closer to fish than goal",
                 "goes to the fish",
