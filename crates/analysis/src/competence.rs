@@ -45,6 +45,18 @@ pub(crate) fn median_reach(files: &[PathBuf], loaded: &Loaded) -> Option<f64> {
     m.is_finite().then_some(m)
 }
 
+/// [`median_reach`] of trial files read here (for a command that has just written them, not a
+/// study): the first file that cannot be read is an error naming it.
+pub fn median_reach_of(files: &[PathBuf], cfg: &AnalysisConfig) -> Result<Option<f64>, String> {
+    let mut loaded = Loaded::new();
+    for f in files {
+        let t =
+            crate::trial::load_trial(f, cfg, false).map_err(|e| format!("{}: {e}", f.display()))?;
+        loaded.insert(f.clone(), Ok(t));
+    }
+    Ok(median_reach(files, &loaded))
+}
+
 /// One policy's competence from its mean goals and its baselines' (controller → mean goals).
 pub fn competence_of(
     policy_goals: f64,

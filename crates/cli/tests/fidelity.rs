@@ -39,6 +39,9 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
             "{r}"
         );
         assert!(r["best_scripted"].is_string(), "{r}");
+        // How soon each reaches its fish: fetch-and-lead does within a 15-minute episode.
+        assert!(r["reach_s"].is_number() || r["reach_s"].is_null(), "{r}");
+        assert!(r["baselines_reach_s"]["fetch-and-lead"].is_number(), "{r}");
     }
     let robot = out.join("robot-reaches/Zone/policy/params.json");
     let params: serde_json::Value =
@@ -55,7 +58,9 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
     assert_eq!(params["env"]["task"]["training_goal_reached_by"], "robot");
     let board = std::fs::read_to_string(out.join("scoreboard.md")).unwrap();
     assert!(
-        board.contains("| robot-reaches | Zone |") && board.contains("(41 (x"),
+        board.contains("| robot-reaches | Zone |")
+            && board.contains("(41 (x")
+            && board.contains("reaches its fish"),
         "{board}"
     );
     // A second run reads every finished cell back: the same scoreboard.

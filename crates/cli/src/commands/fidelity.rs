@@ -434,7 +434,15 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let (goals, sd) = fishprobe_learn::goals_mean_sd(&res);
     let ttg: Vec<f64> = res.iter().filter_map(|x| x.mean_time_to_goal_s).collect();
     let ttg = (!ttg.is_empty()).then(|| ttg.iter().sum::<f64>() / ttg.len() as f64);
+    // How soon it reaches its fish (the study's measure): waiting at the goal or fetching.
+    let acfg = AnalysisConfig::default();
+    let reach = |res: &[fishprobe_learn::EpisodeResult]| {
+        let files: Vec<PathBuf> = res.iter().map(|x| x.file.clone()).collect();
+        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(anyhow::Error::msg)
+    };
+    let reach_s = reach(&res)?;
     let mut baselines = std::collections::BTreeMap::new();
+    let mut baselines_reach_s = std::collections::BTreeMap::new();
     for name in fishprobe_sim::SCRIPTED {
         let Some(b) = fishprobe_sim::scripted(name) else {
             continue;
@@ -443,8 +451,10 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
             out: dir.join(format!("baseline-{name}")),
             ..e.clone()
         };
-        let (g, _) = fishprobe_learn::goals_mean_sd(&fishprobe_learn::evaluate(b.as_ref(), &be)?);
+        let br = fishprobe_learn::evaluate(b.as_ref(), &be)?;
+        let (g, _) = fishprobe_learn::goals_mean_sd(&br);
         baselines.insert(name.to_string(), g);
+        baselines_reach_s.insert(name.to_string(), reach(&br)?);
     }
     // The study's own measure of competence, on the scripts' `scripted:` names.
     let competence = fishprobe_analysis::competence::competence_of(
@@ -471,6 +481,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         "nearer_fish": ap.frac_closer_to_fish, "best_scripted": competence.best,
         "best_scripted_goals": competence.best_goals,
         "competence": competence.ratio,
+        "reach_s": reach_s, "baselines_reach_s": baselines_reach_s,
         "steps": t.timesteps(),
         "settings": settings,
     });
@@ -487,7 +498,7 @@ fn factor(ours: f64, paper: Option<f64>) -> String {
 
 fn scoreboard(rows: &[Value]) -> String {
     let mut s = String::from(
-        "| reading | model | goals / 15 min (paper, factor) | time to goal (s) | closest (cm; paper) | nearer the fish (paper) | best scripted | competence |\n|---|---|---|---|---|---|---|---|\n",
+        "| reading | model | goals / 15 min (paper, factor) | time to goal (s) | closest (cm; paper) | nearer the fish (paper) | best scripted | competence | reaches its fish (s; fetch-and-lead, goal-seeker) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let m = r["model"].as_str().unwrap_or("");
@@ -497,7 +508,7 @@ fn scoreboard(rows: &[Value]) -> String {
         let f = r["nearer_fish"].as_f64().unwrap_or(f64::NAN);
         let opt = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
         s += &format!(
-            "| {} | {m} | {g:.1} ± {:.1} ({}{}) | {} | {c:.1} ({}) | {:.1} % ({}) | {} {:.1} | {:.2} |\n",
+            "| {} | {m} | {g:.1} ± {:.1} ({}{}) | {} | {c:.1} ({}) | {:.1} % ({}) | {} {:.1} | {:.2} | {} ({}, {}) |\n",
             r["reading"].as_str().unwrap_or(""),
             r["goals_sd"].as_f64().unwrap_or(f64::NAN),
             opt(pg, 0),
@@ -509,6 +520,9 @@ fn scoreboard(rows: &[Value]) -> String {
             r["best_scripted"].as_str().unwrap_or(""),
             r["best_scripted_goals"].as_f64().unwrap_or(f64::NAN),
             r["competence"].as_f64().unwrap_or(f64::NAN),
+            opt(r["reach_s"].as_f64(), 1),
+            opt(r["baselines_reach_s"]["fetch-and-lead"].as_f64(), 1),
+            opt(r["baselines_reach_s"]["goal-seeker"].as_f64(), 1),
         );
     }
     s
