@@ -567,16 +567,8 @@ mod tests {
     use super::*;
     fn trial(fish: usize, untracked: usize) -> TrialData {
         TrialData {
-            path: "t.hdf5".into(),
-            kind: None,
-            policy: None,
-            goals_reached: 0,
-            time_to_goal_s: None,
-            goals_per_minute: Vec::new(),
-            metrics: None,
-            time_to_reach_s: None,
-            fish,
             untracked_fish_frames: untracked,
+            ..TrialData::blank("t.hdf5", fish)
         }
     }
 

@@ -160,16 +160,8 @@ mod tests {
     fn the_median_time_to_reach_counts_never_as_latest() {
         use crate::trial::TrialData;
         let trial = |t: Option<f64>| TrialData {
-            path: PathBuf::new(),
-            kind: None,
-            policy: None,
-            goals_reached: 0,
-            time_to_goal_s: None,
-            goals_per_minute: Vec::new(),
-            metrics: None,
             time_to_reach_s: t,
-            fish: 1,
-            untracked_fish_frames: 0,
+            ..TrialData::blank("t.hdf5", 1)
         };
         let load = |times: &[Option<f64>]| -> (Vec<PathBuf>, Loaded) {
             let files: Vec<PathBuf> = (0..times.len())

@@ -94,6 +94,25 @@ pub struct TrialData {
     pub untracked_fish_frames: usize,
 }
 
+#[cfg(test)]
+impl TrialData {
+    /// A trial of `fish` fish with nothing in it, for tests to fill in.
+    pub(crate) fn blank(path: &str, fish: usize) -> Self {
+        Self {
+            path: path.into(),
+            kind: None,
+            policy: None,
+            goals_reached: 0,
+            time_to_goal_s: None,
+            goals_per_minute: Vec::new(),
+            metrics: None,
+            time_to_reach_s: None,
+            fish,
+            untracked_fish_frames: 0,
+        }
+    }
+}
+
 /// Robot and fish of a trial, checked: every entity must be tracked in some frame.
 fn agents(t: &TrialFile) -> Result<(&Entity, Vec<&Entity>), String> {
     let robot = t.robot().ok_or("trial without a robot entity")?;
