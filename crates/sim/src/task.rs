@@ -55,8 +55,10 @@ crate::documented_params! {
         /// starts, with the fixed trainer") found no start that is better in every seed: mixed
         /// starts gave π_Zone 0.92 and 0.89 of the best script and the paper's approach to a
         /// still fish in two fidelity seeds, but `train --seed 0` 0.74 and no approach, and
-        /// π_Force lost its approach there; `lab` alone leads poorly (0.57).
-        /// Evaluation episodes always start at random poses (SPEC §4).
+        /// π_Force lost its approach there; `lab` alone led poorly (0.57) while M_Zone had its
+        /// former wall pull, and since (without it) as well as random starts, no better: π_Zone
+        /// 0.82-0.95 and the approach in two of three seeds either way ("Lab starts again, with
+        /// the current M_Zone"). Evaluation episodes always start at random poses (SPEC §4).
         pub training_start: TrainingStart = TrainingStart::Random; "-",
         /// With `training_start = lab`: the side of the squares the robot (at the centre) and
         /// the fish (in a corner) start in (choice: 10 cm).
