@@ -58,6 +58,8 @@ pub fn median_reach_of(files: &[PathBuf], cfg: &AnalysisConfig) -> Result<Option
 }
 
 /// One policy's competence from its mean goals and its baselines' (controller → mean goals).
+/// The times to reach the fish are left empty for the caller to fill from its trial files
+/// ([`median_reach_of`]; a study fills them from its own).
 pub fn competence_of(
     policy_goals: f64,
     trials: usize,
