@@ -45,8 +45,10 @@ pub(crate) fn median_reach(files: &[PathBuf], loaded: &Loaded) -> Option<f64> {
     m.is_finite().then_some(m)
 }
 
-/// [`median_reach`] of trial files read here (for a command that has just written them, not a
-/// study): the first file that cannot be read is an error naming it.
+/// The median seconds to reach the fish (as a study's competence gives them: a trial that
+/// never reached it counts as latest; `None` without trials or when the median trial never
+/// did) of trial files read here, for a command that has just written them: the first file
+/// that cannot be read is an error naming it.
 pub fn median_reach_of(files: &[PathBuf], cfg: &AnalysisConfig) -> Result<Option<f64>, String> {
     let mut loaded = Loaded::new();
     for f in files {
