@@ -63,11 +63,27 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
             && board.contains("reaches its fish"),
         "{board}"
     );
+    // A cell made before the scoreboard gave the time to reach the fish gets it from its
+    // trial files when read back: the same values as when it was made.
+    let cell = out.join("baseline/Zone/cell.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cell).unwrap()).unwrap();
+    let reach = (v["reach_s"].clone(), v["baselines_reach_s"].clone());
+    let obj = v.as_object_mut().unwrap();
+    obj.remove("reach_s");
+    obj.remove("baselines_reach_s");
+    std::fs::write(&cell, serde_json::to_string_pretty(&v).unwrap()).unwrap();
     // A second run reads every finished cell back: the same scoreboard.
     let o2 = fishprobe(&args);
     assert!(o2.status.success(), "{}", stderr(&o2));
     assert_eq!(stdout(&o), stdout(&o2));
     assert!(!stderr(&o2).contains("iteration"), "{}", stderr(&o2));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cell).unwrap()).unwrap();
+    assert_eq!(
+        (v["reach_s"].clone(), v["baselines_reach_s"].clone()),
+        reach
+    );
     // Other settings into the same directory: refused, naming the cell.
     let mut other = args.to_vec();
     other[8] = "3"; // --episodes

@@ -378,8 +378,19 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let settings: Value = serde_json::from_str(&serde_json::to_string(&settings)?)?;
     let done = dir.join("cell.json");
     if let Ok(text) = std::fs::read_to_string(&done) {
-        if let Ok(v) = serde_json::from_str::<Value>(&text) {
+        if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
             if v["settings"] == settings {
+                // Cells made before the scoreboard gave the time to reach the fish get it from
+                // their own trial files, once.
+                if v.get("reach_s").is_none() {
+                    let (reach_s, baselines_reach_s) = reach_columns(dir)?;
+                    v["reach_s"] = json!(reach_s);
+                    v["baselines_reach_s"] = json!(baselines_reach_s);
+                    fishprobe_nn::store::write_atomic(
+                        &done,
+                        serde_json::to_string_pretty(&v)?.as_bytes(),
+                    )?;
+                }
                 return Ok(v);
             }
             bail!(
@@ -434,15 +445,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let (goals, sd) = fishprobe_learn::goals_mean_sd(&res);
     let ttg: Vec<f64> = res.iter().filter_map(|x| x.mean_time_to_goal_s).collect();
     let ttg = (!ttg.is_empty()).then(|| ttg.iter().sum::<f64>() / ttg.len() as f64);
-    // How soon it reaches its fish (the study's measure): waiting at the goal or fetching.
-    let acfg = AnalysisConfig::default();
-    let reach = |res: &[fishprobe_learn::EpisodeResult]| {
-        let files: Vec<PathBuf> = res.iter().map(|x| x.file.clone()).collect();
-        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(anyhow::Error::msg)
-    };
-    let reach_s = reach(&res)?;
     let mut baselines = std::collections::BTreeMap::new();
-    let mut baselines_reach_s = std::collections::BTreeMap::new();
     for name in fishprobe_sim::SCRIPTED {
         let Some(b) = fishprobe_sim::scripted(name) else {
             continue;
@@ -451,11 +454,10 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
             out: dir.join(format!("baseline-{name}")),
             ..e.clone()
         };
-        let br = fishprobe_learn::evaluate(b.as_ref(), &be)?;
-        let (g, _) = fishprobe_learn::goals_mean_sd(&br);
+        let (g, _) = fishprobe_learn::goals_mean_sd(&fishprobe_learn::evaluate(b.as_ref(), &be)?);
         baselines.insert(name.to_string(), g);
-        baselines_reach_s.insert(name.to_string(), reach(&br)?);
     }
+    let (reach_s, baselines_reach_s) = reach_columns(dir)?;
     // The study's own measure of competence, on the scripts' `scripted:` names.
     let competence = fishprobe_analysis::competence::competence_of(
         goals,
@@ -487,6 +489,30 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     });
     fishprobe_nn::store::write_atomic(&done, serde_json::to_string_pretty(&row)?.as_bytes())?;
     Ok(row)
+}
+
+/// Median seconds to reach the fish, per scripted controller (`None`: its median episode never did).
+type ScriptedReach = std::collections::BTreeMap<String, Option<f64>>;
+
+/// How soon the cell's probe and each scripted controller reach the fish (the study's
+/// measure, median seconds; waiting at the goal or fetching), from the trial files of its
+/// evaluation (`eval/`) and baselines (`baseline-<name>/`).
+fn reach_columns(dir: &Path) -> Result<(Option<f64>, ScriptedReach)> {
+    let acfg = AnalysisConfig::default();
+    let reach = |sub: &str| -> Result<Option<f64>> {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir.join(sub))
+            .with_context(|| format!("reading {}", dir.join(sub).display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "hdf5"))
+            .collect();
+        files.sort();
+        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(anyhow::Error::msg)
+    };
+    let mut baselines = std::collections::BTreeMap::new();
+    for name in fishprobe_sim::SCRIPTED {
+        baselines.insert(name.to_string(), reach(&format!("baseline-{name}"))?);
+    }
+    Ok((reach("eval")?, baselines))
 }
 
 fn factor(ours: f64, paper: Option<f64>) -> String {
