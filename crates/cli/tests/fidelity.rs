@@ -84,6 +84,17 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
         (v["reach_s"].clone(), v["baselines_reach_s"].clone()),
         reach
     );
+    // An older cell whose trial files were pruned is still read back, its time left out.
+    let mut v = v;
+    let obj = v.as_object_mut().unwrap();
+    obj.remove("reach_s");
+    obj.remove("baselines_reach_s");
+    std::fs::write(&cell, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+    std::fs::remove_dir_all(out.join("baseline/Zone/eval")).unwrap();
+    let o4 = fishprobe(&args);
+    assert!(o4.status.success(), "{}", stderr(&o4));
+    assert!(stderr(&o4).contains("older cell"), "{}", stderr(&o4));
+    assert!(stdout(&o4).contains("| – (–, –) |"), "{}", stdout(&o4));
     // Other settings into the same directory: refused, naming the cell.
     let mut other = args.to_vec();
     other[8] = "3"; // --episodes

@@ -381,15 +381,22 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
             if v["settings"] == settings {
                 // Cells made before the scoreboard gave the time to reach the fish get it from
-                // their own trial files, once.
+                // their own trial files, once; a cell whose trial files are gone keeps "–".
                 if v.get("reach_s").is_none() {
-                    let (reach_s, baselines_reach_s) = reach_columns(dir)?;
-                    v["reach_s"] = json!(reach_s);
-                    v["baselines_reach_s"] = json!(baselines_reach_s);
-                    fishprobe_nn::store::write_atomic(
-                        &done,
-                        serde_json::to_string_pretty(&v)?.as_bytes(),
-                    )?;
+                    match reach_columns(dir) {
+                        Ok((reach_s, baselines_reach_s)) => {
+                            v["reach_s"] = json!(reach_s);
+                            v["baselines_reach_s"] = json!(baselines_reach_s);
+                            fishprobe_nn::store::write_atomic(
+                                &done,
+                                serde_json::to_string_pretty(&v)?.as_bytes(),
+                            )?;
+                        }
+                        Err(e) => say!(
+                            "  {}: no time to reach the fish for this older cell ({e:#})",
+                            dir.display()
+                        ),
+                    }
                 }
                 return Ok(v);
             }
