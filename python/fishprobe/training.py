@@ -92,7 +92,8 @@ def evaluate(
 
     Args:
         policy: a training directory, ``"onnx:FILE"`` (e.g. a Stable-Baselines3 policy) or
-            ``"scripted:goal-seeker"`` / ``"scripted:fetch-and-lead"``; its mean action.
+            ``"scripted:goal-seeker"`` / ``"scripted:fetch-and-lead"`` / ``"scripted:random"``;
+            its mean action.
         model: as for :func:`train`, including a fish model written in Python (which the
             command line cannot run).
         out: the output directory (one writer at a time).

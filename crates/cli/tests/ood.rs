@@ -54,7 +54,23 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         let g = seed[k]["metrics"].as_f64().unwrap();
         assert!(g.is_finite() && g >= 0.0, "{k}: {g}");
     }
+    // The further gap probes (the default two): measured, in the JSON and in the table.
+    let more = seed["more_probes"].as_array().unwrap();
+    let names: Vec<&str> = more.iter().map(|p| p["probe"].as_str().unwrap()).collect();
+    assert_eq!(names, ["scripted:goal-seeker", "scripted:random"]);
+    for p in more {
+        let g = p["after_ood_data"]["metrics"].as_f64().unwrap();
+        assert!(g.is_finite() && g >= 0.0, "{p}");
+    }
+    assert!(text.contains("| scripted:random |") && text.contains("mean over the probes"));
     let seed_dir = out.join("seed-5");
+    for name in ["guppy", "narrow", "after-goal", "after-ood"] {
+        assert!(seed_dir
+            .join("gap/probe-scripted-random")
+            .join(name)
+            .join("summary.csv")
+            .is_file());
+    }
     let weights = seed_dir.join("model-narrow/convnet.safetensors");
     let support = seed_dir.join("model-narrow/convnet.safetensors.support.json");
     assert!(
@@ -75,7 +91,9 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let recorded = out.join("settings.json");
     let mut old: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&recorded).unwrap()).unwrap();
-    assert!(old.as_object_mut().unwrap().remove("gap_probe").is_some());
+    for field in ["gap_probe", "more_gap_probes"] {
+        assert!(old.as_object_mut().unwrap().remove(field).is_some());
+    }
     std::fs::write(&recorded, serde_json::to_string_pretty(&old).unwrap()).unwrap();
     let o3 = fishprobe(&loop_args);
     assert!(o3.status.success(), "{}", stderr(&o3));
@@ -85,6 +103,23 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let o = fishprobe(&loop_args);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
+    // A gap probe that is not one, or one listed twice: refused by name.
+    for (probes, says) in [
+        (r#"["scripted:dance"]"#, "scripted:dance"),
+        (r#"["scripted:random", "scripted:random"]"#, "listed twice"),
+        (r#"["scripted:fetch-and-lead"]"#, "listed twice"),
+    ] {
+        std::fs::write(&cfg, format!("{TINY}more_gap_probes = {probes}\n")).unwrap();
+        let o = fishprobe(&[
+            "ood-loop",
+            "--out",
+            s(&dir.join("never")),
+            "--config",
+            s(&cfg),
+        ]);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(says), "{probes}: {}", stderr(&o));
+    }
     // A partner range out of range: refused by name before anything runs.
     std::fs::write(&cfg, TINY.replace("= 15.0", "= -1.0")).unwrap();
     let o = fishprobe(&[

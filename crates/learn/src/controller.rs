@@ -100,9 +100,9 @@ pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, Le
         return fishprobe_sim::scripted(name).ok_or_else(|| {
             LearnError::Policy(format!(
                 "unknown scripted controller `{arg}`: use {}",
-                fishprobe_sim::SCRIPTED
+                fishprobe_sim::SCRIPTED_ALL
                     .map(|n| format!("scripted:{n}"))
-                    .join(" or ")
+                    .join(", ")
             ))
         });
     }

@@ -162,14 +162,41 @@ impl Controller for FetchAndLead {
     }
 }
 
+/// A robot that neither seeks the goal nor the fish: each second it turns by an angle drawn
+/// uniformly from [-π, π] (the episode's action stream), the random robot of `fishprobe models
+/// --measure`. Not a baseline a policy must beat: a probe whose situations no policy chose
+/// (`ood-loop`'s gap probes), and a floor for what a robot does by chance.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RandomTurns;
+
+impl Controller for RandomTurns {
+    fn name(&self) -> String {
+        "RandomTurns".into()
+    }
+
+    fn describe(&self) -> String {
+        "scripted:random".into()
+    }
+
+    fn act(&mut self, _input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
+        use rand::RngExt;
+        rng.random_range(-std::f32::consts::PI..=std::f32::consts::PI)
+    }
+}
+
 /// The scripted controllers every study runs as baselines, by their `scripted:` names.
 pub const SCRIPTED: [&str; 2] = ["goal-seeker", "fetch-and-lead"];
 
-/// A scripted controller by its name after `scripted:` (`goal-seeker`, `fetch-and-lead`).
+/// Every scripted controller by its `scripted:` name: the baselines and the random robot.
+pub const SCRIPTED_ALL: [&str; 3] = ["goal-seeker", "fetch-and-lead", "random"];
+
+/// A scripted controller by its name after `scripted:` (`goal-seeker`, `fetch-and-lead`,
+/// `random`).
 pub fn scripted(name: &str) -> Option<Box<dyn Controller>> {
     match name {
         "goal-seeker" => Some(Box::new(GoalSeeker)),
         "fetch-and-lead" => Some(Box::new(FetchAndLead::default())),
+        "random" => Some(Box::new(RandomTurns)),
         _ => None,
     }
 }
@@ -204,7 +231,7 @@ mod tests {
         let alone = ControlInput { fish: &[], ..input };
         assert_eq!(c.act(&alone, &mut rng), GoalSeeker.act(&alone, &mut rng));
         assert_eq!(c.describe(), "scripted:fetch-and-lead");
-        for name in SCRIPTED {
+        for name in SCRIPTED_ALL {
             assert_eq!(
                 scripted(name).unwrap().describe(),
                 format!("scripted:{name}")
@@ -244,5 +271,32 @@ mod tests {
         let copy = GoalSeeker.boxed_clone();
         assert_eq!(copy.describe(), "scripted:goal-seeker");
         assert_eq!(copy.name(), "GoalSeeker");
+    }
+
+    #[test]
+    fn the_random_robot_turns_uniformly_and_reproducibly() {
+        let input = ControlInput {
+            obs: &[],
+            robot: AgentState::at(0.0, 0.0, 0.0),
+            fish: &[],
+            goal: [20.0, 20.0],
+        };
+        let draw = |seed| {
+            let mut rng = stream(seed, "t", 0);
+            (0..4000)
+                .map(|_| RandomTurns.act(&input, &mut rng))
+                .collect::<Vec<_>>()
+        };
+        let a = draw(1);
+        assert_eq!(a, draw(1), "same stream, same turns");
+        assert_ne!(a, draw(2));
+        let pi = std::f32::consts::PI;
+        assert!(a.iter().all(|t| (-pi..=pi).contains(t)));
+        // Uniform on [-π, π]: mean 0 (s.e. π/√3/√4000 ≈ 0.029), a quarter in each quarter.
+        let mean = a.iter().sum::<f32>() / a.len() as f32;
+        assert!(mean.abs() < 0.1, "{mean}");
+        let left_half = a.iter().filter(|t| **t > pi / 2.0).count() as f32 / a.len() as f32;
+        assert!((left_half - 0.25).abs() < 0.03, "{left_half}");
+        assert!(!SCRIPTED.contains(&"random"), "not a baseline");
     }
 }

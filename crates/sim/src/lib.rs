@@ -51,7 +51,7 @@ pub use agent::AgentState;
 pub use checker::{check_env, CheckFailure, CheckReport};
 pub use controller::{
     scripted, ControlInput, Controller, ControllerClone, FetchAndLead, FetchParams, GoalSeeker,
-    SCRIPTED,
+    RandomTurns, SCRIPTED, SCRIPTED_ALL,
 };
 pub use env::{
     BoxSpace, Env, EnvConfig, EnvSnapshot, EpisodeSummary, RecordedCommand, StartPoses, StepInfo,

@@ -16,7 +16,8 @@ pub struct EvaluateArgs {
     /// Stable-Baselines3; docs/onnx-models.md), or a scripted baseline: `scripted:goal-seeker`
     /// (turns toward the active goal every second, ignoring the fish) or
     /// `scripted:fetch-and-lead` (goes to the fish, then keeps 15 cm ahead of it on its line
-    /// to the goal).
+    /// to the goal), or the random robot `scripted:random` (turns by a uniform random angle
+    /// every second: what a robot does by chance).
     #[arg(long)]
     policy: String,
     /// Fish model to evaluate against.

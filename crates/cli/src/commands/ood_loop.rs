@@ -51,6 +51,12 @@ fishprobe_sim::documented_params! {
         /// The probe that measures each model's gap (choice: `scripted:fetch-and-lead`,
         /// which neither policy is and which interacts with the fish closely).
         pub gap_probe: String = "scripted:fetch-and-lead".into(); "-",
+        /// Further probes whose gaps are measured the same way and reported beside the first
+        /// (choice: the goal-seeker, whose situations the narrow data holds, and the random
+        /// robot, whose situations no policy chose: data where a model is least supported
+        /// need not be where one probe looks). The verdict of `loop.md` is given per probe
+        /// and over all of them.
+        pub more_gap_probes: Vec<String> = vec!["scripted:goal-seeker".into(), "scripted:random".into()]; "-",
         /// Gap episodes per model and for the virtual guppy (choice: 6).
         pub gap_episodes: usize = 6; "episodes",
         /// Minutes per gap episode (choice: 5).
@@ -89,6 +95,26 @@ impl OodLoopConfig {
             self.support_partner_range_cm,
         )
         .context("ood-loop settings")?;
+        if self.more_gap_probes.len() > 8 {
+            bail!(
+                "ood-loop setting `more_gap_probes`: at most 8 probes, got {}",
+                self.more_gap_probes.len()
+            );
+        }
+        let mut dirs = vec![probe_dir_name(&self.gap_probe)];
+        for p in &self.more_gap_probes {
+            let d = probe_dir_name(p);
+            if dirs.contains(&d) {
+                bail!(
+                    "ood-loop setting `more_gap_probes`: `{p}` is listed twice (or as `gap_probe`)"
+                );
+            }
+            dirs.push(d);
+        }
+        for p in std::iter::once(&self.gap_probe).chain(&self.more_gap_probes) {
+            fishprobe_learn::controller(p, false)
+                .with_context(|| format!("ood-loop settings: gap probe `{p}`"))?;
+        }
         if PpoConfig::preset(&self.ppo_preset).is_none() {
             bail!(
                 "ood-loop setting `ppo_preset` = {}: not a preset",
@@ -123,6 +149,34 @@ struct Gap {
     goals_per_episode: f64,
 }
 
+/// The gaps one further probe measured (`more_gap_probes`).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct ProbeGaps {
+    probe: String,
+    guppy_goals_per_episode: f64,
+    narrow: Gap,
+    after_goal_data: Gap,
+    after_ood_data: Gap,
+}
+
+/// The directory of a further probe's gap trials under `gap/`: `probe-` and its name with
+/// every character but letters, digits and `-` made a `-` (so a policy directory's path makes
+/// a name too, and none is the first probe's `guppy`, `narrow`, ...).
+fn probe_dir_name(probe: &str) -> String {
+    let s: String = probe
+        .chars()
+        .take(80)
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    format!("probe-{s}")
+}
+
 /// One seed's outcome.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 struct SeedResult {
@@ -137,6 +191,9 @@ struct SeedResult {
     /// Goals per episode of each policy with the guppy.
     ood_policy_goals: f64,
     goal_policy_goals: f64,
+    /// The further probes' gaps (absent in loops recorded before them).
+    #[serde(default)]
+    more_probes: Vec<ProbeGaps>,
 }
 
 fn trial_files(dir: &Path) -> Vec<PathBuf> {
@@ -331,36 +388,70 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
     )?;
     step("measuring each model's gap to the virtual guppy");
     let gap_seed = seed.wrapping_add(3_000_017);
-    let probe = |model: &ModelSpec, name: &str| {
-        record(
-            &cfg.gap_probe,
-            model,
-            cfg.gap_episodes,
-            cfg.gap_minutes,
-            gap_seed,
-            &dir.join("gap").join(name),
-        )
-    };
-    let (g_files, g_goals) = probe(&guppy, "guppy")?;
-    let g_metrics = metric_values(&g_files)?;
-    let mut gaps = Vec::new();
-    for (m, name) in [
-        (&m0, "narrow"),
-        (&m_goal, "after-goal"),
-        (&m_ood, "after-ood"),
-    ] {
-        let (files, goals) = probe(m, name)?;
-        gaps.push(gap(&metric_values(&files)?, &g_metrics, goals, g_goals));
+    let models = [&m0, &m_goal, &m_ood];
+    // The first probe's trials lie in gap/ itself, as before further probes existed.
+    let first = probe_gaps(
+        cfg,
+        &cfg.gap_probe,
+        &guppy,
+        models,
+        gap_seed,
+        &dir.join("gap"),
+    )?;
+    let mut more_probes = Vec::new();
+    for p in &cfg.more_gap_probes {
+        let at = dir.join("gap").join(probe_dir_name(p));
+        more_probes.push(probe_gaps(cfg, p, &guppy, models, gap_seed, &at)?);
     }
     Ok(SeedResult {
         seed,
+        guppy_goals_per_episode: first.guppy_goals_per_episode,
+        narrow: first.narrow,
+        after_goal_data: first.after_goal_data,
+        after_ood_data: first.after_ood_data,
+        ood_share_beyond_goal_p95: share_at_least(&ood_scores.scores, goal_p95),
+        ood_policy_goals: ood_goals,
+        goal_policy_goals: goal_goals,
+        more_probes,
+    })
+}
+
+/// The gaps of the narrow, the after-lead-to-goal and the after-OOD model (`models`, in that
+/// order) to the virtual guppy, measured with `probe` (trials in `dir`, skipped when there).
+fn probe_gaps(
+    cfg: &OodLoopConfig,
+    probe: &str,
+    guppy: &ModelSpec,
+    models: [&ModelSpec; 3],
+    seed: u64,
+    dir: &Path,
+) -> Result<ProbeGaps> {
+    let run = |model: &ModelSpec, name: &str| {
+        record(
+            probe,
+            model,
+            cfg.gap_episodes,
+            cfg.gap_minutes,
+            seed,
+            &dir.join(name),
+        )
+    };
+    let (g_files, g_goals) = run(guppy, "guppy")?;
+    let g_metrics = metric_values(&g_files)?;
+    let mut gaps = Vec::new();
+    for (m, name) in models
+        .into_iter()
+        .zip(["narrow", "after-goal", "after-ood"])
+    {
+        let (files, goals) = run(m, name)?;
+        gaps.push(gap(&metric_values(&files)?, &g_metrics, goals, g_goals));
+    }
+    Ok(ProbeGaps {
+        probe: probe.to_string(),
         guppy_goals_per_episode: g_goals,
         narrow: gaps[0],
         after_goal_data: gaps[1],
         after_ood_data: gaps[2],
-        ood_share_beyond_goal_p95: share_at_least(&ood_scores.scores, goal_p95),
-        ood_policy_goals: ood_goals,
-        goal_policy_goals: goal_goals,
     })
 }
 
@@ -418,12 +509,12 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
         "seeds": results,
     }))? + "\n";
     fishprobe_io::write_atomically(&a.out.join("loop.json"), json.as_bytes())?;
-    let md = markdown(&results);
+    let md = markdown(&cfg.gap_probe, &results);
     fishprobe_io::write_atomically(&a.out.join("loop.md"), md.as_bytes())?;
     emit(&md)
 }
 
-fn markdown(r: &[SeedResult]) -> String {
+fn markdown(first_probe: &str, r: &[SeedResult]) -> String {
     let mut t = String::from(
         "| seed | metric gap: narrow model | + lead-to-goal data | + OOD data | goal gap: narrow | + lead-to-goal data | + OOD data | OOD views beyond lead-to-goal p95 |\n|---|---|---|---|---|---|---|---|\n",
     );
@@ -461,5 +552,65 @@ fn markdown(r: &[SeedResult]) -> String {
         100.0 * mean(|s| s.ood_share_beyond_goal_p95),
         r.len()
     );
-    t
+    t + &probe_table(first_probe, r)
+}
+
+/// Per probe, the mean metric gaps over the seeds and in how many seeds the OOD data left the
+/// smaller one; then the same for each seed's mean over all probes.
+fn probe_table(first_probe: &str, r: &[SeedResult]) -> String {
+    let Some(s0) = r.first() else {
+        return String::new();
+    };
+    if s0.more_probes.is_empty() {
+        return String::new();
+    }
+    // Per seed, per probe: (narrow, after lead-to-goal data, after OOD data).
+    let per_seed: Vec<Vec<[f64; 3]>> = r
+        .iter()
+        .map(|s| {
+            std::iter::once([
+                s.narrow.metrics,
+                s.after_goal_data.metrics,
+                s.after_ood_data.metrics,
+            ])
+            .chain(s.more_probes.iter().map(|p| {
+                [
+                    p.narrow.metrics,
+                    p.after_goal_data.metrics,
+                    p.after_ood_data.metrics,
+                ]
+            }))
+            .collect()
+        })
+        .collect();
+    let names: Vec<&str> = std::iter::once(first_probe)
+        .chain(s0.more_probes.iter().map(|p| p.probe.as_str()))
+        .collect();
+    let n = r.len() as f64;
+    let mut t = String::from(
+        "| gap probe | metric gap: narrow model | + lead-to-goal data | + OOD data | seeds where the OOD data left the smaller gap |\n|---|---|---|---|---|\n",
+    );
+    let mut row = |name: &str, gaps: Vec<[f64; 3]>| {
+        let m = |k: usize| gaps.iter().map(|g| g[k]).sum::<f64>() / n;
+        let better = gaps.iter().filter(|g| g[2] < g[1]).count();
+        t += &format!(
+            "| {name} | {:.3} | {:.3} | {:.3} | {better} of {} |\n",
+            m(0),
+            m(1),
+            m(2),
+            gaps.len()
+        );
+    };
+    for (k, name) in names.iter().enumerate() {
+        row(name, per_seed.iter().map(|s| s[k]).collect());
+    }
+    let over_all = per_seed
+        .iter()
+        .map(|s| {
+            let p = s.len() as f64;
+            [0, 1, 2].map(|k| s.iter().map(|g| g[k]).sum::<f64>() / p)
+        })
+        .collect();
+    row("mean over the probes", over_all);
+    t + "\nEach probe's metric gap averaged over the seeds (the first probe's is the table above).\n"
 }
