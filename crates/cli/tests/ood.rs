@@ -103,13 +103,24 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let o = fishprobe(&loop_args);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
-    // A gap probe that is not one, or one listed twice: refused by name.
-    for (probes, says) in [
-        (r#"["scripted:dance"]"#, "scripted:dance"),
-        (r#"["scripted:random", "scripted:random"]"#, "listed twice"),
-        (r#"["scripted:fetch-and-lead"]"#, "listed twice"),
+    // A gap probe that is not one, one listed twice, a partner range out of range: each
+    // refused by name before anything runs.
+    for (settings, says) in [
+        (
+            format!("{TINY}more_gap_probes = [\"scripted:dance\"]\n"),
+            "scripted:dance",
+        ),
+        (
+            format!("{TINY}more_gap_probes = [\"scripted:random\", \"scripted:random\"]\n"),
+            "listed twice",
+        ),
+        (
+            format!("{TINY}more_gap_probes = [\"scripted:fetch-and-lead\"]\n"),
+            "listed twice",
+        ),
+        (TINY.replace("= 15.0", "= -1.0"), "support_partner_range_cm"),
     ] {
-        std::fs::write(&cfg, format!("{TINY}more_gap_probes = {probes}\n")).unwrap();
+        std::fs::write(&cfg, &settings).unwrap();
         let o = fishprobe(&[
             "ood-loop",
             "--out",
@@ -118,23 +129,8 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
             s(&cfg),
         ]);
         assert!(!o.status.success());
-        assert!(stderr(&o).contains(says), "{probes}: {}", stderr(&o));
+        assert!(stderr(&o).contains(says), "{settings}: {}", stderr(&o));
     }
-    // A partner range out of range: refused by name before anything runs.
-    std::fs::write(&cfg, TINY.replace("= 15.0", "= -1.0")).unwrap();
-    let o = fishprobe(&[
-        "ood-loop",
-        "--out",
-        s(&dir.join("never")),
-        "--config",
-        s(&cfg),
-    ]);
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("support_partner_range_cm"),
-        "{}",
-        stderr(&o)
-    );
     assert!(!dir.join("never").exists());
 
     // What the OOD policy finds.
