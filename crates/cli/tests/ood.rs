@@ -98,6 +98,46 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let o3 = fishprobe(&loop_args);
     assert!(o3.status.success(), "{}", stderr(&o3));
     assert_eq!(stdout(&o3), text);
+    // Two rounds: each chain trains again against its own refitted model, records as much
+    // again and refits on the narrow data plus both rounds' recordings.
+    let cfg2 = dir.join("rounds.toml");
+    std::fs::write(&cfg2, format!("{TINY}rounds = 2\n")).unwrap();
+    let out2 = dir.join("loop2");
+    let o = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out2),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg2),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("2 rounds"), "{}", stdout(&o));
+    let j2: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out2.join("loop.json")).unwrap()).unwrap();
+    assert_eq!(
+        j2["seeds"][0]["later_rounds_ood_share"]
+            .as_array()
+            .unwrap()
+            .len(),
+        1
+    );
+    for chain in ["ood", "goal"] {
+        let fit = out2.join(format!("seed-5/model-{chain}-r2/convnet.safetensors.json"));
+        let fit: serde_json::Value = serde_json::from_slice(&std::fs::read(fit).unwrap()).unwrap();
+        // 2 narrow episodes and 1 per round.
+        assert_eq!(
+            fit["training_files"].as_array().unwrap().len(),
+            4,
+            "{chain}"
+        );
+        assert!(out2
+            .join(format!("seed-5/policy-{chain}-r2/policy.safetensors"))
+            .is_file());
+    }
+    // The narrow model is the same data and fit: its gap is the one-round loop's.
+    assert_eq!(j2["seeds"][0]["narrow"], seed["narrow"]);
     // Other settings into the same directory: refused.
     std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
     let o = fishprobe(&loop_args);

@@ -7,7 +7,8 @@
 //! M_ConvNet on the narrow data plus each policy's data; and measure each model's sim-to-real
 //! gap to the virtual guppy with a probe neither policy is (the nine metrics' Wasserstein
 //! distances in units of the guppy's spread, and the goals a scripted fetch-and-lead robot
-//! reaches). The virtual guppy is recorded in-process, by the same simulation the virtual lab
+//! reaches; the same with further probes, `more_gap_probes`). With `rounds` > 1 each chain
+//! trains, records and refits again against its own model (iterative retraining). The virtual guppy is recorded in-process, by the same simulation the virtual lab
 //! (`fishprobe lab`) serves over the bridge: the bridge adds transport, not behaviour.
 //!
 //! Every stage leaves its files in the output directory and is skipped when they are there, so
@@ -40,6 +41,13 @@ fishprobe_sim::documented_params! {
         /// Episodes recorded under each policy and added to the data (choice: 6: half the
         /// narrow data again).
         pub new_episodes: usize = 6; "episodes",
+        /// Rounds of policy training, recording and refitting (choice: 1, the issue's loop).
+        /// In round k > 1 each chain trains a new policy against its own model of round k - 1
+        /// (the OOD chain against the model refitted with OOD data, the lead-to-goal chain
+        /// against its own), records `new_episodes` more and refits on the narrow data plus
+        /// all its chain's recordings: the paper's "iterative model and policy retraining".
+        /// The gaps are those of each chain's last model.
+        pub rounds: usize = 1; "rounds",
         /// Minutes per recorded episode (choice: 3).
         pub episode_minutes: f32 = 3.0; "min",
         /// PPO preset of both policies (choice: `quick`).
@@ -74,6 +82,7 @@ impl OodLoopConfig {
             ("narrow_episodes", self.narrow_episodes, 1000),
             ("validation_episodes", self.validation_episodes, 1000),
             ("new_episodes", self.new_episodes, 1000),
+            ("rounds", self.rounds, 20),
             ("gap_episodes", self.gap_episodes, 1000),
             ("fit_max_epochs", self.fit_max_epochs, 1000),
         ] {
@@ -188,6 +197,10 @@ struct SeedResult {
     /// Share of the guppy's views under the OOD policy at or beyond the lead-to-goal
     /// policy's 95th-percentile support score (narrow model's support).
     ood_share_beyond_goal_p95: f64,
+    /// From the second round on (`rounds` > 1): the same share, each round's policies scored
+    /// under the support of the model the OOD policy was trained against.
+    #[serde(default)]
+    later_rounds_ood_share: Vec<f64>,
     /// Goals per episode of each policy with the guppy.
     ood_policy_goals: f64,
     goal_policy_goals: f64,
@@ -345,47 +358,87 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
     )?;
     step("fitting M_ConvNet on the narrow data");
     let m0 = fit(&narrow, &validation, &dir.join("model-narrow"), cfg, seed)?;
-    step("training the OOD and the lead-to-goal policy against it");
-    let p_ood = train(&m0, Objective::Ood, cfg, seed, &dir.join("policy-ood"))?;
-    let p_goal = train(&m0, Objective::Goal, cfg, seed, &dir.join("policy-goal"))?;
-    step("recording the virtual guppy under each policy");
-    let new_seed = seed.wrapping_add(2_000_003);
-    let (ood_data, ood_goals) = record(
-        &p_ood,
-        &guppy,
-        cfg.new_episodes,
-        cfg.episode_minutes,
-        new_seed,
-        &dir.join("data/under-ood"),
-    )?;
-    let (goal_data, goal_goals) = record(
-        &p_goal,
-        &guppy,
-        cfg.new_episodes,
-        cfg.episode_minutes,
-        new_seed,
-        &dir.join("data/under-goal"),
-    )?;
-    let support = m0.support()?;
-    let ood_scores = score_trials(&support, "ood", &ood_data).map_err(anyhow::Error::msg)?;
-    let goal_scores = score_trials(&support, "goal", &goal_data).map_err(anyhow::Error::msg)?;
-    let goal_p95 = quantile(&goal_scores.scores, 0.95);
-    step("refitting M_ConvNet with each policy's data");
     let with = |extra: &[PathBuf]| narrow.iter().chain(extra).cloned().collect::<Vec<_>>();
-    let m_ood = fit(
-        &with(&ood_data),
-        &validation,
-        &dir.join("model-ood"),
-        cfg,
-        seed,
-    )?;
-    let m_goal = fit(
-        &with(&goal_data),
-        &validation,
-        &dir.join("model-goal"),
-        cfg,
-        seed,
-    )?;
+    // Each chain: its current model and everything it has recorded.
+    let (mut m_ood, mut m_goal) = (m0.clone(), m0.clone());
+    let (mut ood_all, mut goal_all) = (Vec::new(), Vec::new());
+    let (mut shares, mut ood_goals, mut goal_goals) = (Vec::new(), 0.0, 0.0);
+    for round in 1..=cfg.rounds {
+        // Round 1 keeps the layout of loops made before rounds existed.
+        let sfx = if round == 1 {
+            String::new()
+        } else {
+            format!("-r{round}")
+        };
+        let in_round = |what: &str| {
+            if cfg.rounds == 1 {
+                step(what)
+            } else {
+                step(&format!("round {round}: {what}"))
+            }
+        };
+        in_round("training the OOD and the lead-to-goal policy against their models");
+        let p_ood = train(
+            &m_ood,
+            Objective::Ood,
+            cfg,
+            seed,
+            &dir.join(format!("policy-ood{sfx}")),
+        )?;
+        let p_goal = train(
+            &m_goal,
+            Objective::Goal,
+            cfg,
+            seed,
+            &dir.join(format!("policy-goal{sfx}")),
+        )?;
+        in_round("recording the virtual guppy under each policy");
+        let new_seed = seed
+            .wrapping_add(2_000_003)
+            .wrapping_add(7_919 * (round as u64 - 1));
+        let ood_data;
+        let goal_data;
+        (ood_data, ood_goals) = record(
+            &p_ood,
+            &guppy,
+            cfg.new_episodes,
+            cfg.episode_minutes,
+            new_seed,
+            &dir.join(format!("data/under-ood{sfx}")),
+        )?;
+        (goal_data, goal_goals) = record(
+            &p_goal,
+            &guppy,
+            cfg.new_episodes,
+            cfg.episode_minutes,
+            new_seed,
+            &dir.join(format!("data/under-goal{sfx}")),
+        )?;
+        let support = m_ood.support()?;
+        let ood_scores = score_trials(&support, "ood", &ood_data).map_err(anyhow::Error::msg)?;
+        let goal_scores = score_trials(&support, "goal", &goal_data).map_err(anyhow::Error::msg)?;
+        shares.push(share_at_least(
+            &ood_scores.scores,
+            quantile(&goal_scores.scores, 0.95),
+        ));
+        ood_all.extend(ood_data);
+        goal_all.extend(goal_data);
+        in_round("refitting M_ConvNet with each policy's data");
+        m_ood = fit(
+            &with(&ood_all),
+            &validation,
+            &dir.join(format!("model-ood{sfx}")),
+            cfg,
+            seed,
+        )?;
+        m_goal = fit(
+            &with(&goal_all),
+            &validation,
+            &dir.join(format!("model-goal{sfx}")),
+            cfg,
+            seed,
+        )?;
+    }
     step("measuring each model's gap to the virtual guppy");
     let gap_seed = seed.wrapping_add(3_000_017);
     let models = [&m0, &m_goal, &m_ood];
@@ -409,7 +462,8 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
         narrow: first.narrow,
         after_goal_data: first.after_goal_data,
         after_ood_data: first.after_ood_data,
-        ood_share_beyond_goal_p95: share_at_least(&ood_scores.scores, goal_p95),
+        ood_share_beyond_goal_p95: shares.first().copied().unwrap_or(f64::NAN),
+        later_rounds_ood_share: shares.iter().skip(1).copied().collect(),
         ood_policy_goals: ood_goals,
         goal_policy_goals: goal_goals,
         more_probes,
@@ -509,12 +563,12 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
         "seeds": results,
     }))? + "\n";
     fishprobe_io::write_atomically(&a.out.join("loop.json"), json.as_bytes())?;
-    let md = markdown(&cfg.gap_probe, &results);
+    let md = markdown(&cfg, &results);
     fishprobe_io::write_atomically(&a.out.join("loop.md"), md.as_bytes())?;
     emit(&md)
 }
 
-fn markdown(first_probe: &str, r: &[SeedResult]) -> String {
+fn markdown(cfg: &OodLoopConfig, r: &[SeedResult]) -> String {
     let mut t = String::from(
         "| seed | metric gap: narrow model | + lead-to-goal data | + OOD data | goal gap: narrow | + lead-to-goal data | + OOD data | OOD views beyond lead-to-goal p95 |\n|---|---|---|---|---|---|---|---|\n",
     );
@@ -552,7 +606,24 @@ fn markdown(first_probe: &str, r: &[SeedResult]) -> String {
         100.0 * mean(|s| s.ood_share_beyond_goal_p95),
         r.len()
     );
-    t + &probe_table(first_probe, r)
+    if cfg.rounds > 1 {
+        t += &format!(
+            "\n{} rounds: the gaps are those of each chain's model after its last round; the \
+             last column is the first round's. OOD views beyond the lead-to-goal p95 by round: {}.\n",
+            cfg.rounds,
+            r.iter()
+                .map(|s| {
+                    let by_round: Vec<String> = std::iter::once(s.ood_share_beyond_goal_p95)
+                        .chain(s.later_rounds_ood_share.iter().copied())
+                        .map(|x| format!("{:.1} %", 100.0 * x))
+                        .collect();
+                    format!("seed {}: {}", s.seed, by_round.join(", "))
+                })
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
+    t + "\n" + &probe_table(&cfg.gap_probe, r)
 }
 
 /// Per probe, the mean metric gaps over the seeds and in how many seeds the OOD data left the
