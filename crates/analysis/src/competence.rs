@@ -13,14 +13,62 @@ use std::path::PathBuf;
 
 pub(crate) type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
 
-/// Mean goals per valid trial of `files`, and how many trials that is (none without any).
-pub(crate) fn mean_goals(files: &[PathBuf], loaded: &Loaded) -> Option<(f64, usize)> {
+/// Goals per episode of a set of episodes: what a competence ratio and its standard error
+/// are made of.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GoalStats {
+    /// Mean goals per episode.
+    pub mean: f64,
+    /// Their sample standard deviation (n - 1; NaN for one episode).
+    pub sd: f64,
+    /// Episodes.
+    pub n: usize,
+}
+
+impl GoalStats {
+    /// Of the goals of each episode (`None` without any).
+    pub fn of(goals: &[f64]) -> Option<Self> {
+        let n = goals.len();
+        if n == 0 {
+            return None;
+        }
+        let mean = goals.iter().sum::<f64>() / n as f64;
+        let sd = if n > 1 {
+            (goals.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt()
+        } else {
+            f64::NAN
+        };
+        Some(Self { mean, sd, n })
+    }
+}
+
+/// ` ± 0.03`: a ratio's standard error as the tables append it (empty without one).
+pub fn plus_minus(se: Option<f64>) -> String {
+    se.map_or(String::new(), |se| format!(" ± {se:.2}"))
+}
+
+/// Goals per valid trial of `files` (none without any).
+pub(crate) fn goal_stats(files: &[PathBuf], loaded: &Loaded) -> Option<GoalStats> {
     let goals: Vec<f64> = files
         .iter()
         .filter_map(|f| loaded.get(f)?.as_ref().ok())
         .map(|t| f64::from(t.goals_reached))
         .collect();
-    (!goals.is_empty()).then(|| (goals.iter().sum::<f64>() / goals.len() as f64, goals.len()))
+    GoalStats::of(&goals)
+}
+
+/// The standard error of the competence ratio `policy.mean / best.mean`, the two means from
+/// independent episodes, by the delta method: R · sqrt(s_p² / (n_p m_p²) + s_b² / (n_b m_b²)).
+/// With 50 episodes of about 24 ± 4 goals against 30 ± 4 it is about 0.02, so a ratio within
+/// about 0.05 of the competence bar is not clearly on either side. `None` when either mean is
+/// not positive or either side has fewer than two episodes.
+pub fn ratio_se(policy: &GoalStats, best: &GoalStats) -> Option<f64> {
+    if policy.n < 2 || best.n < 2 || !(policy.mean > 0.0 && best.mean > 0.0) {
+        return None;
+    }
+    let rel = |g: &GoalStats| g.sd.powi(2) / (g.n as f64 * g.mean.powi(2));
+    let se = policy.mean / best.mean * (rel(policy) + rel(best)).sqrt();
+    se.is_finite().then_some(se)
 }
 
 /// Median seconds to reach the fish over the valid trials of `files` (a trial that never
@@ -87,6 +135,7 @@ pub fn competence_of(
         weak: ratio < threshold,
         reach_s: None,
         baselines_reach_s: BTreeMap::new(),
+        ratio_se: None,
     })
 }
 
@@ -103,19 +152,21 @@ pub(crate) fn competence(
         let Some(by) = study.baselines.get(p) else {
             continue;
         };
-        let Some((goals, trials)) = study
+        let Some(own) = study
             .rollouts
             .get(&(p.clone(), p.clone()))
-            .and_then(|f| mean_goals(f, loaded))
+            .and_then(|f| goal_stats(f, loaded))
         else {
             continue;
         };
         let mut baselines = BTreeMap::new();
+        let mut stats = BTreeMap::new();
         let mut baselines_reach_s = BTreeMap::new();
         for (c, files) in by {
-            match mean_goals(files, loaded) {
-                Some((g, _)) => {
-                    baselines.insert(c.clone(), g);
+            match goal_stats(files, loaded) {
+                Some(g) => {
+                    baselines.insert(c.clone(), g.mean);
+                    stats.insert(c.clone(), g);
                     if let Some(t) = median_reach(files, loaded) {
                         baselines_reach_s.insert(c.clone(), t);
                     }
@@ -126,7 +177,8 @@ pub(crate) fn competence(
                 }),
             }
         }
-        if let Some(mut c) = competence_of(goals, trials, baselines, cfg.competence_threshold) {
+        if let Some(mut c) = competence_of(own.mean, own.n, baselines, cfg.competence_threshold) {
+            c.ratio_se = stats.get(&c.best).and_then(|b| ratio_se(&own, b));
             c.reach_s = study
                 .rollouts
                 .get(&(p.clone(), p.clone()))
@@ -158,6 +210,28 @@ mod tests {
             competence_of(3.0, 18, BTreeMap::from([("GoalSeeker".into(), 0.0)]), 0.8).unwrap();
         assert!(zero.ratio.is_nan() && !zero.weak);
         assert!(competence_of(3.0, 18, BTreeMap::new(), 0.8).is_none());
+    }
+
+    #[test]
+    fn the_ratio_s_standard_error_is_the_delta_method_s() {
+        // Policy 20, 22, 24 (mean 22, s.d. 2); best 28, 30, 32 (mean 30, s.d. 2):
+        // R = 22/30, se = R·sqrt(4/(3·22²) + 4/(3·30²)) = 0.0477304 (by hand, to 7 digits).
+        let p = GoalStats::of(&[20.0, 22.0, 24.0]).unwrap();
+        let b = GoalStats::of(&[28.0, 30.0, 32.0]).unwrap();
+        assert_eq!((p.mean, p.sd, p.n), (22.0, 2.0, 3));
+        let se = ratio_se(&p, &b).unwrap();
+        assert!((se - 0.047_730_4).abs() < 1e-7, "{se}");
+        // Identical episodes on both sides: no spread, no error.
+        let same = GoalStats::of(&[5.0, 5.0]).unwrap();
+        assert_eq!(ratio_se(&same, &same), Some(0.0));
+        // Too few episodes, or a side without goals: none.
+        let one = GoalStats::of(&[5.0]).unwrap();
+        assert!(one.sd.is_nan());
+        assert_eq!(ratio_se(&one, &b), None);
+        let none = GoalStats::of(&[0.0, 0.0]).unwrap();
+        assert_eq!(ratio_se(&p, &none), None);
+        assert_eq!(ratio_se(&none, &b), None);
+        assert!(GoalStats::of(&[]).is_none());
     }
 
     #[test]

@@ -211,6 +211,11 @@ pub struct Competence {
     /// probe holds the fish once it has it.
     #[serde(default)]
     pub baselines_reach_s: BTreeMap<String, f64>,
+    /// Standard error of `ratio` over the episodes (delta method,
+    /// [`crate::competence::ratio_se`]); `None` with fewer than two episodes a side (results
+    /// of versions before this measure too).
+    #[serde(default)]
+    pub ratio_se: Option<f64>,
 }
 
 /// The approach assay of one policy.
@@ -250,6 +255,10 @@ pub struct SeedProbe {
     /// episodes (the same kind of episode, not the same ones; NaN without baselines).
     #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub ratio: f64,
+    /// Standard error of `ratio` ([`Competence::ratio_se`]; the best controller's episodes are
+    /// the evaluation's).
+    #[serde(default)]
+    pub ratio_se: Option<f64>,
     /// Its approach assay, when the study ran one for this seed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub approach: Option<Approach>,
@@ -390,6 +399,8 @@ impl Results {
                             c.weak.to_string(),
                             reach(c.reach_s.as_ref()),
                             reach(c.baselines_reach_s.get(b)),
+                            // The standard error belongs to the ratio to the best.
+                            reach(c.ratio_se.as_ref().filter(|_| b == &c.best)),
                         ]
                     })
                 })
@@ -407,6 +418,7 @@ impl Results {
                         "weak",
                         "policy_reach_s",
                         "baseline_reach_s",
+                        "ratio_se",
                     ],
                     rows,
                 ),
@@ -697,11 +709,12 @@ impl Results {
                     .map(|(b, t)| format!("{b} {t:.1}"))
                     .collect();
                 s += &format!(
-                    "| {p} | {:.1} | {} | {:.1} | {:.2}{} | {} | {} |\n",
+                    "| {p} | {:.1} | {} | {:.1} | {:.2}{}{} | {} | {} |\n",
                     c.policy_goals,
                     c.best,
                     c.best_goals,
                     c.ratio,
+                    crate::competence::plus_minus(c.ratio_se),
                     if c.weak { " **weak**" } else { "" },
                     c.reach_s.map_or("–".into(), |t| format!("{t:.1}")),
                     if scripted.is_empty() {
@@ -712,7 +725,9 @@ impl Results {
                 );
             }
             s += &format!(
-                "\nReaching the fish: the first moment a fish is within {} cm of the robot. A probe \
+                "\nThe ratio's ± is its standard error over the episodes (delta method): a ratio \
+                 within about two of them of the bar is not clearly on either side. \
+                 Reaching the fish: the first moment a fish is within {} cm of the robot. A probe \
                  that takes as long as GoalSeeker waits at the goal for its fish to come by; one \
                  near FetchAndLead fetches it. The goal count hides the difference when the probe \
                  holds the fish once it has it.\n",

@@ -16,7 +16,7 @@
 //! ```
 
 use crate::approach::assay_files;
-use crate::competence::{mean_goals, median_reach, Loaded};
+use crate::competence::{goal_stats, median_reach, ratio_se, Loaded};
 use crate::config::AnalysisConfig;
 use crate::results::{f, table, Approach, Results, SeedProbe, Skipped};
 use crate::study::StudyFiles;
@@ -64,13 +64,18 @@ pub(crate) fn seeds(
             continue;
         }
         let best = res.competence.get(p).map_or(f64::NAN, |c| c.best_goals);
+        // The best controller's episodes, for the ratios' standard errors.
+        let best_stats = res.competence.get(p).and_then(|c| {
+            let files = study.baselines.get(p)?.get(&c.best)?;
+            goal_stats(files, loaded)
+        });
         let rows = names
             .into_iter()
             .map(|name| {
-                let (goals, episodes) = stability
+                let own = stability
                     .get(name)
-                    .and_then(|files| mean_goals(files, loaded))
-                    .unwrap_or((f64::NAN, 0));
+                    .and_then(|files| goal_stats(files, loaded));
+                let (goals, episodes) = own.map_or((f64::NAN, 0), |g| (g.mean, g.n));
                 let reach_s = stability
                     .get(name)
                     .and_then(|files| median_reach(files, loaded));
@@ -92,6 +97,9 @@ pub(crate) fn seeds(
                     episodes,
                     reach_s,
                     ratio: if best > 0.0 { goals / best } else { f64::NAN },
+                    ratio_se: own
+                        .zip(best_stats.as_ref())
+                        .and_then(|(o, b)| ratio_se(&o, b)),
                     goes_to_fish: assay.as_ref().is_some_and(|a| goes_to_fish(a, cfg)),
                     approach: assay,
                 }
@@ -119,6 +127,7 @@ pub fn csv(seeds: &BTreeMap<String, Vec<SeedProbe>>) -> String {
                     a.map_or(String::new(), |a| f(a.mean_iid)),
                     a.map_or(String::new(), |a| f(a.frac_closer_to_fish)),
                     s.goes_to_fish.to_string(),
+                    s.ratio_se.map_or(String::new(), f),
                 ]
             })
         })
@@ -135,6 +144,7 @@ pub fn csv(seeds: &BTreeMap<String, Vec<SeedProbe>>) -> String {
             "mean_iid_cm",
             "frac_closer_to_fish",
             "goes_to_fish",
+            "ratio_se",
         ],
         rows,
     )
@@ -165,7 +175,7 @@ pub fn summary_markdown(seeds: &BTreeMap<String, Vec<SeedProbe>>, cfg: &Analysis
                 "| {p} | {} | {} | {} | {} | {} | {} | {} |\n",
                 r.seed,
                 num(r.goals, 1),
-                num(r.ratio, 2),
+                num(r.ratio, 2) + &crate::competence::plus_minus(r.ratio_se),
                 num(r.reach_s.unwrap_or(f64::NAN), 1),
                 a.map_or("–".into(), |a| num(a.min_iid, 1)),
                 a.map_or("–".into(), |a| format!(
@@ -244,6 +254,7 @@ mod tests {
                 weak: false,
                 reach_s: None,
                 baselines_reach_s: BTreeMap::new(),
+                ratio_se: None,
             },
         );
         // Stability seeds with no readable trial files: goals unknown, but the seeds are

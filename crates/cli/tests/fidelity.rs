@@ -42,6 +42,10 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
         // How soon each reaches its fish: fetch-and-lead does within a 15-minute episode.
         assert!(r["reach_s"].is_number() || r["reach_s"].is_null(), "{r}");
         assert!(r["baselines_reach_s"]["fetch-and-lead"].is_number(), "{r}");
+        // The competence's standard error, whenever the policy reached goals.
+        if r["goals"].as_f64().unwrap() > 0.0 {
+            assert!(r["competence_se"].as_f64().is_some_and(|x| x >= 0.0), "{r}");
+        }
     }
     let robot = out.join("robot-reaches/Zone/policy/params.json");
     let params: serde_json::Value =

@@ -58,8 +58,10 @@ use std::path::{Path, PathBuf};
 /// inert at its default, which draws as before: the report's digest, over every figure,
 /// stayed dd4c923b…). Then 6e425b02… until probe competence gave each probe's time to reach
 /// its fish (issue 20: `reach_s` and `baselines_reach_s` in `competence`, `reach_s` in
-/// `seeds`; with those keys cut from results.json the digest was 6e425b02… again).
-const GOLDEN: &str = "fff5bf7c6ce158e2";
+/// `seeds`; with those keys cut from results.json the digest was 6e425b02… again). Then
+/// fff5bf7c… until the competence ratio got its standard error (`ratio_se` in `competence` and
+/// `seeds`; with those keys cut from results.json the digest was fff5bf7c… again).
+const GOLDEN: &str = "2873f78ccf916ed9";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
@@ -71,8 +73,9 @@ const GOLDEN: &str = "fff5bf7c6ce158e2";
 /// 5f7b3f96… until the log-s.d. bound stopped trapping the policy (every policy's trials
 /// changed); e6019e8e… until the "Every training seed" table joined the report and summary;
 /// ccd1f03b… until M_Zone lost SPEC's wall pull by default (its trials, and so the figures);
-/// dd4c923b… until the competence and seed tables gave the time to reach the fish.
-const GOLDEN_REPORT: &str = "4d32c1a0bb7c214e";
+/// dd4c923b… until the competence and seed tables gave the time to reach the fish;
+/// 4d32c1a0… until they gave the competence ratio's standard error.
+const GOLDEN_REPORT: &str = "189f187bed18d3f4";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {

@@ -54,6 +54,13 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
             "{c}"
         );
         assert!(a.join(format!("baselines/{p}/FetchAndLead")).is_dir());
+        // The ratio's standard error, whenever both sides have goals over two episodes.
+        let se = &c["ratio_se"];
+        if c["policy_goals"].as_f64().unwrap() > 0.0 && c["trials"].as_u64().unwrap() >= 2 {
+            assert!(se.as_f64().is_some_and(|x| x >= 0.0), "{c}");
+        } else {
+            assert!(se.is_null(), "{c}");
+        }
         // How soon each reaches its fish: fetch-and-lead does within any episode.
         assert!(c["reach_s"].is_number() || c["reach_s"].is_null(), "{c}");
         assert!(
@@ -63,7 +70,8 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
             "{c}"
         );
     }
-    assert!(a.join("analysis/competence.csv").is_file());
+    let csv = std::fs::read_to_string(a.join("analysis/competence.csv")).unwrap();
+    assert!(csv.lines().next().unwrap().ends_with(",ratio_se"), "{csv}");
     // Every training seed of every policy: its competence and its approach assay.
     for p in ["Follow", "Zone", "Force", "ConvNet"] {
         let seeds = r["seeds"][p].as_array().unwrap();

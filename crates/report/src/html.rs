@@ -597,7 +597,7 @@ impl Page<'_> {
         let (c, threshold) = c;
         o.push_str("<h2 id=\"competence\">Probe competence</h2>\n<p>Goals per evaluation episode of each policy on its own model, next to fishprobe's scripted controllers on the same episodes (<code>baselines/</code>): <i>GoalSeeker</i> drives to the goal, <i>FetchAndLead</i> fetches the fish and keeps ahead of it on its line to the goal. A policy below ");
         let _ = write!(o, "{:.0} %", 100.0 * threshold);
-        o.push_str(" of the best is marked weak: it has not found what its model allows, and its strategy (approach assay, sim-to-sim) reflects the optimiser as much as the model. ");
+        o.push_str(" of the best is marked weak: it has not found what its model allows, and its strategy (approach assay, sim-to-sim) reflects the optimiser as much as the model. The ratio's ± is its standard error over the episodes (delta method): a ratio within about two of them of the bar is not clearly on either side. ");
         if let Some(r) = self.data.results.as_ref() {
             let _ = write!(
                 o,
@@ -622,8 +622,9 @@ impl Page<'_> {
                         .map(|n| v.baselines.get(*n).map_or("–".into(), |g| f(*g, 1))),
                 );
                 row.push(format!(
-                    "{}{}",
+                    "{}{}{}",
                     f(v.ratio, 2),
+                    fishprobe_analysis::competence::plus_minus(v.ratio_se),
                     if v.weak { " (weak)" } else { "" }
                 ));
                 row.push(v.reach_s.map_or("–".into(), |t| f(t, 1)));
@@ -725,7 +726,7 @@ impl Page<'_> {
                         format!("π_{p}"),
                         s.seed.clone(),
                         f(s.goals, 1),
-                        f(s.ratio, 2),
+                        f(s.ratio, 2) + &fishprobe_analysis::competence::plus_minus(s.ratio_se),
                         s.reach_s.map_or("–".into(), |t| f(t, 1)),
                         a.map_or("–".into(), |a| f(a.min_iid, 1)),
                         a.map_or("–".into(), |a| f(a.frac_closer_to_fish, 3)),

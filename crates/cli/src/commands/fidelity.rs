@@ -6,6 +6,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use fishprobe_analysis::competence::{plus_minus, ratio_se, GoalStats};
 use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
 use fishprobe_learn::{Evaluation, PolicyController, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
@@ -452,7 +453,12 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     let (goals, sd) = fishprobe_learn::goals_mean_sd(&res);
     let ttg: Vec<f64> = res.iter().filter_map(|x| x.mean_time_to_goal_s).collect();
     let ttg = (!ttg.is_empty()).then(|| ttg.iter().sum::<f64>() / ttg.len() as f64);
+    let stats = |r: &[fishprobe_learn::EpisodeResult]| {
+        GoalStats::of(&r.iter().map(|x| x.goals as f64).collect::<Vec<_>>())
+    };
+    let own = stats(&res);
     let mut baselines = std::collections::BTreeMap::new();
+    let mut baseline_stats = std::collections::BTreeMap::new();
     for name in fishprobe_sim::SCRIPTED {
         let Some(b) = fishprobe_sim::scripted(name) else {
             continue;
@@ -461,8 +467,10 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
             out: dir.join(format!("baseline-{name}")),
             ..e.clone()
         };
-        let (g, _) = fishprobe_learn::goals_mean_sd(&fishprobe_learn::evaluate(b.as_ref(), &be)?);
+        let br = fishprobe_learn::evaluate(b.as_ref(), &be)?;
+        let (g, _) = fishprobe_learn::goals_mean_sd(&br);
         baselines.insert(name.to_string(), g);
+        baseline_stats.insert(name.to_string(), stats(&br));
     }
     let (reach_s, baselines_reach_s) = reach_columns(dir)?;
     // The study's own measure of competence, on the scripts' `scripted:` names.
@@ -473,6 +481,10 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         AnalysisConfig::default().competence_threshold,
     )
     .ok_or_else(|| anyhow::anyhow!("no scripted baseline ran"))?;
+    let competence_se = match (own, baseline_stats.get(&competence.best)) {
+        (Some(o), Some(Some(b))) => ratio_se(&o, b),
+        _ => None,
+    };
     let ae = fishprobe_learn::approach_assay(
         a.approach_episodes,
         2.0,
@@ -489,7 +501,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         "time_to_goal_s": ttg, "closest_cm": ap.min_iid, "mean_distance_cm": ap.mean_iid,
         "nearer_fish": ap.frac_closer_to_fish, "best_scripted": competence.best,
         "best_scripted_goals": competence.best_goals,
-        "competence": competence.ratio,
+        "competence": competence.ratio, "competence_se": competence_se,
         "reach_s": reach_s, "baselines_reach_s": baselines_reach_s,
         "steps": t.timesteps(),
         "settings": settings,
@@ -541,7 +553,7 @@ fn scoreboard(rows: &[Value]) -> String {
         let f = r["nearer_fish"].as_f64().unwrap_or(f64::NAN);
         let opt = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
         s += &format!(
-            "| {} | {m} | {g:.1} ± {:.1} ({}{}) | {} | {c:.1} ({}) | {:.1} % ({}) | {} {:.1} | {:.2} | {} ({}, {}) |\n",
+            "| {} | {m} | {g:.1} ± {:.1} ({}{}) | {} | {c:.1} ({}) | {:.1} % ({}) | {} {:.1} | {:.2}{} | {} ({}, {}) |\n",
             r["reading"].as_str().unwrap_or(""),
             r["goals_sd"].as_f64().unwrap_or(f64::NAN),
             opt(pg, 0),
@@ -553,6 +565,7 @@ fn scoreboard(rows: &[Value]) -> String {
             r["best_scripted"].as_str().unwrap_or(""),
             r["best_scripted_goals"].as_f64().unwrap_or(f64::NAN),
             r["competence"].as_f64().unwrap_or(f64::NAN),
+            plus_minus(r["competence_se"].as_f64()),
             opt(r["reach_s"].as_f64(), 1),
             opt(r["baselines_reach_s"]["fetch-and-lead"].as_f64(), 1),
             opt(r["baselines_reach_s"]["goal-seeker"].as_f64(), 1),
