@@ -134,6 +134,19 @@ def test_evaluate_against_a_python_fish(tmp_path):
     assert np.isnan(r["mean_time_to_goal_s"][r["goals"] == 0]).all()
 
 
+def test_the_random_robot_runs_from_python_and_is_reproducible(tmp_path):
+    kw = dict(model="Zone", episodes=2, minutes=0.5, seed=3)
+    r = fishprobe.evaluate("scripted:random", out=tmp_path / "a", **kw)
+    again = fishprobe.evaluate("scripted:random", out=tmp_path / "b", **kw)
+    seeker = fishprobe.evaluate("scripted:goal-seeker", out=tmp_path / "c", **kw)
+    def robot(res):
+        return fishprobe.read_trial(res["files"][0]).robot
+
+    np.testing.assert_array_equal(robot(r), robot(again))  # same seed, same turns
+    assert not np.allclose(robot(r), robot(seeker))
+    assert "scripted:random" in str(fishprobe.read_trial(r["files"][0]).fishprobe["policy"])
+
+
 def test_bad_evaluations_are_refused_before_the_directory_exists(tmp_path):
     cases = [
         (dict(policy="scripted:goal-seeker", model="Zone", episodes=0), ValueError, "episodes"),
