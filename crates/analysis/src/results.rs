@@ -751,6 +751,23 @@ impl Results {
                     if weak.len() == 1 { "y" } else { "ies" },
                     if weak.len() == 1 { "s" } else { "" },
                 );
+                // Weak by less than two standard errors: the measurement cannot tell.
+                let near: Vec<String> = self
+                    .competence
+                    .iter()
+                    .filter(|(_, c)| c.weak)
+                    .filter_map(|(p, c)| {
+                        let se = c.ratio_se?;
+                        (c.ratio + 2.0 * se >= self.config.competence_threshold)
+                            .then(|| format!("{p} ({:.2} ± {se:.2})", c.ratio))
+                    })
+                    .collect();
+                if !near.is_empty() {
+                    s += &format!(
+                        "Within two standard errors of the bar, so not clearly below it: {}; more evaluation episodes would tell.\n",
+                        near.join(", ")
+                    );
+                }
             }
             s.push('\n');
         }
@@ -796,6 +813,49 @@ impl Results {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn a_weak_probe_is_flagged_and_one_within_two_standard_errors_is_called_unclear() {
+        let mut r = Results::default();
+        let probe = |ratio: f64, se: Option<f64>| {
+            let mut c = crate::competence::competence_of(
+                ratio * 30.0,
+                50,
+                BTreeMap::from([("FetchAndLead".into(), 30.0)]),
+                0.8,
+            )
+            .unwrap();
+            c.ratio_se = se;
+            c
+        };
+        r.competence
+            .insert("ConvNet".into(), probe(0.78, Some(0.02)));
+        r.competence.insert("Zone".into(), probe(0.7, Some(0.02)));
+        r.competence.insert("Force".into(), probe(1.1, Some(0.01)));
+        r.competence.insert("Follow".into(), probe(0.79, None));
+        let md = r.summary_markdown();
+        assert!(
+            md.contains("| ConvNet | 23.4 | FetchAndLead | 30.0 | 0.78 ± 0.02 **weak** |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| Follow | 23.7 | FetchAndLead | 30.0 | 0.79 **weak** |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("**Warning:** ConvNet, Follow, Zone reach less than 80 %"),
+            "{md}"
+        );
+        // 0.78 + 2 · 0.02 reaches the bar; 0.70 does not, and without an error nothing is said.
+        assert!(
+            md.contains("not clearly below it: ConvNet (0.78 ± 0.02); more evaluation"),
+            "{md}"
+        );
+        assert!(
+            !md.contains("Zone (0.70") && !md.contains("Follow (0.79"),
+            "{md}"
+        );
+    }
 
     #[test]
     fn results_read_back_as_written_with_nan_and_from_older_partial_files() {
