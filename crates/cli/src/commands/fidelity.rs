@@ -468,9 +468,9 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
             ..e.clone()
         };
         let br = fishprobe_learn::evaluate(b.as_ref(), &be)?;
-        let (g, _) = fishprobe_learn::goals_mean_sd(&br);
-        baselines.insert(name.to_string(), g);
-        baseline_stats.insert(name.to_string(), stats(&br));
+        let g = stats(&br);
+        baselines.insert(name.to_string(), g.map_or(f64::NAN, |g| g.mean));
+        baseline_stats.insert(name.to_string(), g);
     }
     let (reach_s, baselines_reach_s) = reach_columns(dir)?;
     // The study's own measure of competence, on the scripts' `scripted:` names.

@@ -8,8 +8,9 @@
 //! gap to the virtual guppy with a probe neither policy is (the nine metrics' Wasserstein
 //! distances in units of the guppy's spread, and the goals a scripted fetch-and-lead robot
 //! reaches; the same with further probes, `more_gap_probes`). With `rounds` > 1 each chain
-//! trains, records and refits again against its own model (iterative retraining). The virtual guppy is recorded in-process, by the same simulation the virtual lab
-//! (`fishprobe lab`) serves over the bridge: the bridge adds transport, not behaviour.
+//! trains, records and refits again against its own model (iterative retraining). The
+//! virtual guppy is recorded in-process, by the same simulation the virtual lab (`fishprobe
+//! lab`) serves over the bridge: the bridge adds transport, not behaviour.
 //!
 //! Every stage leaves its files in the output directory and is skipped when they are there, so
 //! an interrupted loop resumes.
