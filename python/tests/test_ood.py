@@ -144,3 +144,30 @@ def test_bad_yardsticks_are_refused_before_the_run_exists(tmp_path):
         fishprobe.train("ConvNet", tmp_path / "missing", preset="smoke", settings=ood,
                         callback=None, ood_yardstick=str(tmp_path / "no-such-policy"))
     assert not (tmp_path / "missing").exists()
+
+
+def test_the_ood_env_can_reward_an_ensembles_disagreement(tmp_path, cli, shared_data):
+    pairs = shared_data / "guppy-pairs" / "legacy"
+    train = sorted((pairs / "train").glob("*.hdf5"))[:2]
+    held_out = sorted((pairs / "validation").glob("*.hdf5"))[:1]
+    assert train and held_out, f"no guppy pairs under {pairs}"
+    weights = tmp_path / "convnet.safetensors"
+    cli("fit-convnet", "--data", *train, "--validation", *held_out, "--out", weights,
+        "--max-epochs", "1", "--members", "2", "--no-baselines")
+    ensemble = json.loads((tmp_path / "convnet.safetensors.disagreement.json").read_text())
+    assert len(ensemble["members"]) == 1
+    dis = {"task": {**PLAIN["task"], "ood_score": "disagreement"}}
+    env = gym.make("fishprobe/OOD-v0", model=f"convnet:{weights}", settings=dis)
+    assert env.unwrapped.settings["task"]["ood_score"] == "disagreement"
+    penalty = env.unwrapped.settings["task"]["wall_penalty"]
+    env.reset(seed=0)
+    scores = []
+    for k in range(6):
+        _, reward, _, _, info = env.step(np.array([0.8 * (k % 3 - 1)], np.float32))
+        # The reward is the disagreement score, as it was the support score above.
+        assert _reward_is_the_score(reward, info["support_score"], info["robot_near_wall"], penalty)
+        scores.append(info["support_score"])
+    assert np.all(np.isfinite(scores)) and min(scores) >= 0.0
+    # The shipped weights come without an ensemble: the error says how to make one.
+    with pytest.raises(ValueError, match="--members"):
+        gym.make("fishprobe/OOD-v0", settings=dis)

@@ -138,6 +138,119 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     }
     // The narrow model is the same data and fit: its gap is the one-round loop's.
     assert_eq!(j2["seeds"][0]["narrow"], seed["narrow"]);
+    // The OOD policy rewarded by an ensemble's disagreement: the narrow model is fitted as an
+    // ensemble (its own network unchanged, so the narrow gap is the one above), the policy
+    // trains against it, and the table says so.
+    let cfg3 = dir.join("disagreement.toml");
+    std::fs::write(
+        &cfg3,
+        format!("{TINY}ood_score = \"disagreement\"\nensemble_members = 2\n"),
+    )
+    .unwrap();
+    let out3 = dir.join("loop3");
+    let o = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out3),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg3),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("disagreement of an ensemble of 2"));
+    let narrow3 = out3.join("seed-5/model-narrow/convnet.safetensors");
+    let d: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(out3.join("seed-5/model-narrow/convnet.safetensors.disagreement.json"))
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(d["members"].as_array().unwrap().len(), 1);
+    assert!(out3
+        .join("seed-5/model-narrow/convnet.safetensors.member-2.safetensors")
+        .is_file());
+    let p: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out3.join("seed-5/policy-ood/params.json")).unwrap())
+            .unwrap();
+    assert_eq!(p["env"]["task"]["ood_score"], "disagreement");
+    let j3: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out3.join("loop.json")).unwrap()).unwrap();
+    assert_eq!(j3["seeds"][0]["narrow"], seed["narrow"]);
+    // The lead-to-goal chain's model is no ensemble.
+    assert!(!out3
+        .join("seed-5/model-goal/convnet.safetensors.disagreement.json")
+        .exists());
+    // The support command checks the ensemble's disagreement beside the two estimators.
+    let o = fishprobe(&[
+        "support",
+        "--model",
+        &format!("convnet:{}", s(&narrow3)),
+        "--data",
+        s(&out3.join("seed-5/data/narrow")),
+        "--validation",
+        s(&out3.join("seed-5/data/validation")),
+        "--robot-as-partner",
+        "--synthetic",
+        "50",
+        "--out",
+        s(&dir.join("support3.json")),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let names: Vec<&str> = c["checks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["estimator"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["knn", "gmm", "disagreement"]);
+    // A member that is not the file it was fitted as: refused by name when a policy would
+    // train against the ensemble.
+    let member = out3.join("seed-5/model-narrow/convnet.safetensors.member-2.safetensors");
+    let mut bytes = std::fs::read(&member).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 1;
+    std::fs::write(&member, bytes).unwrap();
+    let ds = dir.join("ds.toml");
+    std::fs::write(&ds, "[env.task]\nood_score = \"disagreement\"\n").unwrap();
+    let model = format!("convnet:{}", s(&narrow3));
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        &model,
+        "--task",
+        "ood",
+        "--preset",
+        "smoke",
+        "--settings",
+        s(&ds),
+        "--out",
+        s(&dir.join("never-ds")),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("member-2") && stderr(&o).contains("SHA-256"),
+        "{}",
+        stderr(&o)
+    );
+    // Weights with no ensemble: the error says how to make one.
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        &format!("convnet:{}", s(&weights)),
+        "--task",
+        "ood",
+        "--preset",
+        "smoke",
+        "--settings",
+        s(&ds),
+        "--out",
+        s(&dir.join("never-ds")),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--members"), "{}", stderr(&o));
+    assert!(!dir.join("never-ds").exists());
     // Other settings into the same directory: refused.
     std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
     let o = fishprobe(&loop_args);
@@ -146,6 +259,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     // A gap probe that is not one, one listed twice, a partner range out of range: each
     // refused by name before anything runs.
     for (settings, says) in [
+        (format!("{TINY}ensemble_members = 1\n"), "ensemble_members"),
         (
             format!("{TINY}more_gap_probes = [\"scripted:dance\"]\n"),
             "scripted:dance",
@@ -443,7 +557,8 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let t = stdout(&o);
-    assert!(t.contains("| Knn |") && t.contains("| Gmm |"), "{t}");
+    assert!(t.contains("| knn |") && t.contains("| gmm |"), "{t}");
+    assert!(!t.contains("| disagreement |"), "no ensemble: {t}");
     assert!(t.contains("pressed into a corner"), "{t}");
     let f: serde_json::Value = serde_json::from_slice(&std::fs::read(&other).unwrap()).unwrap();
     assert_eq!(f["config"]["estimator"], "gmm");

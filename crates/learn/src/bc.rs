@@ -67,6 +67,14 @@ fishprobe_sim::documented_params! {
         /// The partner range of the support written beside the weights
         /// (`support.partner_range_cm`; choice: 0, every partner counts).
         pub support_partner_range_cm: f32 = 0.0; "cm",
+        /// Networks of the ensemble fitted on the same data, the weights included, in
+        /// [1, 16] (choice: 1, no ensemble). With K > 1 the K - 1 further members (each from its
+        /// own initialisation and shuffle, seeds derived by label) are written beside the
+        /// weights with the ensemble's disagreement file, which the OOD score `disagreement`
+        /// needs (issue 23). Each member costs a fit.
+        pub ensemble_members: usize = 1; "networks",
+        /// Training views the disagreement is calibrated on (choice: 2048, as the support).
+        pub ensemble_calibration_views: usize = 2048; "views",
     }
 }
 
@@ -102,6 +110,25 @@ impl CloneConfig {
             if v == 0 {
                 return Err(ConfigError::new("clone", f, 0, "must be at least 1"));
             }
+        }
+        if !(1..=fishprobe_models::disagreement::MAX_MEMBERS).contains(&self.ensemble_members) {
+            return Err(ConfigError::new(
+                "clone",
+                "ensemble_members",
+                self.ensemble_members,
+                &format!(
+                    "must lie in [1, {}]",
+                    fishprobe_models::disagreement::MAX_MEMBERS
+                ),
+            ));
+        }
+        if !(20..=1 << 20).contains(&self.ensemble_calibration_views) {
+            return Err(ConfigError::new(
+                "clone",
+                "ensemble_calibration_views",
+                self.ensemble_calibration_views,
+                "must lie in [20, 1048576]",
+            ));
         }
         // Upper bounds, checked before anything is allocated: a batch is held in memory, and
         // the paper's fit takes well under 1,000 epochs.
@@ -688,6 +715,11 @@ pub struct FitReport {
     pub support: PathBuf,
     /// The training log (CSV).
     pub log_file: PathBuf,
+    /// The further members of the ensemble (`ensemble_members` > 1), with their validation
+    /// NLLs.
+    pub members: Vec<(PathBuf, f64)>,
+    /// The ensemble's disagreement file, when it has further members.
+    pub disagreement: Option<PathBuf>,
 }
 
 /// Fits M_ConvNet on the pair files under `data`, stopping early on `validation`, and writes
@@ -731,23 +763,24 @@ pub fn fit_convnet(
         train: &train,
         validation: &val,
     });
-    let run = |label: &'static str, net: &mut ConvNet, t: &PairDataset, v: &PairDataset| {
-        let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
-        let on_batch =
-            |done: usize, total: usize| progress(FitProgress::Batch { label, done, total });
-        fit(
-            net,
-            t,
-            v,
-            cfg,
-            &mut rng,
-            |log| progress(FitProgress::Epoch { label, log: *log }),
-            &on_batch,
-        )
-    };
+    let run =
+        |label: &'static str, seed: u64, net: &mut ConvNet, t: &PairDataset, v: &PairDataset| {
+            let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
+            let on_batch =
+                |done: usize, total: usize| progress(FitProgress::Batch { label, done, total });
+            fit(
+                net,
+                t,
+                v,
+                cfg,
+                &mut rng,
+                |log| progress(FitProgress::Epoch { label, log: *log }),
+                &on_batch,
+            )
+        };
     let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
     let mut net = ConvNet::new(arch.clone(), &mut init);
-    let logs = run("ConvNet", &mut net, &train, &val)?;
+    let logs = run("ConvNet", seed, &mut net, &train, &val)?;
     let val_nll = nll(&net, &val);
     let marginal = marginal_nll(&train, &val, arch.cells());
     let no_neighbour = if baselines {
@@ -756,7 +789,7 @@ pub fn fit_convnet(
         blind(&mut vb.x, &arch);
         let mut init = fishprobe_sim::stream(seed, "fit-convnet/init-no-neighbour", 0);
         let mut net_b = ConvNet::new(arch.clone(), &mut init);
-        run("no-neighbour baseline", &mut net_b, &tb, &vb)?;
+        run("no-neighbour baseline", seed, &mut net_b, &tb, &vb)?;
         Some(nll(&net_b, &vb))
     } else {
         None
@@ -806,6 +839,69 @@ pub fn fit_convnet(
     )?;
     s.save(&support)
         .map_err(fishprobe_models::ModelError::from)?;
+    // The ensemble: each further member from its own seed (initialisation and shuffle).
+    let mut members = Vec::new();
+    let mut nets = vec![net];
+    for i in 2..=cfg.ensemble_members {
+        let member_seed = fishprobe_sim::derive_seed(seed, "fit-convnet/ensemble-member", i as u64);
+        let mut init = fishprobe_sim::stream(member_seed, "fit-convnet/init", 0);
+        let mut m = ConvNet::new(arch.clone(), &mut init);
+        let m_logs = run("ensemble member", member_seed, &mut m, &train, &val)?;
+        let m_nll = nll(&m, &val);
+        let file = fishprobe_models::disagreement::member_beside(out, i);
+        let m_meta = serde_json::json!({
+            "arch": arch,
+            "ensemble_member_of": out.file_name().map(|n| n.to_string_lossy().into_owned()),
+            "member": i,
+            "seed": member_seed,
+            "command": command,
+            "validation_nll": m_nll,
+            "epochs": m_logs.len(),
+            "program_version": env!("CARGO_PKG_VERSION"),
+        });
+        fishprobe_nn::store::save(&file, &m.to_tensors(), &m_meta)?;
+        members.push((file, m_nll));
+        nets.push(m);
+    }
+    let disagreement = if members.is_empty() {
+        None
+    } else {
+        let refs = members
+            .iter()
+            .map(|(f, _)| {
+                let bytes = std::fs::read(f)
+                    .map_err(|e| LearnError::Run(format!("reading back {}: {e}", f.display())))?;
+                Ok(fishprobe_models::disagreement::MemberRef {
+                    file: f
+                        .file_name()
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default(),
+                    sha256: fishprobe_models::sha256_hex(&bytes),
+                })
+            })
+            .collect::<Result<Vec<_>, LearnError>>()?;
+        let file = fishprobe_models::disagreement::DisagreementFile::new(
+            out.display().to_string(),
+            fishprobe_models::sha256_hex(&bytes),
+            refs,
+            serde_json::json!({
+                "command": command,
+                "training_files": names(&train.files),
+            }),
+        );
+        let mut rng = fishprobe_sim::stream(seed, "disagreement", 0);
+        let d = fishprobe_models::disagreement::Disagreement::fit(
+            nets,
+            file,
+            &train.x,
+            cfg.ensemble_calibration_views,
+            &mut rng,
+        )
+        .map_err(fishprobe_models::ModelError::from)?;
+        let path = fishprobe_models::disagreement::file_beside(out);
+        d.save(&path).map_err(fishprobe_models::ModelError::from)?;
+        Some(path)
+    };
     let log_file = out.with_extension("training.csv");
     let mut csv = String::from("epoch,train_nll,val_nll,seconds\n");
     for l in &logs {
@@ -826,6 +922,8 @@ pub fn fit_convnet(
         weights: out.to_path_buf(),
         support,
         log_file,
+        members,
+        disagreement,
     })
 }
 

@@ -47,7 +47,7 @@ impl RunSpec {
         self.ppo.validate()?;
         self.env.validate()?;
         if self.env.task.objective == Objective::Ood {
-            self.model.support()?;
+            self.model.ood_scorer(self.env.task.ood_score)?;
         }
         Ok(())
     }
@@ -209,9 +209,9 @@ impl Trainer {
     fn build(dir: &Path, spec: RunSpec, model: Arc<dyn FishModel>) -> Result<Self, LearnError> {
         let mut venv = VecEnv::new(spec.env.clone(), model, spec.ppo.num_envs)?;
         if spec.env.task.objective == Objective::Ood {
-            // The OOD reward scores the fish's views against the model's training support.
-            let support = spec.model.support()?;
-            venv.set_support(Some(Arc::new(support)));
+            // The OOD reward scores the fish's views against the model's training support
+            // (or its ensemble's disagreement).
+            venv.set_support(Some(spec.model.ood_scorer(spec.env.task.ood_score)?));
         }
         let obs_dim = venv.obs_dim();
         let policy =

@@ -142,6 +142,15 @@ fn check_settings(config: &OodYardstickConfig, env: &EnvConfig) -> Result<(), Le
         )
         .into());
     }
+    if env.task.ood_score != fishprobe_sim::OodScore::Support {
+        return Err(ConfigError::new(
+            "task",
+            "ood_score",
+            "disagreement",
+            "a yardstick is measured in support scores: it applies to ood_score = support only",
+        )
+        .into());
+    }
     Ok(config.validate()?)
 }
 
@@ -283,5 +292,11 @@ mod tests {
             Err(LearnError::Policy(_))
         ));
         assert!(check("scripted:goal-seeker", &d, &ood).is_ok());
+        // Nor with the disagreement score, whose scale is not the support's.
+        ood.task.ood_score = fishprobe_sim::OodScore::Disagreement;
+        match check("scripted:goal-seeker", &d, &ood) {
+            Err(LearnError::Config(e)) => assert_eq!(e.field, "task.ood_score"),
+            other => panic!("{other:?}"),
+        }
     }
 }

@@ -26,6 +26,7 @@
 
 pub mod collective;
 pub mod convnet;
+pub mod disagreement;
 pub mod follow;
 pub mod force;
 pub mod guppy;
@@ -269,6 +270,48 @@ impl ModelSpec {
                 model: self.name().to_string(),
             }),
         }
+    }
+}
+
+impl ModelSpec {
+    /// The ensemble of this model's fits (the `disagreement` OOD score), checked to belong to
+    /// its weights. M_ConvNet with a weights file only: the shipped weights come without one,
+    /// and an ONNX model's ensemble would need ONNX members (not supported).
+    pub fn disagreement(&self) -> Result<disagreement::Disagreement, ModelError> {
+        match self {
+            Self::ConvNet(p) if !p.weights.is_empty() => {
+                let bytes = std::fs::read(&p.weights).map_err(|e| {
+                    ModelError::Weights(WeightsError {
+                        source_name: p.weights.clone(),
+                        what: e.to_string(),
+                    })
+                })?;
+                let path = std::path::Path::new(&p.weights);
+                Ok(disagreement::Disagreement::load(
+                    path,
+                    &p.weights,
+                    &sha256_hex(&bytes),
+                )?)
+            }
+            _ => Err(ModelError::Support(
+                support::SupportError::MissingEnsemble {
+                    model: self.name().to_string(),
+                    path: "(only M_ConvNet fitted with `fit-convnet --members K` has one)".into(),
+                },
+            )),
+        }
+    }
+
+    /// What scores the fish's views in the OOD task: the support of the training data or the
+    /// disagreement of the model's ensemble ([`fishprobe_sim::OodScore`]).
+    pub fn ood_scorer(
+        &self,
+        kind: fishprobe_sim::OodScore,
+    ) -> Result<std::sync::Arc<dyn fishprobe_sim::InputSupport>, ModelError> {
+        Ok(match kind {
+            fishprobe_sim::OodScore::Support => std::sync::Arc::new(self.support()?),
+            fishprobe_sim::OodScore::Disagreement => std::sync::Arc::new(self.disagreement()?),
+        })
     }
 }
 

@@ -347,6 +347,17 @@ pub enum SupportError {
         /// Where it was looked for.
         path: PathBuf,
     },
+    /// No ensemble beside the model (the `disagreement` OOD score).
+    #[error(
+        "no ensemble for {model} at {path}: the OOD score `disagreement` needs one; `fishprobe \
+         fit-convnet --members K` fits K - 1 further members beside the weights and writes it"
+    )]
+    MissingEnsemble {
+        /// The model.
+        model: String,
+        /// Where it was looked for.
+        path: PathBuf,
+    },
     /// A support file that belongs to other weights.
     #[error(
         "support file {path} was built for the model with SHA-256 {found}, not for {model} \

@@ -65,6 +65,37 @@ fn the_ood_task_scores_views_without_allocating() {
 }
 
 #[test]
+fn the_ensembles_disagreement_scores_views_without_allocating() {
+    use fishprobe_models::disagreement::{Disagreement, DisagreementFile, MemberRef};
+    use fishprobe_models::ConvNet;
+    use rand::RngExt;
+    // The shipped network and a fresh one: an ensemble that disagrees everywhere.
+    let shipped = ConvNet::shipped().unwrap();
+    let mut rng = fishprobe_sim::stream(3, "no-alloc", 0);
+    let fresh = ConvNet::new(shipped.arch.clone(), &mut rng);
+    let views: Vec<f32> = (0..100 * shipped.arch.view_len())
+        .map(|_| rng.random_range(0.0..1.0))
+        .collect();
+    let member = MemberRef {
+        file: "fresh".into(),
+        sha256: String::new(),
+    };
+    let file = DisagreementFile::new("t".into(), String::new(), vec![member], Default::default());
+    let d = Disagreement::fit(vec![shipped, fresh], file, &views, 50, &mut rng).unwrap();
+    let spec = ModelSpec::by_name("ConvNet").unwrap();
+    let mut cfg = EnvConfig {
+        mode: TaskMode::Evaluation,
+        ..EnvConfig::default()
+    };
+    cfg.task.objective = Objective::Ood;
+    cfg.task.ood_score_every_frames = 1;
+    let mut env = TankEnv::new(cfg, spec.build().unwrap()).unwrap();
+    env.set_support(Some(Arc::new(d)));
+    let n = allocations_in_600_steps(&mut env);
+    assert_eq!(n, 0, "the disagreement score: {n} allocations in 600 steps");
+}
+
+#[test]
 fn stepping_does_not_allocate() {
     // One fish (the paper) and a group of eight (issue 22).
     for (name, fish_count) in ModelSpec::NAMES.iter().flat_map(|n| [(n, 1), (n, 8)]) {

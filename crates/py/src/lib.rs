@@ -183,13 +183,17 @@ fn env_config(
 }
 
 /// The support the OOD task (`task.objective = "ood"`) scores the fish's views against: the
-/// model's own, as `fishprobe train --task ood` uses; none for the lead-to-goal task.
+/// model's own (or its ensemble's disagreement, `task.ood_score`), as `fishprobe train --task
+/// ood` uses; none for the lead-to-goal task.
 fn ood_support(model: &Model, cfg: &EnvConfig) -> PyResult<Option<Arc<dyn InputSupport>>> {
     if cfg.task.objective != Objective::Ood {
         return Ok(None);
     }
-    let support = model.spec.support().map_err(model_err)?;
-    Ok(Some(Arc::new(support)))
+    let scorer = model
+        .spec
+        .ood_scorer(cfg.task.ood_score)
+        .map_err(model_err)?;
+    Ok(Some(scorer))
 }
 
 fn pose(a: &AgentState) -> [f32; 3] {

@@ -69,7 +69,7 @@ pub use sandbox::Sandbox;
 pub use script::{RobotScript, ScriptParams};
 pub use support::InputSupport;
 pub use task::{
-    GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, TaskMode, TaskParams, TrainingGoals,
-    TrainingStart,
+    GoalEvent, GoalReacher, GoalTracker, GroupGoal, Objective, OodScore, TaskMode, TaskParams,
+    TrainingGoals, TrainingStart,
 };
 pub use vector::{AutoresetMode, VecEnv};

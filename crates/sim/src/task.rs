@@ -112,6 +112,14 @@ crate::documented_params! {
         /// times a second at 25 Hz: a second's views change little from frame to frame, and
         /// a score costs about as much as a frame of M_ConvNet; 1: every frame).
         pub ood_score_every_frames: u32 = 5; "frames",
+        /// OOD task: what scores a view: `support` (choice: how rare the view was in the
+        /// model's training recordings, the support file `fit-convnet` writes) or
+        /// `disagreement` (how much an ensemble of fits of the model disagrees on the view,
+        /// the mutual information of their predictions; the ensemble `fit-convnet --members K`
+        /// writes). Both are calibrated alike (0 at the training views' median, 1 at their
+        /// 95th percentile), so the floor, cap and weight mean the same. Rarity is not error:
+        /// docs/validation.md, "Rarity or uncertainty: an ensemble's disagreement".
+        pub ood_score: OodScore = OodScore::Support; "-",
         /// OOD task: weight of the goal reward added to the OOD reward, in [0, 10] (choice: 0,
         /// the pure OOD objective; e.g. 1 for a robot that also keeps leading).
         pub ood_goal_weight: f32 = 0.0; "1",
@@ -141,6 +149,17 @@ pub enum Objective {
     Goal,
     /// Drive the fish's views out of its model's training support.
     Ood,
+}
+
+/// What scores a fish's view in the OOD task ([`TaskParams::ood_score`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OodScore {
+    /// How rare the view was in the model's training data (its support file).
+    #[default]
+    Support,
+    /// How much an ensemble of the model's fits disagrees on the view.
+    Disagreement,
 }
 
 /// Where training episodes start ([`TaskParams::training_start`]).

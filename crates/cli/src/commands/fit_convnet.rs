@@ -36,6 +36,11 @@ pub struct FitConvnetArgs {
     /// Most epochs (overrides the settings).
     #[arg(long)]
     max_epochs: Option<usize>,
+    /// Networks of an ensemble fitted on the same data, these weights included (overrides the
+    /// settings' `ensemble_members`; 1: none). With K > 1 the K - 1 further members and the
+    /// ensemble's disagreement file go beside the weights, for the OOD score `disagreement`.
+    #[arg(long)]
+    members: Option<usize>,
     /// Skip the "no neighbour" baseline network (halves the time).
     #[arg(long)]
     no_baselines: bool,
@@ -64,6 +69,9 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
     };
     if let Some(n) = a.max_epochs {
         cfg.max_epochs = n;
+    }
+    if let Some(k) = a.members {
+        cfg.ensemble_members = k;
     }
     cfg.validate()?;
     let validation = pairs_or_shared(&a.validation, "validation")?;
@@ -159,6 +167,16 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
     );
     if let Some(b) = r.no_neighbour_nll {
         text += &format!("  no-neighbour ConvNet    {b:.4}\n");
+    }
+    for (f, nll) in &r.members {
+        let name = f.file_name().map(|n| n.to_string_lossy().into_owned());
+        text += &format!(
+            "  ensemble member        {nll:.4}  ({})\n",
+            name.unwrap_or_default()
+        );
+    }
+    if let Some(d) = &r.disagreement {
+        text += &format!("wrote the ensemble's disagreement file {}\n", d.display());
     }
     text += &format!(
         "wrote {} (+ {}, {})\n",

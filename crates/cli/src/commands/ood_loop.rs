@@ -23,7 +23,7 @@ use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress};
 use fishprobe_learn::{Evaluation, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::params::check;
-use fishprobe_sim::{EnvConfig, Objective};
+use fishprobe_sim::{EnvConfig, Objective, OodScore};
 use std::path::{Path, PathBuf};
 
 use super::emit;
@@ -74,6 +74,16 @@ fishprobe_sim::documented_params! {
         /// 0, every partner counts, as the shipped support; 15 makes the OOD policy seek
         /// close interactions, docs/validation.md, "A partner range for the support").
         pub support_partner_range_cm: f32 = 0.0; "cm",
+        /// What the OOD policy is rewarded by (`task.ood_score`): `support` (choice: the rarity
+        /// of the fish's views in the model's training data) or `disagreement` (how much an
+        /// ensemble of `ensemble_members` fits of the model disagrees on them; every model
+        /// the OOD chain trains against is then fitted as an ensemble). The share of the OOD
+        /// policy's views beyond the lead-to-goal policy's p95 is measured in support scores
+        /// either way.
+        pub ood_score: OodScore = OodScore::Support; "-",
+        /// Networks of each ensemble with `ood_score = "disagreement"`, in [2, 16] (choice: 4:
+        /// enough for a stable disagreement, each member one more fit).
+        pub ensemble_members: usize = 4; "networks",
     }
 }
 
@@ -105,6 +115,13 @@ impl OodLoopConfig {
             self.support_partner_range_cm,
         )
         .context("ood-loop settings")?;
+        if !(2..=fishprobe_models::disagreement::MAX_MEMBERS).contains(&self.ensemble_members) {
+            bail!(
+                "ood-loop setting `ensemble_members` = {}: must lie in [2, {}]",
+                self.ensemble_members,
+                fishprobe_models::disagreement::MAX_MEMBERS
+            );
+        }
         if self.more_gap_probes.len() > 8 {
             bail!(
                 "ood-loop setting `more_gap_probes`: at most 8 probes, got {}",
@@ -250,21 +267,32 @@ fn record(
     Ok((files, goals.iter().sum::<f64>() / goals.len().max(1) as f64))
 }
 
-/// Fits M_ConvNet on `data` into `dir/convnet.safetensors` (skipped when done).
+/// Fits M_ConvNet on `data` into `dir/convnet.safetensors` (skipped when done), as an
+/// ensemble when an OOD policy will be trained against it with `ood_score = "disagreement"`.
 fn fit(
     data: &[PathBuf],
     validation: &Path,
     dir: &Path,
     loop_cfg: &OodLoopConfig,
     seed: u64,
+    ood_target: bool,
 ) -> Result<ModelSpec> {
     let weights = dir.join("convnet.safetensors");
-    if !fishprobe_learn::bc::support_beside(&weights).exists() {
+    let ensemble = ood_target && loop_cfg.ood_score == OodScore::Disagreement;
+    // The support is written after the weights, the disagreement file after the members.
+    let done = fishprobe_learn::bc::support_beside(&weights).exists()
+        && (!ensemble || fishprobe_models::disagreement::file_beside(&weights).exists());
+    if !done {
         std::fs::create_dir_all(dir)?;
         let cfg = CloneConfig {
             robot_as_partner: true,
             max_epochs: loop_cfg.fit_max_epochs,
             support_partner_range_cm: loop_cfg.support_partner_range_cm,
+            ensemble_members: if ensemble {
+                loop_cfg.ensemble_members
+            } else {
+                1
+            },
             ..CloneConfig::default()
         };
         let quiet = |_: FitProgress<'_>| {};
@@ -303,6 +331,7 @@ fn train(
             ppo.total_timesteps = cfg.train_steps;
             let mut env = EnvConfig::default();
             env.task.objective = objective;
+            env.task.ood_score = cfg.ood_score;
             Trainer::create(
                 dir,
                 RunSpec {
@@ -358,7 +387,14 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
         &validation,
     )?;
     step("fitting M_ConvNet on the narrow data");
-    let m0 = fit(&narrow, &validation, &dir.join("model-narrow"), cfg, seed)?;
+    let m0 = fit(
+        &narrow,
+        &validation,
+        &dir.join("model-narrow"),
+        cfg,
+        seed,
+        true,
+    )?;
     let with = |extra: &[PathBuf]| narrow.iter().chain(extra).cloned().collect::<Vec<_>>();
     // Each chain: its current model and everything it has recorded.
     let (mut m_ood, mut m_goal) = (m0.clone(), m0.clone());
@@ -431,6 +467,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             &dir.join(format!("model-ood{sfx}")),
             cfg,
             seed,
+            round < cfg.rounds,
         )?;
         m_goal = fit(
             &with(&goal_all),
@@ -438,6 +475,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             &dir.join(format!("model-goal{sfx}")),
             cfg,
             seed,
+            false,
         )?;
     }
     step("measuring each model's gap to the virtual guppy");
@@ -607,6 +645,14 @@ fn markdown(cfg: &OodLoopConfig, r: &[SeedResult]) -> String {
         100.0 * mean(|s| s.ood_share_beyond_goal_p95),
         r.len()
     );
+    if cfg.ood_score == OodScore::Disagreement {
+        t += &format!(
+            "\nThe OOD policy was rewarded by the disagreement of an ensemble of {} fits of its \
+             model (`ood_score = \"disagreement\"`); the last column still measures support \
+             scores.\n",
+            cfg.ensemble_members
+        );
+    }
     if cfg.rounds > 1 {
         t += &format!(
             "\n{} rounds: the gaps are those of each chain's model after its last round; the \

@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_learn::bc::{build_support, load_pairs, CloneConfig, PairDataset};
 use fishprobe_models::convnet::{shipped_sha256, ConvNetArch};
-use fishprobe_models::support::{auc, synthetic_views, Estimator, SupportConfig, SupportModel};
+use fishprobe_models::support::{auc, synthetic_views, Estimator, SupportConfig};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{Tank, TankParams};
 use rayon::prelude::*;
@@ -79,7 +79,8 @@ fn model_of(name: &str) -> Result<(ModelSpec, String)> {
 /// One estimator's check.
 #[derive(Debug, serde::Serialize)]
 struct Check {
-    estimator: Estimator,
+    /// `knn`, `gmm`, or `disagreement` (the model's ensemble, when it has one).
+    estimator: String,
     build_s: f64,
     score_us_per_view: f64,
     held_out_views: usize,
@@ -97,14 +98,13 @@ struct Unseen {
     auc: f64,
 }
 
-fn scores(s: &SupportModel, views: &[f32], len: usize) -> Vec<f32> {
+/// Scores a view (`3 x bins`).
+type ViewScore<'a> = &'a (dyn Fn(&[f32]) -> f32 + Sync);
+
+fn scores(s: ViewScore<'_>, views: &[f32], len: usize) -> Vec<f32> {
     views
         .par_chunks(len * 1024)
-        .flat_map_iter(|c| {
-            c.chunks_exact(len)
-                .map(|v| s.score_view(v))
-                .collect::<Vec<_>>()
-        })
+        .flat_map_iter(|c| c.chunks_exact(len).map(s).collect::<Vec<_>>())
         .collect()
 }
 
@@ -115,7 +115,8 @@ fn median(v: &[f32]) -> f32 {
 }
 
 fn check(
-    s: &SupportModel,
+    estimator: String,
+    s: ViewScore<'_>,
     build_s: f64,
     val: &PairDataset,
     unseen: &[(&'static str, Vec<f32>)],
@@ -127,7 +128,7 @@ fn check(
         * rayon::current_num_threads() as f64;
     let frac = |v: &[f32]| v.iter().filter(|&&x| x > 1.0).count() as f64 / v.len().max(1) as f64;
     Check {
-        estimator: s.config.estimator,
+        estimator,
         build_s,
         score_us_per_view: per_view,
         held_out_views: inside.len(),
@@ -219,7 +220,11 @@ pub fn run(a: SupportArgs) -> Result<()> {
             provenance.clone(),
         )?;
         let c = check(
-            &s,
+            serde_json::to_value(est)?
+                .as_str()
+                .unwrap_or_default()
+                .to_string(),
+            &|v| s.score_view(v),
             t.elapsed().as_secs_f64(),
             &val,
             &unseen,
@@ -230,8 +235,22 @@ pub fn run(a: SupportArgs) -> Result<()> {
         }
         checks.push(c);
     }
+    // The model's own uncertainty, when it was fitted as an ensemble (`--members`): checked
+    // the same way, not written (its file is fit-convnet's).
+    if let Ok(d) = spec.disagreement() {
+        let c = check(
+            "disagreement".into(),
+            &|v| d.score_view(v),
+            0.0,
+            &val,
+            &unseen,
+            arch.view_len(),
+        );
+        checks.push(c);
+    }
     let mut s = chosen.context("the chosen estimator was built")?;
-    let chosen_check = checks.iter().find(|c| c.estimator == a.estimator);
+    let chosen_name = serde_json::to_value(a.estimator)?;
+    let chosen_check = checks.iter().find(|c| chosen_name == c.estimator.as_str());
     if let serde_json::Value::Object(m) = &mut s.provenance {
         m.insert("check".into(), serde_json::to_value(chosen_check)?);
     }
@@ -264,7 +283,7 @@ pub fn run(a: SupportArgs) -> Result<()> {
         t += "---|---|\n";
         for c in &checks {
             t += &format!(
-                "| {:?} | {:.1} % | {:.2} |",
+                "| {} | {:.1} % | {:.2} |",
                 c.estimator,
                 100.0 * c.held_out_within_1,
                 c.held_out_median_score

@@ -1,0 +1,441 @@
+//! An OOD score from the model's own uncertainty (issue 23): the disagreement of an ensemble
+//! of M_ConvNet fits.
+//!
+//! The support score ([`crate::support`]) measures how *rare* a view was in the training
+//! recordings. A rare view need not be one the model gets wrong: the in-silico loop
+//! (docs/validation.md, "The loop with three gap probes, five seeds and two rounds") found the
+//! OOD robot's rare situations to be ones the fish answers simply. An ensemble of networks
+//! fitted on the same data from different initialisations and shuffles agrees where the data
+//! pins the answer down and disagrees where each network had to extrapolate (deep ensembles,
+//! Lakshminarayanan et al. 2017). Its disagreement on a view is the **mutual information**
+//! between the prediction and the member (Houlsby et al. 2011, "BALD"):
+//!
+//! `I(view) = H(mean_k p_k) − mean_k H(p_k)`, in nats,
+//!
+//! with `p_k` member k's distribution over the (v, ω) grid. It is 0 when every member predicts
+//! the same distribution, however broad, so a fish that is merely unpredictable (a broad but
+//! agreed answer) does not count, only a fish the data did not teach the model. Calibrated as
+//! the support score is: 0 at the training views' median, 1 at their 95th percentile.
+//!
+//! `fishprobe fit-convnet --members K` fits the K − 1 further members beside the weights
+//! (`WEIGHTS.member-2.safetensors`, ...) and writes `WEIGHTS.disagreement.json`: the members'
+//! file names and SHA-256s, the weights' SHA-256 and the calibration. The OOD task uses it with
+//! `[env.task] ood_score = "disagreement"`.
+
+use crate::convnet::{encode_view, ConvNet, ConvNetWorkspace};
+use crate::support::SupportError;
+use fishprobe_sim::{FishView, InputSupport, SimRng};
+use rand::RngExt;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+/// Format name written into disagreement files.
+const FORMAT: &str = "fishprobe-disagreement";
+/// Format version.
+const VERSION: u32 = 1;
+/// Largest disagreement file read (it holds names and numbers only).
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+/// Most members of an ensemble (the model's own weights included): the score costs one
+/// network evaluation per member.
+pub const MAX_MEMBERS: usize = 16;
+
+/// The disagreement file of a weights file: `WEIGHTS.disagreement.json` beside it.
+pub fn file_beside(weights: &Path) -> PathBuf {
+    let mut s = weights.as_os_str().to_owned();
+    s.push(".disagreement.json");
+    PathBuf::from(s)
+}
+
+/// The file of further member `i` (2, 3, ...) of the ensemble of `weights`:
+/// `WEIGHTS.member-I.safetensors` beside it.
+pub fn member_beside(weights: &Path, i: usize) -> PathBuf {
+    let mut s = weights.as_os_str().to_owned();
+    s.push(format!(".member-{i}.safetensors"));
+    PathBuf::from(s)
+}
+
+/// A further member as the file names it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MemberRef {
+    /// File name, in the directory of the disagreement file (no directories).
+    pub file: String,
+    /// Its SHA-256.
+    pub sha256: String,
+}
+
+/// What a disagreement file holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DisagreementFile {
+    /// Always "fishprobe-disagreement".
+    pub format: String,
+    /// Format version (1).
+    pub version: u32,
+    /// The model the ensemble belongs to (its weights file).
+    pub model: String,
+    /// SHA-256 of the model's weights: the ensemble's first member.
+    pub model_sha256: String,
+    /// The further members.
+    pub members: Vec<MemberRef>,
+    /// Median of the raw disagreement (nats) over the calibration views.
+    pub raw_median: f32,
+    /// Its 95th percentile.
+    pub raw_p95: f32,
+    /// Training views it was calibrated on.
+    pub calibration_views: usize,
+    /// Free notes: the command, the training files.
+    #[serde(default)]
+    pub provenance: serde_json::Value,
+}
+
+impl DisagreementFile {
+    /// The file of an ensemble not yet calibrated ([`Disagreement::fit`] calibrates it).
+    pub fn new(
+        model: String,
+        model_sha256: String,
+        members: Vec<MemberRef>,
+        provenance: serde_json::Value,
+    ) -> Self {
+        Self {
+            format: FORMAT.into(),
+            version: VERSION,
+            model,
+            model_sha256,
+            members,
+            raw_median: 0.0,
+            raw_p95: 1.0,
+            calibration_views: 0,
+            provenance,
+        }
+    }
+}
+
+/// Buffers of one concurrent score.
+#[derive(Debug, Default)]
+struct Scratch {
+    view: Vec<f32>,
+    ws: ConvNetWorkspace,
+    p: Vec<f32>,
+    mean: Vec<f32>,
+}
+
+/// The ensemble and its calibration: an [`InputSupport`].
+#[derive(Debug)]
+pub struct Disagreement {
+    /// What the file says.
+    pub file: DisagreementFile,
+    /// The model's own network first, then the further members.
+    nets: Vec<ConvNet>,
+    scratch: Vec<Mutex<Scratch>>,
+}
+
+/// Entropy (nats) of a distribution.
+fn entropy(p: &[f32]) -> f32 {
+    -p.iter()
+        .filter(|&&q| q > 0.0)
+        .map(|&q| q * q.ln())
+        .sum::<f32>()
+}
+
+/// The `q`-quantile (linear interpolation) of `v`, which it sorts.
+fn quantile(v: &mut [f32], q: f32) -> f32 {
+    v.sort_by(f32::total_cmp);
+    if v.is_empty() {
+        return f32::NAN;
+    }
+    let pos = q * (v.len() - 1) as f32;
+    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+    v[lo] + (v[hi] - v[lo]) * (pos - lo as f32)
+}
+
+impl Disagreement {
+    /// The ensemble of `nets` (the model's own first; at least 2, all of one shape),
+    /// calibrated on up to `calibration_views` of the training views `views` (`n x view_len`)
+    /// drawn with `rng`. `file` supplies the names; its calibration is overwritten.
+    pub fn fit(
+        nets: Vec<ConvNet>,
+        mut file: DisagreementFile,
+        views: &[f32],
+        calibration_views: usize,
+        rng: &mut SimRng,
+    ) -> Result<Self, SupportError> {
+        let len = nets.first().map_or(1, |n| n.arch.view_len());
+        let n = views.len() / len;
+        let k = calibration_views.min(n);
+        if k < 20 {
+            return Err(SupportError::TooFewViews { got: n, need: 20 });
+        }
+        file.raw_median = 0.0;
+        file.raw_p95 = 1.0;
+        file.calibration_views = k;
+        let d = Self::new(nets, file).map_err(|what| SupportError::Invalid {
+            path: "(new ensemble)".into(),
+            what,
+        })?;
+        // k distinct views, drawn uniformly (partial Fisher-Yates).
+        let mut idx: Vec<usize> = (0..n).collect();
+        for i in 0..k {
+            let j = rng.random_range(i..n);
+            idx.swap(i, j);
+        }
+        let mut raw: Vec<f32> = idx[..k]
+            .iter()
+            .map(|&i| d.raw_view(&views[i * len..(i + 1) * len]))
+            .collect();
+        let (median, p95) = (quantile(&mut raw, 0.5), quantile(&mut raw, 0.95));
+        let mut d = d;
+        d.file.raw_median = median;
+        // Degenerate (members that agree everywhere on this data): any spread above counts.
+        d.file.raw_p95 = if p95 > median { p95 } else { median + 1e-6 };
+        Ok(d)
+    }
+
+    /// Checks the networks against the file and builds the scratch buffers.
+    fn new(nets: Vec<ConvNet>, file: DisagreementFile) -> Result<Self, String> {
+        if !(2..=MAX_MEMBERS).contains(&nets.len()) || nets.len() != file.members.len() + 1 {
+            return Err(format!(
+                "{} networks for {} further members: an ensemble has 2 to {MAX_MEMBERS}",
+                nets.len(),
+                file.members.len()
+            ));
+        }
+        if nets.iter().any(|n| n.arch != nets[0].arch) {
+            return Err("members of different shapes".into());
+        }
+        let scratch = crate::convnet::slots(Scratch::default);
+        Ok(Self {
+            file,
+            nets,
+            scratch,
+        })
+    }
+
+    /// Members, the model's own network included.
+    pub fn members(&self) -> usize {
+        self.nets.len()
+    }
+
+    /// The raw disagreement (mutual information, nats) of a view (`3 x bins`).
+    pub fn raw_view(&self, view: &[f32]) -> f32 {
+        let mut guard = crate::convnet::free_slot(&self.scratch);
+        let s = &mut *guard;
+        self.raw_with(view, s)
+    }
+
+    fn raw_with(&self, view: &[f32], s: &mut Scratch) -> f32 {
+        let cells = self.nets[0].arch.cells();
+        s.p.resize(cells, 0.0);
+        s.mean.resize(cells, 0.0);
+        s.mean.fill(0.0);
+        let w = 1.0 / self.nets.len() as f32;
+        let mut mean_h = 0.0;
+        for net in &self.nets {
+            let logits = net.forward(view, 1, &mut s.ws);
+            fishprobe_nn::dist::softmax_rows(logits, &mut s.p, cells);
+            mean_h += w * entropy(&s.p);
+            for (m, &q) in s.mean.iter_mut().zip(&s.p) {
+                *m += w * q;
+            }
+        }
+        // Rounding can leave a hair below 0 where the members agree.
+        (entropy(&s.mean) - mean_h).max(0.0)
+    }
+
+    /// The calibrated score of a raw disagreement: 0 at the calibration views' median, 1 at
+    /// their 95th percentile, never negative; a non-finite value counts as far outside.
+    pub fn calibrate(&self, raw: f32) -> f32 {
+        let s = (raw - self.file.raw_median) / (self.file.raw_p95 - self.file.raw_median);
+        if s.is_finite() {
+            s.max(0.0)
+        } else {
+            1e3
+        }
+    }
+
+    /// The score of a view (`3 x bins`).
+    pub fn score_view(&self, view: &[f32]) -> f32 {
+        self.calibrate(self.raw_view(view))
+    }
+
+    /// Writes the disagreement file (atomically) to `path`; the members' files are the
+    /// caller's (they are named relative to `path`'s directory).
+    pub fn save(&self, path: &Path) -> Result<(), SupportError> {
+        let err = |e: String| SupportError::Write {
+            path: path.to_path_buf(),
+            what: e,
+        };
+        let text = serde_json::to_string_pretty(&self.file).map_err(|e| err(e.to_string()))?;
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, text).map_err(|e| err(e.to_string()))?;
+        std::fs::rename(&tmp, path).map_err(|e| err(e.to_string()))
+    }
+
+    /// Reads the disagreement file of `weights` (named `model` in messages) and its members,
+    /// and checks them: format, size, that it belongs to these weights (`weights_sha256`) and
+    /// that each member is the file it was fitted as (by SHA-256).
+    pub fn load(weights: &Path, model: &str, weights_sha256: &str) -> Result<Self, SupportError> {
+        let path = file_beside(weights);
+        let invalid = |what: String| SupportError::Invalid {
+            path: path.display().to_string(),
+            what,
+        };
+        match std::fs::metadata(&path) {
+            Err(_) => {
+                return Err(SupportError::MissingEnsemble {
+                    model: model.into(),
+                    path,
+                })
+            }
+            Ok(m) if m.len() > MAX_FILE_BYTES => {
+                return Err(invalid(format!(
+                    "{} bytes, more than the {MAX_FILE_BYTES} accepted",
+                    m.len()
+                )))
+            }
+            Ok(_) => {}
+        }
+        let text = std::fs::read_to_string(&path).map_err(|e| invalid(e.to_string()))?;
+        let file: DisagreementFile = serde_json::from_str(&text)
+            .map_err(|e| invalid(format!("not a fishprobe disagreement file: {e}")))?;
+        if file.format != FORMAT || file.version != VERSION {
+            return Err(invalid(format!(
+                "format {} version {}, not {FORMAT} version {VERSION}",
+                file.format, file.version
+            )));
+        }
+        if file.model_sha256 != weights_sha256 {
+            return Err(invalid(format!(
+                "fitted for the weights with SHA-256 {}, not for {model} (SHA-256 \
+                 {weights_sha256}): refit with `fishprobe fit-convnet --members K`",
+                file.model_sha256
+            )));
+        }
+        let ok = file.raw_median.is_finite()
+            && file.raw_p95.is_finite()
+            && file.raw_p95 > file.raw_median;
+        if !ok {
+            return Err(invalid("non-finite or degenerate calibration".into()));
+        }
+        if !(1..MAX_MEMBERS).contains(&file.members.len()) {
+            return Err(invalid(format!(
+                "{} further members: an ensemble has 2 to {MAX_MEMBERS} in all",
+                file.members.len()
+            )));
+        }
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut nets = vec![ConvNet::load(weights).map_err(|e| invalid(e.to_string()))?];
+        for m in &file.members {
+            // A bare file name: the file cannot point outside its directory.
+            if Path::new(&m.file).file_name().and_then(|n| n.to_str()) != Some(m.file.as_str()) {
+                return Err(invalid(format!(
+                    "member `{}` is not a file name in the file's directory",
+                    m.file
+                )));
+            }
+            let p = dir.join(&m.file);
+            let bytes =
+                std::fs::read(&p).map_err(|e| invalid(format!("member {}: {e}", p.display())))?;
+            let sha = crate::sha256_hex(&bytes);
+            if sha != m.sha256 {
+                return Err(invalid(format!(
+                    "member {} has SHA-256 {sha}, not the {} it was fitted as: refit with \
+                     `fishprobe fit-convnet --members K`",
+                    p.display(),
+                    m.sha256
+                )));
+            }
+            nets.push(ConvNet::load(&p).map_err(|e| invalid(e.to_string()))?);
+        }
+        Self::new(nets, file).map_err(invalid)
+    }
+}
+
+impl InputSupport for Disagreement {
+    fn score(&self, view: &FishView) -> f32 {
+        let mut guard = crate::convnet::free_slot(&self.scratch);
+        let s = &mut *guard;
+        let arch = &self.nets[0].arch;
+        s.view.resize(arch.view_len(), 0.0);
+        encode_view(arch, &view.tank, &view.me, view.others(), &mut s.view);
+        let view = std::mem::take(&mut s.view);
+        let raw = self.raw_with(&view, s);
+        s.view = view;
+        self.calibrate(raw)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::convnet::ConvNetArch;
+    use fishprobe_sim::stream;
+
+    fn file(members: usize) -> DisagreementFile {
+        let refs = (0..members)
+            .map(|i| MemberRef {
+                file: format!("m{i}"),
+                sha256: String::new(),
+            })
+            .collect();
+        DisagreementFile::new("test".into(), String::new(), refs, serde_json::Value::Null)
+    }
+
+    #[test]
+    fn mutual_information_by_hand() {
+        // Two members over two cells with logits (0, ln 3) and (ln 3, 0): p = (1/4, 3/4) and
+        // (3/4, 1/4). Their mean is (1/2, 1/2): I = ln 2 − H(1/4, 3/4)
+        //   = 0.693147 − 0.562335 = 0.130812 nats.
+        let arch = ConvNetArch {
+            v_bins: 1,
+            w_bins: 2,
+            ..ConvNetArch::default()
+        };
+        let mut rng = stream(1, "t", 0);
+        let mut a = ConvNet::new(arch.clone(), &mut rng);
+        // Zero weights, biases as the logits: every view gets the same distribution.
+        let set = |net: &mut ConvNet, l: [f32; 2]| {
+            let p = net.mlp.params_mut();
+            p.fill(0.0);
+            // The output layer's bias is the last of the parameters.
+            let n = p.len();
+            p[n - 2..].copy_from_slice(&l);
+        };
+        let mut b = a.clone();
+        set(&mut a, [0.0, 3f32.ln()]);
+        set(&mut b, [3f32.ln(), 0.0]);
+        let d = Disagreement::new(vec![a.clone(), b], file(1)).unwrap();
+        let view = vec![0.0; arch.view_len()];
+        assert!((d.raw_view(&view) - 0.130_812).abs() < 1e-5);
+        // Members that agree, however broad their answer, do not disagree.
+        let same = Disagreement::new(vec![a.clone(), a], file(1)).unwrap();
+        assert!(same.raw_view(&view).abs() < 1e-6);
+    }
+
+    #[test]
+    fn calibration_and_refusals() {
+        let arch = ConvNetArch::default();
+        let mut rng = stream(2, "t", 0);
+        let nets: Vec<ConvNet> = (0..3)
+            .map(|_| ConvNet::new(arch.clone(), &mut rng))
+            .collect();
+        // A lone network is no ensemble; a count the file does not match is refused.
+        assert!(Disagreement::new(vec![nets[0].clone()], file(0)).is_err());
+        assert!(Disagreement::new(nets.clone(), file(1)).is_err());
+        let views: Vec<f32> = (0..200 * arch.view_len())
+            .map(|_| rng.random_range(0.0..1.0))
+            .collect();
+        let d = Disagreement::fit(nets.clone(), file(2), &views, 100, &mut rng).unwrap();
+        assert!(d.file.raw_p95 > d.file.raw_median);
+        assert_eq!(d.calibrate(d.file.raw_median), 0.0);
+        assert!((d.calibrate(d.file.raw_p95) - 1.0).abs() < 1e-5);
+        assert_eq!(d.calibrate(f32::NAN), 1e3);
+        // Too few views to calibrate on.
+        let few = &views[..10 * arch.view_len()];
+        assert!(matches!(
+            Disagreement::fit(nets, file(2), few, 100, &mut rng),
+            Err(SupportError::TooFewViews { .. })
+        ));
+    }
+}
