@@ -20,19 +20,26 @@ def _reward_is_the_score(reward, score, near_wall, penalty):
     return reward == pytest.approx(score - (penalty if near_wall else 0.0), abs=1e-5)
 
 
-def test_the_ood_env_rewards_the_support_score():
-    env = gym.make("fishprobe/OOD-v0", settings=PLAIN)
-    settings = env.unwrapped.settings
-    assert settings["task"]["objective"] == "ood"
-    assert env.unwrapped.model_name == "ConvNet"
-    penalty = settings["task"]["wall_penalty"]
+def _scores_are_the_rewards(env):
+    """Six steps of `env` (reset with seed 0): each reward is the step's score, less the wall
+    penalty when the robot came near a wall. Returns the scores."""
+    penalty = env.unwrapped.settings["task"]["wall_penalty"]
     env.reset(seed=0)
     scores = []
     for k in range(6):
         _, reward, _, _, info = env.step(np.array([0.8 * (k % 3 - 1)], np.float32))
         assert _reward_is_the_score(reward, info["support_score"], info["robot_near_wall"], penalty)
         scores.append(info["support_score"])
-    assert np.all(np.isfinite(scores)) and max(scores) > 0.0
+    assert np.all(np.isfinite(scores)) and min(scores) >= 0.0
+    return scores
+
+
+def test_the_ood_env_rewards_the_support_score():
+    env = gym.make("fishprobe/OOD-v0", settings=PLAIN)
+    settings = env.unwrapped.settings
+    assert settings["task"]["objective"] == "ood"
+    assert env.unwrapped.model_name == "ConvNet"
+    assert max(_scores_are_the_rewards(env)) > 0.0
     # The default reward pays only the part of a score beyond the support's edge (floor 1).
     default = fishprobe.LeadToGoalEnv(model="ConvNet", task="ood")
     default.reset(seed=0)
@@ -159,15 +166,8 @@ def test_the_ood_env_can_reward_an_ensembles_disagreement(tmp_path, cli, shared_
     dis = {"task": {**PLAIN["task"], "ood_score": "disagreement"}}
     env = gym.make("fishprobe/OOD-v0", model=f"convnet:{weights}", settings=dis)
     assert env.unwrapped.settings["task"]["ood_score"] == "disagreement"
-    penalty = env.unwrapped.settings["task"]["wall_penalty"]
-    env.reset(seed=0)
-    scores = []
-    for k in range(6):
-        _, reward, _, _, info = env.step(np.array([0.8 * (k % 3 - 1)], np.float32))
-        # The reward is the disagreement score, as it was the support score above.
-        assert _reward_is_the_score(reward, info["support_score"], info["robot_near_wall"], penalty)
-        scores.append(info["support_score"])
-    assert np.all(np.isfinite(scores)) and min(scores) >= 0.0
+    # The reward is the disagreement score, as it was the support score above.
+    _scores_are_the_rewards(env)
     # The shipped weights come without an ensemble: the error says how to make one.
     with pytest.raises(ValueError, match="--members"):
         gym.make("fishprobe/OOD-v0", settings=dis)

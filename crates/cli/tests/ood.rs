@@ -28,6 +28,37 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `fishprobe support` for the weights `weights` fitted in the loop's `seed_dir`, on its narrow
+/// and validation recordings, with 50 synthetic views per situation, written to `out`.
+fn support_command(
+    weights: &Path,
+    seed_dir: &Path,
+    out: &Path,
+    extra: &[&str],
+) -> std::process::Output {
+    let model = format!("convnet:{}", s(weights));
+    let (data, validation) = (
+        seed_dir.join("data/narrow"),
+        seed_dir.join("data/validation"),
+    );
+    let mut args = vec![
+        "support",
+        "--model",
+        &model,
+        "--data",
+        s(&data),
+        "--validation",
+        s(&validation),
+        "--robot-as-partner",
+        "--synthetic",
+        "50",
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    fishprobe(&args)
+}
+
 #[test]
 fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_input() {
     let dir = fresh_dir("ood");
@@ -181,21 +212,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         .join("seed-5/model-goal/convnet.safetensors.disagreement.json")
         .exists());
     // The support command checks the ensemble's disagreement beside the two estimators.
-    let o = fishprobe(&[
-        "support",
-        "--model",
-        &format!("convnet:{}", s(&narrow3)),
-        "--data",
-        s(&out3.join("seed-5/data/narrow")),
-        "--validation",
-        s(&out3.join("seed-5/data/validation")),
-        "--robot-as-partner",
-        "--synthetic",
-        "50",
-        "--out",
-        s(&dir.join("support3.json")),
-        "--json",
-    ]);
+    let o = support_command(
+        &narrow3,
+        &out3.join("seed-5"),
+        &dir.join("support3.json"),
+        &["--json"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let c: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let names: Vec<&str> = c["checks"]
@@ -537,24 +559,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
 
     // The support command: both estimators checked, the chosen one written.
     let other = dir.join("support.json");
-    let o = fishprobe(&[
-        "support",
-        "--model",
-        &format!("convnet:{}", s(&weights)),
-        "--data",
-        s(&seed_dir.join("data/narrow")),
-        "--validation",
-        s(&seed_dir.join("data/validation")),
-        "--robot-as-partner",
-        "--synthetic",
-        "50",
-        "--estimator",
-        "gmm",
-        "--partner-range-cm",
-        "15",
-        "--out",
-        s(&other),
-    ]);
+    let o = support_command(
+        &weights,
+        &seed_dir,
+        &other,
+        &["--estimator", "gmm", "--partner-range-cm", "15"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let t = stdout(&o);
     assert!(t.contains("| knn |") && t.contains("| gmm |"), "{t}");

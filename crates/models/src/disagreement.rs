@@ -23,9 +23,8 @@
 //! `[env.task] ood_score = "disagreement"`.
 
 use crate::convnet::{encode_view, ConvNet, ConvNetWorkspace};
-use crate::support::SupportError;
+use crate::support::{draw, quantile, SupportError};
 use fishprobe_sim::{FishView, InputSupport, SimRng};
-use rand::RngExt;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -139,17 +138,6 @@ fn entropy(p: &[f32]) -> f32 {
         .sum::<f32>()
 }
 
-/// The `q`-quantile (linear interpolation) of `v`, which it sorts.
-fn quantile(v: &mut [f32], q: f32) -> f32 {
-    v.sort_by(f32::total_cmp);
-    if v.is_empty() {
-        return f32::NAN;
-    }
-    let pos = q * (v.len() - 1) as f32;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    v[lo] + (v[hi] - v[lo]) * (pos - lo as f32)
-}
-
 impl Disagreement {
     /// The ensemble of `nets` (the model's own first; at least 2, all of one shape),
     /// calibrated on up to `calibration_views` of the training views `views` (`n x view_len`)
@@ -174,13 +162,7 @@ impl Disagreement {
             path: "(new ensemble)".into(),
             what,
         })?;
-        // k distinct views, drawn uniformly (partial Fisher-Yates).
-        let mut idx: Vec<usize> = (0..n).collect();
-        for i in 0..k {
-            let j = rng.random_range(i..n);
-            idx.swap(i, j);
-        }
-        let mut raw: Vec<f32> = idx[..k]
+        let mut raw: Vec<f32> = draw(n, k, rng)
             .iter()
             .map(|&i| d.raw_view(&views[i * len..(i + 1) * len]))
             .collect();
@@ -371,6 +353,7 @@ mod tests {
     use super::*;
     use crate::convnet::ConvNetArch;
     use fishprobe_sim::stream;
+    use rand::RngExt;
 
     fn file(members: usize) -> DisagreementFile {
         let refs = (0..members)

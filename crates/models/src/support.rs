@@ -538,7 +538,7 @@ pub struct SupportModel {
 }
 
 /// `k` distinct indices of `0..n`, drawn uniformly (partial Fisher-Yates).
-fn draw(n: usize, k: usize, rng: &mut SimRng) -> Vec<usize> {
+pub(crate) fn draw(n: usize, k: usize, rng: &mut SimRng) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..n).collect();
     for i in 0..k.min(n) {
         let j = rng.random_range(i..n);
@@ -549,7 +549,7 @@ fn draw(n: usize, k: usize, rng: &mut SimRng) -> Vec<usize> {
 }
 
 /// The `q`-quantile (linear interpolation) of `v`, which it sorts.
-fn quantile(v: &mut [f32], q: f32) -> f32 {
+pub(crate) fn quantile(v: &mut [f32], q: f32) -> f32 {
     v.sort_by(f32::total_cmp);
     if v.is_empty() {
         return f32::NAN;

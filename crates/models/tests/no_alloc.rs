@@ -52,6 +52,14 @@ fn allocations_in_600_steps(env: &mut TankEnv) -> u64 {
 #[test]
 fn the_ood_task_scores_views_without_allocating() {
     let spec = ModelSpec::by_name("ConvNet").unwrap();
+    let n = ood_allocations(Arc::new(spec.support().unwrap()));
+    assert_eq!(n, 0, "the OOD task: {n} allocations in 600 steps");
+}
+
+/// [`allocations_in_600_steps`] of the OOD task against the shipped M_ConvNet, every frame's
+/// views scored by `score`.
+fn ood_allocations(score: Arc<dyn fishprobe_sim::InputSupport>) -> u64 {
+    let spec = ModelSpec::by_name("ConvNet").unwrap();
     let mut cfg = EnvConfig {
         mode: TaskMode::Evaluation,
         ..EnvConfig::default()
@@ -59,9 +67,8 @@ fn the_ood_task_scores_views_without_allocating() {
     cfg.task.objective = Objective::Ood;
     cfg.task.ood_score_every_frames = 1;
     let mut env = TankEnv::new(cfg, spec.build().unwrap()).unwrap();
-    env.set_support(Some(Arc::new(spec.support().unwrap())));
-    let n = allocations_in_600_steps(&mut env);
-    assert_eq!(n, 0, "the OOD task: {n} allocations in 600 steps");
+    env.set_support(Some(score));
+    allocations_in_600_steps(&mut env)
 }
 
 #[test]
@@ -82,16 +89,7 @@ fn the_ensembles_disagreement_scores_views_without_allocating() {
     };
     let file = DisagreementFile::new("t".into(), String::new(), vec![member], Default::default());
     let d = Disagreement::fit(vec![shipped, fresh], file, &views, 50, &mut rng).unwrap();
-    let spec = ModelSpec::by_name("ConvNet").unwrap();
-    let mut cfg = EnvConfig {
-        mode: TaskMode::Evaluation,
-        ..EnvConfig::default()
-    };
-    cfg.task.objective = Objective::Ood;
-    cfg.task.ood_score_every_frames = 1;
-    let mut env = TankEnv::new(cfg, spec.build().unwrap()).unwrap();
-    env.set_support(Some(Arc::new(d)));
-    let n = allocations_in_600_steps(&mut env);
+    let n = ood_allocations(Arc::new(d));
     assert_eq!(n, 0, "the disagreement score: {n} allocations in 600 steps");
 }
 
