@@ -3,6 +3,7 @@
 //! ranked "data wishlist" of the situations the data lacks that the policy drove the fish into.
 
 use fishprobe_io::{read_trial, TrialFile};
+use fishprobe_models::disagreement::Disagreement;
 use fishprobe_models::support::{Situation, SupportModel};
 use fishprobe_sim::{AgentState, Tank, TankParams};
 use rayon::prelude::*;
@@ -41,6 +42,26 @@ pub struct ScoredView {
 /// trial's frames before closed-loop control began (habituation, the robot idle) are left
 /// out: they are not the policy's.
 pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
+    let mut out = Vec::new();
+    for_each_view(t, |tank, frame, fish, s, others| {
+        let sit = support.situation(tank, s, others);
+        out.push(ScoredView {
+            frame,
+            fish,
+            position: [s.x, s.y],
+            score: support.score_situation(&sit),
+            situation: sit,
+        });
+    });
+    out
+}
+
+/// Hands each fish view of a trial file, as [`trial_views`] takes them, to `f`: the tank,
+/// the frame, which fish, its state and the other agents' states.
+fn for_each_view(
+    t: &TrialFile,
+    mut f: impl FnMut(&Tank, usize, usize, &AgentState, &[AgentState]),
+) {
     let tank = Tank::new(&TankParams {
         half_size_cm: t.world_size_cm[0] / 2.0,
         ..TankParams::default()
@@ -52,7 +73,6 @@ pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
     let first_fish = agents.len();
     agents.extend(t.fish().map(|f| (f.positions.clone(), f.headings())));
     let frames = agents.iter().map(|a| a.0.len()).min().unwrap_or(0);
-    let mut out = Vec::with_capacity(frames * (agents.len() - first_fish));
     let mut others = Vec::with_capacity(agents.len());
     let state = |a: &(Vec<[f32; 2]>, Vec<f32>), i: usize| {
         let (p, h) = (a.0[i], a.1[i]);
@@ -71,17 +91,59 @@ pub fn trial_views(support: &SupportModel, t: &TrialFile) -> Vec<ScoredView> {
                     .filter(|&j| j != me)
                     .filter_map(|j| state(&agents[j], i)),
             );
-            let sit = support.situation(&tank, &s, &others);
-            out.push(ScoredView {
-                frame: i,
-                fish: me - first_fish,
-                position: [s.x, s.y],
-                score: support.score_situation(&sit),
-                situation: sit,
-            });
+            f(&tank, i, me - first_fish, &s, &others);
         }
     }
-    out
+}
+
+/// The disagreement scores of the model's ensemble on the fish's views in `files` (the views
+/// [`trial_views`] takes), as one source (no situations).
+pub fn disagreement_of_trials(
+    d: &Disagreement,
+    label: &str,
+    files: &[PathBuf],
+) -> Result<SourceScores, String> {
+    let parts: Vec<Vec<f32>> = files
+        .par_iter()
+        .map(|f| {
+            read_trial(f)
+                .map(|t| {
+                    let mut v = Vec::new();
+                    for_each_view(&t, |tank, _, _, s, others| {
+                        v.push(d.score_agents(tank, s, others))
+                    });
+                    v
+                })
+                .map_err(|e| format!("{}: {e}", f.display()))
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(SourceScores {
+        label: label.into(),
+        scores: parts.concat(),
+        situations: Vec::new(),
+    })
+}
+
+/// The disagreement scores of views given as M_ConvNet inputs (`n x view_len`), at most `max`
+/// of them taken evenly spaced (as [`score_views`] takes them).
+pub fn disagreement_of_views(
+    d: &Disagreement,
+    label: &str,
+    views: &[f32],
+    max: usize,
+) -> SourceScores {
+    let len = d.arch().view_len();
+    let n = views.len() / len;
+    let step = n.div_ceil(max.max(1)).max(1);
+    SourceScores {
+        label: label.into(),
+        scores: (0..n)
+            .into_par_iter()
+            .step_by(step)
+            .map(|i| d.score_view(&views[i * len..(i + 1) * len]))
+            .collect(),
+        situations: Vec::new(),
+    }
 }
 
 /// The views of every trial file in `files`, as one source.

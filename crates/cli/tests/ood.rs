@@ -227,6 +227,37 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         .map(|c| c["estimator"].as_str().unwrap())
         .collect();
     assert_eq!(names, ["knn", "gmm", "disagreement"]);
+    // ood-report scores the views by the ensemble's disagreement too.
+    let rep3 = dir.join("report3");
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&out3.join("seed-5/policy-ood")),
+        "--data",
+        s(&out3.join("seed-5/data/narrow")),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&rep3),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r3: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(r3["disagreement"]["members"], 2);
+    let dists = r3["disagreement"]["distributions"].as_array().unwrap();
+    // The training recordings and both policies, as many views as the support scored.
+    assert_eq!(dists.len(), 3);
+    for (a, b) in dists.iter().zip(r3["distributions"].as_array().unwrap()) {
+        assert_eq!(a["views"], b["views"], "{a} {b}");
+    }
+    let share = r3["disagreement"]["ood_share_beyond_goal_p95"]
+        .as_f64()
+        .unwrap();
+    assert!((0.0..=1.0).contains(&share), "{share}");
+    let md = std::fs::read_to_string(rep3.join("report.md")).unwrap();
+    assert!(md.contains("## The ensemble's disagreement"), "{md}");
     // A member that is not the file it was fitted as: refused by name when a policy would
     // train against the ensemble.
     let member = out3.join("seed-5/model-narrow/convnet.safetensors.member-2.safetensors");
@@ -343,6 +374,10 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let share = r["ood_share_beyond_goal_p95"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&share), "{share}");
     assert_eq!(r["recorded_trials"], serde_json::json!([null, null]));
+    assert!(
+        r.get("disagreement").is_none(),
+        "no ensemble, no disagreement: {r}"
+    );
 
     // Recorded trials (here: the report's own episodes, as live trials would be given) are
     // scored exactly as the episodes were when simulated.

@@ -22,9 +22,9 @@
 //! file names and SHA-256s, the weights' SHA-256 and the calibration. The OOD task uses it with
 //! `[env.task] ood_score = "disagreement"`.
 
-use crate::convnet::{encode_view, ConvNet, ConvNetWorkspace};
+use crate::convnet::{encode_view, ConvNet, ConvNetArch, ConvNetWorkspace};
 use crate::support::{draw, quantile, SupportError};
-use fishprobe_sim::{FishView, InputSupport, SimRng};
+use fishprobe_sim::{AgentState, FishView, InputSupport, SimRng, Tank};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -236,6 +236,25 @@ impl Disagreement {
         }
     }
 
+    /// The view layout of the members.
+    pub fn arch(&self) -> &ConvNetArch {
+        &self.nets[0].arch
+    }
+
+    /// The score of the view of fish `me` among `others` in `tank`. Allocates nothing once
+    /// the scratch buffers are sized.
+    pub fn score_agents(&self, tank: &Tank, me: &AgentState, others: &[AgentState]) -> f32 {
+        let mut guard = crate::convnet::free_slot(&self.scratch);
+        let s = &mut *guard;
+        let arch = &self.nets[0].arch;
+        s.view.resize(arch.view_len(), 0.0);
+        encode_view(arch, tank, me, others, &mut s.view);
+        let view = std::mem::take(&mut s.view);
+        let raw = self.raw_with(&view, s);
+        s.view = view;
+        self.calibrate(raw)
+    }
+
     /// The score of a view (`3 x bins`).
     pub fn score_view(&self, view: &[f32]) -> f32 {
         self.calibrate(self.raw_view(view))
@@ -336,22 +355,13 @@ impl Disagreement {
 
 impl InputSupport for Disagreement {
     fn score(&self, view: &FishView) -> f32 {
-        let mut guard = crate::convnet::free_slot(&self.scratch);
-        let s = &mut *guard;
-        let arch = &self.nets[0].arch;
-        s.view.resize(arch.view_len(), 0.0);
-        encode_view(arch, &view.tank, &view.me, view.others(), &mut s.view);
-        let view = std::mem::take(&mut s.view);
-        let raw = self.raw_with(&view, s);
-        s.view = view;
-        self.calibrate(raw)
+        self.score_agents(&view.tank, &view.me, view.others())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::convnet::ConvNetArch;
     use fishprobe_sim::stream;
     use rand::RngExt;
 

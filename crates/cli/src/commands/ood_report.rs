@@ -7,14 +7,15 @@
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_analysis::ood::{
-    distribution, quantile, score_recorded, score_views, share_at_least, trial_views, wishlist,
-    Distribution, SourceScores, WishItem,
+    disagreement_of_trials, disagreement_of_views, distribution, quantile, score_recorded,
+    score_views, share_at_least, trial_views, wishlist, Distribution, SourceScores, WishItem,
 };
 use fishprobe_learn::bc::{load_pairs, CloneConfig};
 use fishprobe_learn::yardstick::ScoredRun;
 use fishprobe_learn::{Evaluation, Trainer};
-use fishprobe_models::support::SupportModel;
-use fishprobe_models::ModelSpec;
+use fishprobe_models::disagreement::Disagreement;
+use fishprobe_models::support::{SupportError, SupportModel};
+use fishprobe_models::{ModelError, ModelSpec};
 use fishprobe_report::figures::{ood_scores, ood_trajectories, ScoredEpisode};
 use fishprobe_sim::{Controller, EnvConfig};
 use std::path::{Path, PathBuf};
@@ -95,6 +96,30 @@ struct OodReport {
     /// Goals per episode or recorded trial (null: recordings without fishprobe's task record).
     goals_per_episode: [f64; 2],
     wishlist: Vec<WishItem>,
+    /// The same views scored by the disagreement of the model's ensemble, when it has one
+    /// (`fit-convnet --members K`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    disagreement: Option<DisagreementPart>,
+}
+
+/// The views scored by the ensemble's disagreement.
+#[derive(Debug, serde::Serialize)]
+struct DisagreementPart {
+    /// Networks of the ensemble, the model's own included.
+    members: usize,
+    distributions: Vec<Distribution>,
+    goal_policy_p95: f64,
+    ood_share_beyond_goal_p95: f64,
+}
+
+/// The ensemble of `model`, when it has one; an ensemble that is there but unusable (a
+/// damaged member, another model's) is an error.
+fn ensemble_of(model: &ModelSpec) -> Result<Option<Disagreement>> {
+    match model.disagreement() {
+        Ok(d) => Ok(Some(d)),
+        Err(ModelError::Support(SupportError::MissingEnsemble { .. })) => Ok(None),
+        Err(e) => Err(e).context("the ensemble of the fish model"),
+    }
 }
 
 /// What `train --ood-yardstick` measured for the OOD policy (its run's `yardstick.json`).
@@ -220,6 +245,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     let support = model
         .support()
         .with_context(|| format!("the support of fish model {}", model.name()))?;
+    let ensemble = ensemble_of(&model)?;
     let env = recorded
         .as_ref()
         .map(|s| s.env.clone())
@@ -261,6 +287,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
             _ => Vec::new(),
         }
     };
+    let mut training_disagreement = None;
     let training = if data.is_empty() {
         say!("note: no training recordings given (--data): the report has no training-data row");
         None
@@ -270,6 +297,9 @@ pub fn run(a: OodReportArgs) -> Result<()> {
             ..CloneConfig::default()
         };
         let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
+        training_disagreement = ensemble
+            .as_ref()
+            .map(|e| disagreement_of_views(e, "training recordings", &d.x, 50_000));
         Some(score_views(&support, "training recordings", &d.x, 50_000))
     };
     // Locked (and so created) only now: a refused report leaves no empty --out behind.
@@ -277,6 +307,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     let mut sources = Vec::new();
     let mut goals = [0.0; 2];
     let mut first_files = Vec::new();
+    let mut all_files = Vec::new();
     let both = [
         (&ood_src, "ood", "OOD policy"),
         (&goal_src, "goal", "lead-to-goal policy"),
@@ -300,6 +331,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         };
         goals[k] = run.goals;
         first_files.push(run.files[0].clone());
+        all_files.push((label, run.files.clone()));
         sources.push(run.scores);
     }
     let cap = env.task.ood_score_cap;
@@ -307,6 +339,28 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     let count = |src: &Source| match src {
         Source::Recorded(f) => Some(f.len()),
         Source::Simulated(_) => None,
+    };
+    let disagreement = match &ensemble {
+        None => None,
+        Some(e) => {
+            say!("scoring the views by the ensemble's disagreement ...");
+            let policies = all_files
+                .iter()
+                .map(|(label, files)| disagreement_of_trials(e, label, files))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(anyhow::Error::msg)?;
+            let p95 = quantile(&policies[1].scores, 0.95);
+            Some(DisagreementPart {
+                members: e.members(),
+                distributions: training_disagreement
+                    .iter()
+                    .chain(&policies)
+                    .map(distribution)
+                    .collect(),
+                goal_policy_p95: p95,
+                ood_share_beyond_goal_p95: share_at_least(&policies[0].scores, p95),
+            })
+        }
     };
     let report = OodReport {
         model: model.name().to_string(),
@@ -328,6 +382,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
             cap,
             10,
         ),
+        disagreement,
     };
     // Figures.
     let curves: Vec<(String, Vec<f32>)> = training
@@ -427,10 +482,15 @@ fn command_line(a: &OodReportArgs) -> String {
 }
 
 fn distributions_table(r: &OodReport) -> String {
-    let mut t = String::from(
-        "| views of | scored | median score | 95th percentile | beyond the support (> 1) |\n|---|---|---|---|---|\n",
+    score_table(&r.distributions, "beyond the support (> 1)")
+}
+
+/// The distributions as a table; `beyond` heads the column of the share above 1.
+fn score_table(distributions: &[Distribution], beyond: &str) -> String {
+    let mut t = format!(
+        "| views of | scored | median score | 95th percentile | {beyond} |\n|---|---|---|---|---|\n",
     );
-    for d in &r.distributions {
+    for d in distributions {
         t += &format!(
             "| {} | {} | {:.2} | {:.2} | {} |\n",
             d.label,
@@ -478,13 +538,23 @@ fn summary(r: &OodReport, out: &Path) -> String {
     format!(
         "{}\nThe OOD policy's fish spent {} of their time at or beyond the lead-to-goal \
          policy's 95th-percentile score ({:.2}).{} Goals per episode or trial: OOD {}, \
-         lead-to-goal {}.\n\nData wishlist (record these next):\n{}\nwrote {}\n",
+         lead-to-goal {}.{}\n\nData wishlist (record these next):\n{}\nwrote {}\n",
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
         yardstick_note(r),
         goals_text(r.goals_per_episode[0]),
         goals_text(r.goals_per_episode[1]),
+        r.disagreement
+            .as_ref()
+            .map(|d| format!(
+                " By the disagreement of the model's ensemble of {}: {} of the time at or \
+                 beyond the lead-to-goal policy's 95th percentile ({:.2}).",
+                d.members,
+                pct(d.ood_share_beyond_goal_p95),
+                d.goal_policy_p95
+            ))
+            .unwrap_or_default(),
         r.wishlist
             .iter()
             .take(5)
@@ -496,6 +566,26 @@ fn summary(r: &OodReport, out: &Path) -> String {
             ))
             .collect::<String>(),
         out.join("report.md").display()
+    )
+}
+
+/// The report's section on the ensemble's disagreement (empty without an ensemble).
+fn disagreement_section(r: &OodReport) -> String {
+    let Some(d) = &r.disagreement else {
+        return String::new();
+    };
+    format!(
+        "## The ensemble's disagreement\n\n\
+         The model has an ensemble of {} fits (`fit-convnet --members`). The same views, scored \
+         by how much the fits disagree on them (the mutual information of their predictions; 0: \
+         the training views' median, 1: their 95th percentile), the OOD score \
+         `ood_score = \"disagreement\"` rewards:\n\n{}\n\
+         The OOD policy's fish spent **{}** of their time at or beyond the lead-to-goal \
+         policy's 95th-percentile disagreement ({:.2}).\n\n",
+        d.members,
+        score_table(&d.distributions, "beyond the training p95 (> 1)"),
+        pct(d.ood_share_beyond_goal_p95),
+        d.goal_policy_p95
     )
 }
 
@@ -511,7 +601,7 @@ fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
          lead-to-goal policy {}.\n\n\
          ![score distributions](ood-scores.png)\n\n\
          ![example episodes](ood-trajectories.png)\n\n\
-         ## Data wishlist\n\n\
+         {}## Data wishlist\n\n\
          The situations beyond the support where the OOD policy drove the fish, ranked by \
          its time there weighted by score: what the lab should record next.\n\n{}\n\
          Made by `{}`.\n",
@@ -525,6 +615,7 @@ fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         yardstick_note(r),
         goals_text(r.goals_per_episode[0]),
         goals_text(r.goals_per_episode[1]),
+        disagreement_section(r),
         wishlist_table(r),
         command_line(a),
     )
