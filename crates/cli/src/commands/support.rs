@@ -293,7 +293,11 @@ pub fn run(a: SupportArgs) -> Result<()> {
             }
             t += &format!(" {:.1} | {:.1} |\n", c.build_s, c.score_us_per_view);
         }
-        t += &format!("\nwrote {} ({:?})\n", out.display(), a.estimator);
+        t += &format!(
+            "\nwrote {} ({})\n",
+            out.display(),
+            chosen_name.as_str().unwrap_or_default()
+        );
         t
     };
     emit(&text)
