@@ -584,6 +584,34 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("clone.support_partner_range_cm"));
+        // An ensemble of none or of more networks than a score may evaluate; a calibration on
+        // too few views.
+        for (cfg, field) in [
+            (
+                CloneConfig {
+                    ensemble_members: 0,
+                    ..CloneConfig::default()
+                },
+                "clone.ensemble_members",
+            ),
+            (
+                CloneConfig {
+                    ensemble_members: 17,
+                    ..CloneConfig::default()
+                },
+                "clone.ensemble_members",
+            ),
+            (
+                CloneConfig {
+                    ensemble_calibration_views: 5,
+                    ..CloneConfig::default()
+                },
+                "clone.ensemble_calibration_views",
+            ),
+        ] {
+            let e = cfg.validate().unwrap_err().to_string();
+            assert!(e.contains(field), "{e}");
+        }
     }
 
     #[test]
