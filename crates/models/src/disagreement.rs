@@ -23,7 +23,7 @@
 //! `[env.task] ood_score = "disagreement"`.
 
 use crate::convnet::{encode_view, ConvNet, ConvNetArch, ConvNetWorkspace};
-use crate::support::{draw, quantile, SupportError};
+use crate::support::{calibrated, draw, quantile, SupportError};
 use fishprobe_sim::{AgentState, FishView, InputSupport, SimRng, Tank};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -158,7 +158,7 @@ impl Disagreement {
         file.raw_median = 0.0;
         file.raw_p95 = 1.0;
         file.calibration_views = k;
-        let d = Self::new(nets, file).map_err(|what| SupportError::Invalid {
+        let mut d = Self::new(nets, file).map_err(|what| SupportError::Invalid {
             path: "(new ensemble)".into(),
             what,
         })?;
@@ -167,7 +167,6 @@ impl Disagreement {
             .map(|&i| d.raw_view(&views[i * len..(i + 1) * len]))
             .collect();
         let (median, p95) = (quantile(&mut raw, 0.5), quantile(&mut raw, 0.95));
-        let mut d = d;
         d.file.raw_median = median;
         // Degenerate (members that agree everywhere on this data): any spread above counts.
         d.file.raw_p95 = if p95 > median { p95 } else { median + 1e-6 };
@@ -228,12 +227,7 @@ impl Disagreement {
     /// The calibrated score of a raw disagreement: 0 at the calibration views' median, 1 at
     /// their 95th percentile, never negative; a non-finite value counts as far outside.
     pub fn calibrate(&self, raw: f32) -> f32 {
-        let s = (raw - self.file.raw_median) / (self.file.raw_p95 - self.file.raw_median);
-        if s.is_finite() {
-            s.max(0.0)
-        } else {
-            1e3
-        }
+        calibrated(raw, self.file.raw_median, self.file.raw_p95)
     }
 
     /// The view layout of the members.
@@ -404,6 +398,76 @@ mod tests {
         // Members that agree, however broad their answer, do not disagree.
         let same = Disagreement::new(vec![a.clone(), a], file(1)).unwrap();
         assert!(same.raw_view(&view).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_saved_ensemble_loads_and_a_foreign_or_hostile_file_is_refused_by_name() {
+        let dir =
+            std::env::temp_dir().join(format!("fishprobe-disagreement-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let arch = ConvNetArch::default();
+        let mut rng = stream(4, "t", 0);
+        let weights = dir.join("w.safetensors");
+        let member = member_beside(&weights, 2);
+        let nets: Vec<ConvNet> = (0..2)
+            .map(|_| ConvNet::new(arch.clone(), &mut rng))
+            .collect();
+        let meta = serde_json::json!({ "arch": arch });
+        fishprobe_nn::store::save(&weights, &nets[0].to_tensors(), &meta).unwrap();
+        fishprobe_nn::store::save(&member, &nets[1].to_tensors(), &meta).unwrap();
+        let sha = |p: &Path| crate::sha256_hex(&std::fs::read(p).unwrap());
+        let refs = vec![MemberRef {
+            file: member.file_name().unwrap().to_string_lossy().into_owned(),
+            sha256: sha(&member),
+        }];
+        let f = DisagreementFile::new("w".into(), sha(&weights), refs, Default::default());
+        let views: Vec<f32> = (0..100 * arch.view_len())
+            .map(|_| rng.random_range(0.0..1.0))
+            .collect();
+        let d = Disagreement::fit(nets, f, &views, 50, &mut rng).unwrap();
+        let path = file_beside(&weights);
+        d.save(&path).unwrap();
+        let back = Disagreement::load(&weights, "w", &sha(&weights)).unwrap();
+        assert_eq!(back.file, d.file);
+        assert_eq!(
+            back.score_view(&views[..arch.view_len()]),
+            d.score_view(&views[..arch.view_len()])
+        );
+        let refused = |text: String, says: &str| {
+            std::fs::write(&path, text).unwrap();
+            let e = Disagreement::load(&weights, "w", &sha(&weights))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(says), "{says}: {e}");
+        };
+        let good = serde_json::to_value(&d.file).unwrap();
+        // Another model's ensemble.
+        let mut other = good.clone();
+        other["model_sha256"] = "00".into();
+        refused(other.to_string(), "refit with");
+        // A member named outside the file's directory.
+        let mut outside = good.clone();
+        outside["members"][0]["file"] = "../w.safetensors".into();
+        refused(outside.to_string(), "not a file name");
+        // Not an ensemble file at all, a NaN calibration, no members.
+        refused(
+            "{\"format\": 1}".into(),
+            "not a fishprobe disagreement file",
+        );
+        let mut nan = good.clone();
+        nan["raw_p95"] = serde_json::Value::Null;
+        refused(nan.to_string(), "not a fishprobe disagreement file");
+        let mut none = good;
+        none["members"] = serde_json::json!([]);
+        refused(none.to_string(), "further members");
+        // No file: the error says how to make one.
+        std::fs::remove_file(&path).unwrap();
+        let e = Disagreement::load(&weights, "w", &sha(&weights))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--members"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

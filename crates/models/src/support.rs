@@ -537,6 +537,17 @@ pub struct SupportModel {
     columns: Vec<f32>,
 }
 
+/// A raw value as a score: 0 at the calibration views' `median` (and below), 1 at their `p95`,
+/// linear beyond. A NaN input (never from a simulated view) counts as far outside (1000).
+pub(crate) fn calibrated(raw: f32, median: f32, p95: f32) -> f32 {
+    let s = (raw - median) / (p95 - median);
+    if s.is_finite() {
+        s.max(0.0)
+    } else {
+        1e3
+    }
+}
+
 /// `k` distinct indices of `0..n`, drawn uniformly (partial Fisher-Yates).
 pub(crate) fn draw(n: usize, k: usize, rng: &mut SimRng) -> Vec<usize> {
     let mut idx: Vec<usize> = (0..n).collect();
@@ -710,14 +721,11 @@ impl SupportModel {
 
     /// The support score of a situation's features.
     pub fn score_features(&self, f: &[f32; FEATURES]) -> f32 {
-        let r = self.raw(&self.standardise(f));
-        let s = (r - self.raw_median) / (self.raw_p95 - self.raw_median);
-        if s.is_finite() {
-            s.max(0.0)
-        } else {
-            // A NaN input (never from a simulated view) counts as far outside.
-            1e3
-        }
+        calibrated(
+            self.raw(&self.standardise(f)),
+            self.raw_median,
+            self.raw_p95,
+        )
     }
 
     /// The support score of a situation, embedded as the support was built.
