@@ -94,3 +94,30 @@ fn a_second_train_or_resume_into_one_directory_is_refused() {
         assert_eq!(v["seed"], 5, "{p}");
     }
 }
+
+/// The race CI once lost: a `--resume` into a directory whose holder has locked it but not
+/// yet written params.json is refused by the lock, naming the holder, not asked for --model.
+#[test]
+fn a_resume_into_a_directory_locked_before_its_params_exist_names_the_holder() {
+    use std::io::Write;
+    let d = fresh_dir("one-writer-early-resume");
+    let out = d.join("T");
+    std::fs::create_dir_all(&out).unwrap();
+    let mut lock = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(out.join(".fishprobe.lock"))
+        .unwrap();
+    lock.try_lock().unwrap();
+    lock.write_all(b"fishprobe train, PID 4242").unwrap();
+    lock.flush().unwrap();
+    assert!(!out.join("params.json").exists());
+    assert_refused(
+        &["train", "--resume", "--out", out.to_str().unwrap()],
+        &out,
+        "fishprobe train, PID 4242",
+    );
+    drop(lock);
+}

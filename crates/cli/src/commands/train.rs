@@ -210,7 +210,10 @@ fn start(out: &Path, f: Fresh) -> Result<Trainer> {
 pub fn run(a: TrainArgs) -> Result<()> {
     let resuming = |a: &TrainArgs| a.resume && a.out.join("params.json").exists();
     // A new run is checked before its directory is created: a refused `train` leaves none.
-    let mut fresh = if resuming(&a) {
+    // A `--resume` into an existing directory takes the lock first: the directory's holder
+    // may not have written params.json yet, and the refusal must name the holder, not the
+    // flags a fresh run would need.
+    let mut fresh = if resuming(&a) || (a.resume && a.out.is_dir()) {
         None
     } else {
         Some(fresh_run(&a)?)
