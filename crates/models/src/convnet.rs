@@ -217,9 +217,9 @@ pub fn encode_view(
 /// Buffers of a forward/backward pass, reused across calls.
 #[derive(Debug, Clone, Default)]
 pub struct ConvNetWorkspace {
-    conv_out: Vec<f32>,
+    pub(crate) conv_out: Vec<f32>,
     conv_delta: Vec<f32>,
-    mlp: MlpWorkspace,
+    pub(crate) mlp: MlpWorkspace,
 }
 
 /// The network: circular Conv1d → Leaky-ReLU → dense Leaky-ReLU x 2 → linear logits.
@@ -271,7 +271,7 @@ impl ConvNet {
     }
 
     /// The convolution's activated output, the dense layers' input, into `ws.conv_out`.
-    fn features(&self, x: &[f32], batch: usize, ws: &mut ConvNetWorkspace) {
+    pub(crate) fn features(&self, x: &[f32], batch: usize, ws: &mut ConvNetWorkspace) {
         let len = self.arch.bins;
         ws.conv_out
             .resize(batch * self.arch.conv_channels * len, 0.0);

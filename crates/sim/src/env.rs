@@ -652,9 +652,34 @@ impl TankEnv {
     }
 
     /// One frame, with the views already prepared and (for batched models) `inferred` holding
-    /// `inference_width` floats per fish.
-    pub(crate) fn advance_frame(&mut self, inferred: Option<&[f32]>) -> Result<(), SimError> {
-        self.advance_frame_with(inferred, None)
+    /// `inference_width` floats per fish. `scored`: the frame's views were scored by the
+    /// caller ([`TankEnv::add_view_scores`]), so the frame does not score them again.
+    pub(crate) fn advance_frame(
+        &mut self,
+        inferred: Option<&[f32]>,
+        scored: bool,
+    ) -> Result<(), SimError> {
+        self.advance_frame_with(inferred, None, scored)
+    }
+
+    /// The support that scores the coming frame's views, if the frame is scored (the OOD
+    /// objective, on every `ood_score_every_frames`-th frame).
+    pub(crate) fn frame_support(&self) -> Option<&Arc<dyn InputSupport>> {
+        let t = &self.cfg.task;
+        let scored =
+            t.objective == Objective::Ood && self.frame.is_multiple_of(t.ood_score_every_frames);
+        self.support.as_ref().filter(|_| scored)
+    }
+
+    /// Adds the support scores of the coming frame's views (one per fish, in order) to the
+    /// action's OOD reward.
+    pub(crate) fn add_view_scores(&mut self, scores: &[f32]) {
+        let t = &self.cfg.task;
+        for &score in scores {
+            self.support_acc.0 += (score.min(t.ood_score_cap) - t.ood_score_floor).max(0.0);
+            self.support_acc.1 += score;
+            self.support_acc.2 += 1;
+        }
     }
 
     /// One frame; the robot follows `script` instead of its controller when given.
@@ -662,7 +687,18 @@ impl TankEnv {
         &mut self,
         inferred: Option<&[f32]>,
         script: Option<(RobotScript, &ScriptParams)>,
+        scored: bool,
     ) -> Result<(), SimError> {
+        if !scored {
+            if let Some(s) = self.frame_support().cloned() {
+                // What the fish see at the start of this frame (the inputs the model acts on),
+                // scored in one batch (a stack buffer: no allocation per frame).
+                let mut scores = [0.0f32; MAX_FISH];
+                let n = self.views.len();
+                s.score_batch(&self.views, &mut scores[..n]);
+                self.add_view_scores(&scores[..n]);
+            }
+        }
         let p = &self.cfg;
         let contact = match script {
             None => self.robot.advance(&p.robot, &self.tank, self.dt),
@@ -677,18 +713,6 @@ impl TankEnv {
         };
         if contact {
             self.acc.robot_wall_contacts += 1;
-        }
-        let scored = p.task.objective == Objective::Ood
-            && self.frame.is_multiple_of(p.task.ood_score_every_frames);
-        if let Some(s) = self.support.as_ref().filter(|_| scored) {
-            // What the fish see at the start of this frame (the inputs the model acts on).
-            for v in &self.views {
-                let score = s.score(v);
-                self.support_acc.0 +=
-                    (score.min(p.task.ood_score_cap) - p.task.ood_score_floor).max(0.0);
-                self.support_acc.1 += score;
-                self.support_acc.2 += 1;
-            }
         }
         let width = self.model.inference_width();
         let inferred = inferred.unwrap_or(&self.inferred);
@@ -789,7 +813,7 @@ impl TankEnv {
             if width > 0 {
                 self.model.infer_batch(&self.views, &mut self.inferred);
             }
-            self.advance_frame_with(None, script)?;
+            self.advance_frame_with(None, script, false)?;
         }
         Ok(())
     }

@@ -33,6 +33,8 @@ pub struct VecEnv {
     errors: Vec<Option<SimError>>,
     views: Vec<FishView>,
     inferred: Vec<f32>,
+    /// The OOD objective's support scores of `views`, one per fish.
+    scores: Vec<f32>,
 }
 
 impl VecEnv {
@@ -68,6 +70,7 @@ impl VecEnv {
             errors: vec![None; n],
             views: vec![FishView::default(); n * fish],
             inferred: vec![0.0; n * fish * width],
+            scores: vec![0.0; n * fish],
         })
     }
 
@@ -229,7 +232,12 @@ impl VecEnv {
         } else {
             1
         };
-        lockstep.run(&mut self.envs, &mut self.views, &mut self.inferred, parts)?;
+        let bufs = Buffers {
+            views: &mut self.views,
+            inferred: &mut self.inferred,
+            scores: &mut self.scores,
+        };
+        lockstep.run(&mut self.envs, bufs, parts)?;
         self.envs
             .par_iter_mut()
             .zip(self.obs.par_chunks_mut(d))
@@ -275,36 +283,73 @@ struct Lockstep<'m> {
     model: &'m dyn FishModel,
 }
 
+/// The per-fish buffers of a part of the environments: views, inference outputs
+/// (`width` each) and support scores.
+struct Buffers<'b> {
+    views: &'b mut [FishView],
+    inferred: &'b mut [f32],
+    scores: &'b mut [f32],
+}
+
 impl Lockstep<'_> {
-    /// Runs `envs` (with their views and inference buffers) through the action's frames,
-    /// halved recursively into at most `parts` parts (one per core) that run in parallel, each
-    /// of at least [`MIN_FISH_PER_INFERENCE`] fish.
-    fn run(
-        &self,
-        envs: &mut [TankEnv],
-        views: &mut [FishView],
-        inferred: &mut [f32],
-        parts: usize,
-    ) -> Result<(), SimError> {
-        if parts >= 2 && envs.len() >= 2 && views.len() >= 2 * MIN_FISH_PER_INFERENCE {
+    /// Runs `envs` (with their views, inference and score buffers) through the action's
+    /// frames, halved recursively into at most `parts` parts (one per core) that run in
+    /// parallel, each of at least [`MIN_FISH_PER_INFERENCE`] fish.
+    fn run(&self, envs: &mut [TankEnv], b: Buffers<'_>, parts: usize) -> Result<(), SimError> {
+        if parts >= 2 && envs.len() >= 2 && b.views.len() >= 2 * MIN_FISH_PER_INFERENCE {
             let mid = envs.len() / 2;
             let (ea, eb) = envs.split_at_mut(mid);
-            let (va, vb) = views.split_at_mut(mid * self.fish);
-            let (ia, ib) = inferred.split_at_mut(mid * self.fish * self.width);
+            let (va, vb) = b.views.split_at_mut(mid * self.fish);
+            let (ia, ib) = b.inferred.split_at_mut(mid * self.fish * self.width);
+            let (sa, sb) = b.scores.split_at_mut(mid * self.fish);
             let (a, b) = rayon::join(
-                || self.run(ea, va, ia, parts / 2),
-                || self.run(eb, vb, ib, parts - parts / 2),
+                || {
+                    let bufs = Buffers {
+                        views: va,
+                        inferred: ia,
+                        scores: sa,
+                    };
+                    self.run(ea, bufs, parts / 2)
+                },
+                || {
+                    let bufs = Buffers {
+                        views: vb,
+                        inferred: ib,
+                        scores: sb,
+                    };
+                    self.run(eb, bufs, parts - parts / 2)
+                },
             );
             return a.and(b);
         }
         for _ in 0..self.frames {
-            for (env, v) in envs.iter_mut().zip(views.chunks_mut(self.fish)) {
+            for (env, v) in envs.iter_mut().zip(b.views.chunks_mut(self.fish)) {
                 env.prepare_views();
                 v.copy_from_slice(env.views());
             }
-            self.model.infer_batch(views, inferred);
-            for (env, inf) in envs.iter_mut().zip(inferred.chunks(self.fish * self.width)) {
-                env.advance_frame(Some(inf))?;
+            self.model.infer_batch(b.views, b.inferred);
+            // The OOD objective: every environment's views scored in one batch when all score
+            // this frame with one support (they do: they share it and step in lockstep);
+            // otherwise each environment scores its own.
+            let shared = envs.first().and_then(|e| e.frame_support()).filter(|s| {
+                envs.iter()
+                    .all(|e| e.frame_support().is_some_and(|t| Arc::ptr_eq(s, t)))
+            });
+            let scored = match shared {
+                Some(s) => {
+                    s.score_batch(b.views, b.scores);
+                    for (env, sc) in envs.iter_mut().zip(b.scores.chunks(self.fish)) {
+                        env.add_view_scores(sc);
+                    }
+                    true
+                }
+                None => false,
+            };
+            for (env, inf) in envs
+                .iter_mut()
+                .zip(b.inferred.chunks(self.fish * self.width))
+            {
+                env.advance_frame(Some(inf), scored)?;
             }
         }
         Ok(())

@@ -224,3 +224,67 @@ fn a_fish_behind_a_lock_is_asked_once_per_frame_for_every_fish_with_the_same_res
     assert!(free_batches.iter().all(|&b| b == n / 2));
     assert_eq!(locked, free);
 }
+
+/// Scores a view by its fish's distance from the tank's centre, and remembers the largest
+/// batch it was asked to score.
+#[derive(Debug, Default)]
+struct Radius {
+    largest_batch: std::sync::atomic::AtomicUsize,
+}
+
+impl fishprobe_sim::InputSupport for Radius {
+    fn score(&self, v: &FishView) -> f32 {
+        v.me.x.hypot(v.me.y) / 20.0
+    }
+    fn score_batch(&self, views: &[FishView], out: &mut [f32]) {
+        self.largest_batch
+            .fetch_max(views.len(), std::sync::atomic::Ordering::Relaxed);
+        for (v, o) in views.iter().zip(out) {
+            *o = self.score(v);
+        }
+    }
+}
+
+#[test]
+fn the_lockstep_path_scores_all_environments_views_in_one_batch_with_the_same_rewards() {
+    let n = 4;
+    let mut cfg = EnvConfig::default();
+    cfg.task.objective = fishprobe_sim::Objective::Ood;
+    let batched = Arc::new(Radius::default());
+    let mut vec = VecEnv::new(cfg.clone(), Arc::new(Chaser { batched: true }), n).unwrap();
+    vec.set_support(Some(batched.clone()));
+    vec.reset(5).unwrap();
+    let alone = Arc::new(Radius::default());
+    let mut singles: Vec<TankEnv> = (0..n)
+        .map(|_| TankEnv::new(cfg.clone(), Arc::new(Chaser { batched: false })).unwrap())
+        .collect();
+    let mut obs = vec![vec![0.0; 180]; n];
+    for (i, (e, o)) in singles.iter_mut().zip(&mut obs).enumerate() {
+        e.set_support(Some(alone.clone()));
+        e.reset(Some(fishprobe_sim::derive_seed(5, "env", i as u64)), o)
+            .unwrap();
+    }
+    for t in 0..50 {
+        let a = actions(t, n);
+        vec.step(&a).unwrap();
+        for i in 0..n {
+            let tr = singles[i].step(&a[i..i + 1], &mut obs[i]).unwrap();
+            assert!(tr.info.support_score > 0.0);
+            assert_eq!(tr, vec.transitions()[i], "step {t} env {i}");
+            if tr.truncated {
+                singles[i].reset(None, &mut obs[i]).unwrap();
+            }
+        }
+    }
+    use std::sync::atomic::Ordering::Relaxed;
+    assert_eq!(
+        batched.largest_batch.load(Relaxed),
+        n,
+        "one batch per frame"
+    );
+    assert_eq!(
+        alone.largest_batch.load(Relaxed),
+        1,
+        "a pair's frame: one fish"
+    );
+}
