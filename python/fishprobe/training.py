@@ -50,7 +50,8 @@ def train(
             ``result.json``); by default a line on stderr. ``None``: silent.
         ood_yardstick: with the OOD task (``settings={"task": {"objective": "ood"}}``), a
             lead-to-goal policy (a training directory, ``"onnx:FILE"`` or ``"scripted:NAME"``)
-            whose support-score percentile the reward counts time beyond, measured before
+            whose percentile of the OOD score (support or disagreement, as the settings'
+            ``ood_score``) the reward counts time beyond, measured before
             training, as ``fishprobe train --ood-yardstick`` does (its episodes in
             ``out/yardstick/``, what was measured in ``out/yardstick.json``;
             ``docs/guide/ood.md``).

@@ -258,6 +258,75 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     assert!((0.0..=1.0).contains(&share), "{share}");
     let md = std::fs::read_to_string(rep3.join("report.md")).unwrap();
     assert!(md.contains("## The ensemble's disagreement"), "{md}");
+    // A yardstick in the disagreement's own scale: measured by the ensemble on the yardstick
+    // episodes, it is the reward's floor and the report's disagreement yardstick.
+    let ds = dir.join("ds.toml");
+    std::fs::write(&ds, "[env.task]\nood_score = \"disagreement\"\n").unwrap();
+    let model = format!("convnet:{}", s(&narrow3));
+    let yard_dis = dir.join("yard-dis");
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        &model,
+        "--task",
+        "ood",
+        "--preset",
+        "smoke",
+        "--steps",
+        "500",
+        "--settings",
+        s(&ds),
+        "--ood-yardstick",
+        "scripted:goal-seeker",
+        "--ood-yardstick-episodes",
+        "1",
+        "--ood-yardstick-minutes",
+        "0.5",
+        "--out",
+        s(&yard_dis),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("disagreement score is"),
+        "{}",
+        stderr(&o)
+    );
+    let y: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(yard_dis.join("yardstick.json")).unwrap()).unwrap();
+    assert_eq!(y["ood_score"], "disagreement");
+    let t = y["score"].as_f64().unwrap();
+    let p: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(yard_dis.join("params.json")).unwrap()).unwrap();
+    let floor = p["env"]["task"]["ood_score_floor"].as_f64().unwrap();
+    assert!(
+        (floor - t.max(0.0)).abs() < 1e-6,
+        "floor {floor}, score {t}"
+    );
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&yard_dis),
+        "--compare",
+        "scripted:goal-seeker",
+        "--data",
+        s(&out3.join("seed-5/data/narrow")),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&dir.join("yard-dis-report")),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let ours = r["disagreement"]["goal_policy_p95"].as_f64().unwrap();
+    assert!(
+        (ours - t).abs() < 1e-9,
+        "the report's {ours}, the reward's {t}"
+    );
+    let md = std::fs::read_to_string(dir.join("yard-dis-report/report.md")).unwrap();
+    assert!(!md.contains("counted time beyond"), "{md}");
     // A member that is not the file it was fitted as: refused by name when a policy would
     // train against the ensemble.
     let member = out3.join("seed-5/model-narrow/convnet.safetensors.member-2.safetensors");
@@ -265,9 +334,6 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let last = bytes.len() - 1;
     bytes[last] ^= 1;
     std::fs::write(&member, bytes).unwrap();
-    let ds = dir.join("ds.toml");
-    std::fs::write(&ds, "[env.task]\nood_score = \"disagreement\"\n").unwrap();
-    let model = format!("convnet:{}", s(&narrow3));
     let o = fishprobe(&[
         "train",
         "--model",
@@ -535,7 +601,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
-        stdout(&o).contains(&format!("counted time beyond {t:.3}")),
+        stdout(&o).contains(&format!("counted time beyond a support score of {t:.3}")),
         "{}",
         stdout(&o)
     );

@@ -1,9 +1,11 @@
-//! The OOD reward's yardstick (issue 23): a lead-to-goal policy's support-score percentile,
+//! The OOD reward's yardstick (issue 23): a lead-to-goal policy's percentile of the OOD score
+//! (the support score, or the ensemble's disagreement with `ood_score = "disagreement"`),
 //! measured on its episodes before training, so that the OOD reward counts the time beyond it
 //! instead of a threshold copied by hand from an `ood-report`.
 //!
 //! The yardstick policy runs the episodes `ood-report` runs by default (6 of 5 minutes, seed 0,
-//! the evaluation task) against the fish model; its views' `quantile` support score `T`
+//! the evaluation task) against the fish model; its views' `quantile` score `T` (in the run's
+//! `ood_score`)
 //! becomes the reward's floor, `T + band` its cap and `1 / band` its weight, so a view at or
 //! beyond `T + band` earns 1 per second and the return counts time beyond the yardstick
 //! (docs/guide/ood.md, "A reward that counts time beyond a score"). `fishprobe train
@@ -12,18 +14,18 @@
 
 use crate::evaluate::MAX_MINUTES;
 use crate::{Evaluation, LearnError, RunSpec, Trainer};
-use fishprobe_analysis::ood::{quantile, score_trials, SourceScores};
+use fishprobe_analysis::ood::{disagreement_of_trials, quantile, score_trials, SourceScores};
 use fishprobe_models::support::SupportModel;
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::params::{check, ConfigError};
-use fishprobe_sim::{Controller, EnvConfig, FishModel, Objective};
+use fishprobe_sim::{Controller, EnvConfig, FishModel, Objective, OodScore};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 fishprobe_sim::documented_params! {
     /// How `train --ood-yardstick` measures its yardstick and shapes the reward from it.
     pub struct OodYardstickConfig {
-        /// The percentile of the yardstick policy's support scores that the reward counts time
+        /// The percentile of the yardstick policy's scores that the reward counts time
         /// beyond (choice: 0.95, issue 23's target: "at least as far out as the 95th percentile
         /// of the lead-to-goal policy's").
         pub quantile: f64 = 0.95; "1",
@@ -84,9 +86,11 @@ pub struct Yardstick {
     pub policy: String,
     /// How it was measured.
     pub config: OodYardstickConfig,
+    /// The score it was measured in: the run's `ood_score`.
+    pub ood_score: OodScore,
     /// Views scored.
     pub views: usize,
-    /// Its views' `quantile` support score: the reward's floor.
+    /// Its views' `quantile` score: the reward's floor.
     pub score: f64,
     /// The reward's cap (`score + band`).
     pub cap: f32,
@@ -105,6 +109,25 @@ pub struct ScoredRun {
     pub files: Vec<PathBuf>,
 }
 
+/// What a yardstick is measured in.
+enum Scorer {
+    Support(SupportModel),
+    Ensemble(fishprobe_models::disagreement::Disagreement),
+}
+
+/// Runs `c` on the episodes of `e` (their trial files in `e.out`, on rayon's current pool);
+/// returns the files and the evaluation's results.
+fn run_episodes(
+    c: &dyn Controller,
+    e: &Evaluation,
+) -> Result<(Vec<PathBuf>, Vec<crate::EpisodeResult>), LearnError> {
+    std::fs::create_dir_all(&e.out)
+        .map_err(|err| LearnError::Run(format!("creating {}: {err}", e.out.display())))?;
+    let results = crate::evaluate(c, e)?;
+    let files = results.iter().map(|r| r.file.clone()).collect();
+    Ok((files, results))
+}
+
 /// Runs `c` on the episodes of `e` (their trial files in `e.out`, on rayon's current pool) and
 /// scores every fish view against `support` as `label`: what `ood-report` compares, and what
 /// the yardstick is measured from.
@@ -114,10 +137,7 @@ pub fn score_policy(
     support: &SupportModel,
     label: &str,
 ) -> Result<ScoredRun, LearnError> {
-    std::fs::create_dir_all(&e.out)
-        .map_err(|err| LearnError::Run(format!("creating {}: {err}", e.out.display())))?;
-    let results = crate::evaluate(c, e)?;
-    let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
+    let (files, results) = run_episodes(c, e)?;
     Ok(ScoredRun {
         scores: score_trials(support, label, &files).map_err(LearnError::Policy)?,
         goals: crate::goals_mean_sd(&results).0,
@@ -142,15 +162,6 @@ fn check_settings(config: &OodYardstickConfig, env: &EnvConfig) -> Result<(), Le
         )
         .into());
     }
-    if env.task.ood_score != fishprobe_sim::OodScore::Support {
-        return Err(ConfigError::new(
-            "task",
-            "ood_score",
-            "disagreement",
-            "a yardstick is measured in support scores: it applies to ood_score = support only",
-        )
-        .into());
-    }
     Ok(config.validate()?)
 }
 
@@ -161,7 +172,8 @@ fn load(policy: &str) -> Result<Box<dyn Controller>, LearnError> {
 
 /// Runs `policy` (a training directory, `onnx:FILE` or `scripted:NAME`) on the yardstick
 /// episodes against `model` in `env` (trial files in `dir`) and sets `env`'s OOD reward to count
-/// the time beyond its `quantile` support score.
+/// the time beyond its `quantile` score, in `env`'s `ood_score`: the support score, or the
+/// disagreement of the model's ensemble.
 pub fn measure(
     policy: &str,
     config: &OodYardstickConfig,
@@ -170,7 +182,12 @@ pub fn measure(
     dir: &Path,
 ) -> Result<Yardstick, LearnError> {
     check_settings(config, env)?;
-    let support = model.support()?;
+    let ood_score = env.task.ood_score;
+    // The scorer first: a missing support file or ensemble fails before any episode runs.
+    let scorer = match ood_score {
+        OodScore::Support => Scorer::Support(model.support()?),
+        OodScore::Disagreement => Scorer::Ensemble(model.disagreement()?),
+    };
     let c = load(policy)?;
     let e = Evaluation {
         model: model.clone(),
@@ -182,8 +199,15 @@ pub fn measure(
         out: dir.to_path_buf(),
         prefix: "yardstick".into(),
     };
-    let run = score_policy(c.as_ref(), &e, &support, "yardstick policy")?;
-    let score = quantile(&run.scores.scores, config.quantile);
+    let label = "yardstick policy";
+    let scores = match &scorer {
+        Scorer::Support(support) => score_policy(c.as_ref(), &e, support, label)?.scores,
+        Scorer::Ensemble(d) => {
+            let (files, _) = run_episodes(c.as_ref(), &e)?;
+            disagreement_of_trials(d, label, &files).map_err(LearnError::Policy)?
+        }
+    };
+    let score = quantile(&scores.scores, config.quantile);
     if !score.is_finite() {
         return Err(LearnError::Policy(format!(
             "the yardstick policy {policy}: its episodes gave no scored fish view"
@@ -200,7 +224,8 @@ pub fn measure(
     Ok(Yardstick {
         policy: policy.to_string(),
         config: config.clone(),
-        views: run.scores.scores.len(),
+        ood_score,
+        views: scores.scores.len(),
         score,
         cap,
         weight,
@@ -292,11 +317,8 @@ mod tests {
             Err(LearnError::Policy(_))
         ));
         assert!(check("scripted:goal-seeker", &d, &ood).is_ok());
-        // Nor with the disagreement score, whose scale is not the support's.
-        ood.task.ood_score = fishprobe_sim::OodScore::Disagreement;
-        match check("scripted:goal-seeker", &d, &ood) {
-            Err(LearnError::Config(e)) => assert_eq!(e.field, "task.ood_score"),
-            other => panic!("{other:?}"),
-        }
+        // The disagreement score has its yardstick too (measured in its own scale).
+        ood.task.ood_score = OodScore::Disagreement;
+        assert!(check("scripted:goal-seeker", &d, &ood).is_ok());
     }
 }

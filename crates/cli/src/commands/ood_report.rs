@@ -126,6 +126,10 @@ fn ensemble_of(model: &ModelSpec) -> Result<Option<Disagreement>> {
 #[derive(Debug, serde::Serialize, serde::Deserialize)]
 struct TrainedYardstick {
     policy: String,
+    /// The score the yardstick was measured in (a record written before the disagreement
+    /// had a yardstick is the support's).
+    #[serde(default)]
+    ood_score: fishprobe_sim::OodScore,
     score: f64,
 }
 
@@ -524,13 +528,24 @@ fn wishlist_table(r: &OodReport) -> String {
 /// A note when the OOD policy was trained to count time beyond another score than this
 /// report's yardstick (empty when it was not, or the two agree).
 fn yardstick_note(r: &OodReport) -> String {
-    match &r.trained_yardstick {
-        Some(y) if (y.score - r.goal_policy_p95).abs() > 1e-9 => format!(
-            " Note: the OOD policy's reward counted time beyond {:.3} (the 95th percentile of \
-             {}, `train --ood-yardstick`), not this report's yardstick.",
+    let Some(y) = &r.trained_yardstick else {
+        return String::new();
+    };
+    // The report's yardstick in the score the reward counted (none without an ensemble).
+    let (kind, ours) = match y.ood_score {
+        fishprobe_sim::OodScore::Support => ("support score", Some(r.goal_policy_p95)),
+        fishprobe_sim::OodScore::Disagreement => (
+            "disagreement",
+            r.disagreement.as_ref().map(|d| d.goal_policy_p95),
+        ),
+    };
+    match ours {
+        Some(p) if (y.score - p).abs() <= 1e-9 => String::new(),
+        _ => format!(
+            " Note: the OOD policy's reward counted time beyond a {kind} of {:.3} (the 95th \
+             percentile of {}, `train --ood-yardstick`), not this report's yardstick.",
             y.score, y.policy
         ),
-        _ => String::new(),
     }
 }
 

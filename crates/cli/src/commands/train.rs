@@ -57,7 +57,8 @@ pub struct TrainArgs {
     #[arg(long)]
     ood_goal_weight: Option<f32>,
     /// With `--task ood`: reward the time beyond this lead-to-goal policy's 95th-percentile
-    /// support score (a training directory, `onnx:FILE` or `scripted:NAME`). Before training,
+    /// score, in the run's `ood_score` (support or disagreement; a training directory,
+    /// `onnx:FILE` or `scripted:NAME`). Before training,
     /// the policy runs `ood-report`'s default episodes against the fish (trial files in
     /// OUT/yardstick/); its percentile becomes the reward's floor, floor + band its cap and
     /// 1 / band its weight (replacing the settings file's `ood_score_floor`, `ood_score_cap`
@@ -195,9 +196,13 @@ fn start(out: &Path, f: Fresh) -> Result<Trainer> {
     if let Some(y) = &measured {
         let task = &trainer.spec().env.task;
         say!(
-            "yardstick: {}'s {}th-percentile support score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
+            "yardstick: {}'s {}th-percentile {} score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
             y.policy,
             (100.0 * y.config.quantile).round(),
+            match y.ood_score {
+                fishprobe_sim::OodScore::Support => "support",
+                fishprobe_sim::OodScore::Disagreement => "disagreement",
+            },
             y.score,
             task.ood_score_floor,
             y.cap,
