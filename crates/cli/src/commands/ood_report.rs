@@ -338,7 +338,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         all_files.push((label, run.files.clone()));
         sources.push(run.scores);
     }
-    let cap = env.task.ood_score_cap;
+    let cap = support_cap(&env.task);
     let goal_p95 = quantile(&sources[1].scores, 0.95);
     let count = |src: &Source| match src {
         Source::Recorded(f) => Some(f.len()),
@@ -414,6 +414,18 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         emit(&json)
     } else {
         emit(&summary(&report, &a.out))
+    }
+}
+
+/// The support score at which the figures' colour scale and the wishlist's weights saturate:
+/// the OOD reward's cap when the reward paid support scores (what the policy was trained to
+/// reach), else the support reward's default cap. A reward of the ensemble's disagreement has
+/// its cap in the disagreement's scale (e.g. 1.14 from `--ood-yardstick`), which says nothing
+/// about support scores.
+fn support_cap(task: &fishprobe_sim::TaskParams) -> f32 {
+    match task.ood_score {
+        fishprobe_sim::OodScore::Support => task.ood_score_cap,
+        fishprobe_sim::OodScore::Disagreement => fishprobe_sim::TaskParams::default().ood_score_cap,
     }
 }
 
@@ -634,4 +646,28 @@ fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         wishlist_table(r),
         command_line(a),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::support_cap;
+    use fishprobe_sim::{OodScore, TaskParams};
+
+    #[test]
+    fn the_support_figures_take_the_reward_cap_only_when_the_reward_paid_support_scores() {
+        let support = TaskParams {
+            ood_score_cap: 1.43,
+            ..TaskParams::default()
+        };
+        assert_eq!(support_cap(&support), 1.43);
+        let disagreement = TaskParams {
+            ood_score: OodScore::Disagreement,
+            ood_score_cap: 1.14,
+            ..TaskParams::default()
+        };
+        assert_eq!(
+            support_cap(&disagreement),
+            TaskParams::default().ood_score_cap
+        );
+    }
 }
