@@ -148,7 +148,12 @@ fn absurd_numbers_are_refused_before_any_work() {
     );
     refused(
         &["bench", "sim", "--seconds", "1e12"],
-        "--seconds must lie in",
+        "--seconds must lie in (0, 3600], got 1e12",
+    );
+    // An absurd number is named as typed, not in three hundred digits.
+    refused(
+        &["bench", "ood", "--seconds", "1e300"],
+        "--seconds must lie in [0.1, 600], got 1e300",
     );
     refused(&["bench", "sim", "--envs", "0"], "--envs must lie in");
     refused(

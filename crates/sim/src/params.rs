@@ -148,6 +148,18 @@ where
 pub mod check {
     use super::ConfigError;
 
+    /// `v` as an error message shows it: plainly in the range people type, in scientific
+    /// notation beyond it, so that an absurd value (`1e300`) does not print three hundred
+    /// digits.
+    pub fn shown(v: f64) -> String {
+        let a = v.abs();
+        if v == 0.0 || !v.is_finite() || (1e-4..1e9).contains(&a) {
+            format!("{v}")
+        } else {
+            format!("{v:e}")
+        }
+    }
+
     /// A finite number (not NaN, not infinite).
     pub fn finite(prefix: &str, field: &str, v: f32) -> Result<(), ConfigError> {
         if v.is_finite() {
@@ -210,6 +222,18 @@ mod tests {
             /// A count.
             pub count: u32 = 3; "1",
         }
+    }
+
+    #[test]
+    fn an_absurd_number_is_shown_short_and_a_typed_one_as_typed() {
+        assert_eq!(check::shown(1e300), "1e300");
+        assert_eq!(check::shown(-2.5e-9), "-2.5e-9");
+        assert_eq!(check::shown(2.0), "2");
+        assert_eq!(check::shown(0.25), "0.25");
+        assert_eq!(check::shown(600.0), "600");
+        assert_eq!(check::shown(0.0), "0");
+        assert_eq!(check::shown(f64::INFINITY), "inf");
+        assert_eq!(check::shown(f64::NAN), "NaN");
     }
 
     #[test]

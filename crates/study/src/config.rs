@@ -363,7 +363,10 @@ impl StudyConfig {
             ("virtual_minutes", self.virtual_minutes),
         ] {
             if !(v.is_finite() && v > 0.0 && v <= 1440.0) {
-                return bad(format!("{f} must lie in (0, 1440] minutes, got {v}"));
+                return bad(format!(
+                    "{f} must lie in (0, 1440] minutes, got {}",
+                    fishprobe_sim::params::check::shown(v)
+                ));
             }
         }
         Ok(())

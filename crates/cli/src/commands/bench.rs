@@ -4,6 +4,7 @@
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use fishprobe_models::ModelSpec;
+use fishprobe_sim::params::check::shown;
 use fishprobe_sim::{stream, Env, EnvConfig, TankEnv, VecEnv};
 use rand::RngExt;
 use serde::Serialize;
@@ -182,7 +183,7 @@ fn bench_ood(json: bool, members: usize, seconds: f64) -> Result<()> {
         anyhow::bail!("--members must lie in [2, {MAX_MEMBERS}], got {members}");
     }
     if !(seconds.is_finite() && (0.1..=600.0).contains(&seconds)) {
-        anyhow::bail!("--seconds must lie in [0.1, 600], got {seconds}");
+        anyhow::bail!("--seconds must lie in [0.1, 600], got {}", shown(seconds));
     }
     // The batch one core scores in training: the trainer's 64 environments split across the
     // cores (at least 16 fish per part, as the vector environment splits them).
@@ -357,13 +358,10 @@ fn walk_count(dir: &std::path::Path) -> usize {
 
 fn bench_sim(json: bool, seconds: f64, envs: Option<usize>, fish: u32) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0 && seconds <= 3600.0) {
-        anyhow::bail!("--seconds must lie in (0, 3600], got {seconds}");
+        anyhow::bail!("--seconds must lie in (0, 3600], got {}", shown(seconds));
     }
     if envs.is_some_and(|n| n == 0 || n > 65_536) {
         anyhow::bail!("--envs must lie in [1, 65536]");
-    }
-    if !(seconds.is_finite() && seconds > 0.0) {
-        anyhow::bail!("--seconds must be a positive number, got {seconds}");
     }
     let m = machine();
     let n_envs = envs.unwrap_or(32 * m.cores).max(1);

@@ -190,7 +190,10 @@ pub const MAX_MINUTES: f64 = fishprobe_learn::evaluate::MAX_MINUTES as f64;
 /// Checks a `--minutes` value: positive, finite, at most [`MAX_MINUTES`].
 pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
     if !(m.is_finite() && m > 0.0 && m <= MAX_MINUTES) {
-        anyhow::bail!("{flag} must be a number of minutes in (0, {MAX_MINUTES}], got {m}");
+        anyhow::bail!(
+            "{flag} must be a number of minutes in (0, {MAX_MINUTES}], got {}",
+            fishprobe_sim::params::check::shown(m)
+        );
     }
     Ok(())
 }
