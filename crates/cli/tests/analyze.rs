@@ -6,10 +6,10 @@ mod common;
 
 use common::{fishprobe, fresh_dir as dir};
 use fishprobe_io::{read_trial, write_trial};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// A small synthetic study (2 policies, 2-minute trials).
-fn small_study(tag: &str) -> PathBuf {
+fn small_study(tag: &str) -> common::Scratch {
     let d = dir(tag);
     let o = fishprobe(&[
         "bench",

@@ -53,7 +53,7 @@ fn full_study() -> &'static Path {
         }
         let text = ok(&["report", s]);
         assert!(text.contains("8 figures"), "{text}");
-        d
+        d.keep()
     })
 }
 
@@ -270,7 +270,8 @@ fn the_report_renders_in_headless_chromium_without_errors() {
 #[test]
 fn a_broken_image_fails_the_page_check() {
     // The check above must be able to fail: a page with one undecodable figure.
-    let index = dir("report-broken").join("index.html");
+    let d = dir("report-broken");
+    let index = d.join("index.html");
     let html = read(&full_study().join("report/index.html")).replacen(
         "data:image/svg+xml;base64,",
         "data:image/svg+xml;base64,AAAA",

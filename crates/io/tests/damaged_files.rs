@@ -115,6 +115,8 @@ fn damaged_real_files_give_errors_not_panics() {
     }
     assert!(n >= 250);
     assert!(failures.is_empty(), "{failures:#?}");
+    // 50 MB of damaged copies; kept only when the test fails (the asserts above).
+    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]
@@ -225,4 +227,5 @@ fn structurally_wrong_files_are_named_errors() {
         .unwrap_err()
         .to_string()
         .contains("cannot read"));
+    let _ = std::fs::remove_dir_all(&dir);
 }

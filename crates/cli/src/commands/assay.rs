@@ -84,6 +84,9 @@ pub fn run(a: AssayArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("fishprobe-assay-{}", std::process::id()))
     });
+    // Without --out the trial files are scratch: removed however the assay ends, an error
+    // included (declared before the lock, so the lock is released first).
+    let _scratch = temporary.then(|| super::RemoveOnDrop(out.clone()));
     let _lock = super::lock_out(&out, "assay approach")?;
     let mut e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
     e.env.observation.centroid_bins = centroid_bins;
@@ -91,10 +94,6 @@ pub fn run(a: AssayArgs) -> Result<()> {
     let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
     let r = assay_files(&files, &cfg).map_err(anyhow::Error::msg)?;
     let goes = goes_to_fish(&r, &cfg);
-    if temporary {
-        drop(_lock);
-        let _ = std::fs::remove_dir_all(&out);
-    }
     let text = if a.json {
         serde_json::to_string_pretty(&serde_json::json!({
             "policy": c.describe(),

@@ -305,6 +305,7 @@ fn bench_stats(
     let dir = dir.unwrap_or_else(|| {
         std::env::temp_dir().join(format!("fishprobe-bench-stats-{}", std::process::id()))
     });
+    let scratch = temporary.then(|| super::RemoveOnDrop(dir.clone()));
     let t0 = Instant::now();
     let layout = fishprobe_io::StudyLayout::new(&dir);
     let generated = if layout.rollouts().is_dir() {
@@ -320,9 +321,7 @@ fn bench_stats(
     fishprobe_analysis::write_results(&layout.analysis(), &results)?;
     let analysis_s = t1.elapsed().as_secs_f64();
     let files = walk_count(&dir);
-    if temporary {
-        let _ = std::fs::remove_dir_all(&dir);
-    }
+    drop(scratch);
     let m = machine();
     let text = if json {
         serde_json::to_string_pretty(&serde_json::json!({
@@ -575,6 +574,7 @@ fn bench_train(json: bool, iterations: u64, model_name: &str) -> Result<()> {
             std::process::id()
         ));
         let _ = std::fs::remove_dir_all(&dir);
+        let scratch = super::RemoveOnDrop(dir.clone());
         let spec = RunSpec {
             ppo: PpoConfig::preset_for(preset, model.is_expensive()).context("PPO preset")?,
             env: fishprobe_sim::EnvConfig::default(),
@@ -590,7 +590,7 @@ fn bench_train(json: bool, iterations: u64, model_name: &str) -> Result<()> {
             t.iterate()?;
         }
         let e2e_secs = start.elapsed().as_secs_f64();
-        let _ = std::fs::remove_dir_all(&dir);
+        drop(scratch);
         let steps_per_s = t.timesteps() as f64 / e2e_secs;
         e2e.push((
             preset,
