@@ -32,6 +32,7 @@ pub mod legacy;
 pub mod limits;
 pub mod lock;
 pub mod robofish;
+pub mod scratch;
 pub mod trial;
 
 pub use attr::Attr;
@@ -41,6 +42,7 @@ pub use legacy::read_legacy;
 pub use limits::ReadLimits;
 pub use lock::{DirLock, LockError};
 pub use robofish::{read_trial, write_atomically, write_trial};
+pub use scratch::ScratchDir;
 pub use trial::{
     heading_from_motion, Category, Entity, TaskRecord, TrialFile, TrialKind, TrialMeta,
 };

@@ -6,13 +6,10 @@ use fishprobe_io::{
     read_trial, write_trial, Attr, Category, Entity, TaskRecord, TrialFile, TrialKind,
 };
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 use std::process::Command;
 
-fn temp_dir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fishprobe-io-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn temp_dir(tag: &str) -> fishprobe_io::ScratchDir {
+    fishprobe_io::ScratchDir::for_test(&format!("io-{tag}"))
 }
 
 fn sample(frames: usize) -> TrialFile {

@@ -32,11 +32,8 @@ impl Controller for GoalSeeker {
     }
 }
 
-fn tmp(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fishprobe-live-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn tmp(tag: &str) -> fishprobe_io::ScratchDir {
+    fishprobe_io::ScratchDir::for_test(&format!("live-{tag}"))
 }
 
 fn short() -> LiveConfig {
@@ -79,7 +76,7 @@ fn bridge(
 #[test]
 fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
     let out = tmp("lab");
-    let (addr, h) = bridge(out.clone(), 1, short());
+    let (addr, h) = bridge(out.to_path_buf(), 1, short());
     let lab = LabConfig {
         dropouts_per_min: 0.0,
         ..LabConfig::default()
@@ -108,7 +105,8 @@ fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
         "a goal-seeking robot leads a virtual guppy to a goal in a minute"
     );
     // Deterministic for a seed.
-    let (addr, h) = bridge(tmp("lab2"), 1, short());
+    let scratch = tmp("lab2");
+    let (addr, h) = bridge(scratch.to_path_buf(), 1, short());
     let t2 = run_trial(addr, &lab, &GuppyParams::default(), 3).unwrap();
     h.join().unwrap();
     assert_eq!(t2.goals_reached, t.goals_reached);
@@ -122,7 +120,7 @@ fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
 #[test]
 fn dropouts_stop_the_robot_within_one_frame_of_the_timeout() {
     let out = tmp("dropouts");
-    let (addr, h) = bridge(out, 1, short());
+    let (addr, h) = bridge(out.to_path_buf(), 1, short());
     let lab = LabConfig {
         dropouts_per_min: 20.0,
         dropout_min_s: 0.6,
@@ -195,7 +193,7 @@ fn frame(t: f64) -> String {
 fn hostile_clients_never_crash_the_bridge_nor_lose_frames() {
     let out = tmp("fuzz");
     let clients = 12;
-    let (addr, h) = bridge(out, clients, short());
+    let (addr, h) = bridge(out.to_path_buf(), clients, short());
     let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
     let mut sent_frames = Vec::new();
     for c in 0..clients {
@@ -264,7 +262,8 @@ fn hostile_clients_never_crash_the_bridge_nor_lose_frames() {
 
 #[test]
 fn a_wrong_handshake_is_refused_with_a_reason() {
-    let (addr, _h) = bridge(tmp("refuse"), 1, short());
+    let scratch = tmp("refuse");
+    let (addr, _h) = bridge(scratch.to_path_buf(), 1, short());
     let mut s = TcpStream::connect(addr).unwrap();
     let bad = to_line(&ClientMsg::Hello {
         protocol: 1,
@@ -287,10 +286,11 @@ fn a_wrong_handshake_is_refused_with_a_reason() {
 fn a_bridge_with_a_token_refuses_a_hello_without_it() {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
+    let scratch = tmp("token");
     let opts = ServeOptions {
         live: short(),
         task: TaskParams::default(),
-        out: tmp("token"),
+        out: scratch.to_path_buf(),
         token: Some("s3cret".into()),
         max_trials: Some(1),
         fish_label: "live guppy".into(),

@@ -11,7 +11,7 @@ use fishprobe_live::LiveError;
 use fishprobe_sim::{ControlInput, Controller, SimRng, TaskParams};
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::mpsc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -28,11 +28,8 @@ impl Controller for Fixed {
     }
 }
 
-fn tmp(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("fishprobe-peers-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn tmp(tag: &str) -> fishprobe_io::ScratchDir {
+    fishprobe_io::ScratchDir::for_test(&format!("peers-{tag}"))
 }
 
 fn short() -> LiveConfig {

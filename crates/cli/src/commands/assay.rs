@@ -86,7 +86,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
     });
     // Without --out the trial files are scratch: removed however the assay ends, an error
     // included (declared before the lock, so the lock is released first).
-    let _scratch = temporary.then(|| super::RemoveOnDrop(out.clone()));
+    let _scratch = temporary.then(|| fishprobe_io::ScratchDir::remove_on_drop(out.clone()));
     let _lock = super::lock_out(&out, "assay approach")?;
     let mut e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
     e.env.observation.centroid_bins = centroid_bins;

@@ -305,7 +305,7 @@ fn bench_stats(
     let dir = dir.unwrap_or_else(|| {
         std::env::temp_dir().join(format!("fishprobe-bench-stats-{}", std::process::id()))
     });
-    let scratch = temporary.then(|| super::RemoveOnDrop(dir.clone()));
+    let scratch = temporary.then(|| fishprobe_io::ScratchDir::remove_on_drop(dir.clone()));
     let t0 = Instant::now();
     let layout = fishprobe_io::StudyLayout::new(&dir);
     let generated = if layout.rollouts().is_dir() {
@@ -574,7 +574,7 @@ fn bench_train(json: bool, iterations: u64, model_name: &str) -> Result<()> {
             std::process::id()
         ));
         let _ = std::fs::remove_dir_all(&dir);
-        let scratch = super::RemoveOnDrop(dir.clone());
+        let scratch = fishprobe_io::ScratchDir::remove_on_drop(dir.clone());
         let spec = RunSpec {
             ppo: PpoConfig::preset_for(preset, model.is_expensive()).context("PPO preset")?,
             env: fishprobe_sim::EnvConfig::default(),

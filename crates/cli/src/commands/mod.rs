@@ -187,16 +187,6 @@ pub fn note(line: &str) {
 /// [`fishprobe_learn::evaluate::MAX_MINUTES`]).
 pub const MAX_MINUTES: f64 = fishprobe_learn::evaluate::MAX_MINUTES as f64;
 
-/// A scratch directory, removed when dropped: however the command that made it ends, an
-/// error included, nothing is left in the temp directory.
-pub struct RemoveOnDrop(pub std::path::PathBuf);
-
-impl Drop for RemoveOnDrop {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 /// Checks a `--minutes` value: positive, finite, at most [`MAX_MINUTES`].
 pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
     if !(m.is_finite() && m > 0.0 && m <= MAX_MINUTES) {
