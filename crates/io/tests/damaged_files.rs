@@ -97,8 +97,8 @@ fn damaged_real_files_give_errors_not_panics() {
         eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
         return;
     };
-    let out = std::env::temp_dir().join(format!("fishprobe-damaged-{}", std::process::id()));
-    std::fs::create_dir_all(&out).unwrap();
+    // 50 MB of damaged copies, kept only when the test fails.
+    let out = fishprobe_io::ScratchDir::for_test("damaged");
     let mut rng = Xs(0x5eed_f15b_0000_0001);
     let mut failures = Vec::new();
     let mut n = 0;
@@ -115,14 +115,11 @@ fn damaged_real_files_give_errors_not_panics() {
     }
     assert!(n >= 250);
     assert!(failures.is_empty(), "{failures:#?}");
-    // 50 MB of damaged copies; kept only when the test fails (the asserts above).
-    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]
 fn structurally_wrong_files_are_named_errors() {
-    let dir = std::env::temp_dir().join(format!("fishprobe-wrong-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = fishprobe_io::ScratchDir::for_test("wrong");
     let text = |s: &str| AttrOut::Text(s.into());
     let base = |world: AttrOut, rate: Option<f32>, positions: Data| {
         let mut fish = GroupSpec::default();
@@ -227,5 +224,4 @@ fn structurally_wrong_files_are_named_errors() {
         .unwrap_err()
         .to_string()
         .contains("cannot read"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
