@@ -6,7 +6,8 @@ use fishprobe_analysis::{load_trial, AnalysisConfig, METRICS};
 use fishprobe_io::{write_trial, Category, Entity, TrialFile};
 use std::collections::BTreeMap;
 use std::f32::consts::PI;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 fn entity(name: &str, label: &str, poses: &[[f32; 3]]) -> Entity {
     Entity {
@@ -19,10 +20,14 @@ fn entity(name: &str, label: &str, poses: &[[f32; 3]]) -> Entity {
     }
 }
 
+/// This test binary's directory for its trial files (the next run removes it).
+fn scratch() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| fishprobe_io::ScratchDir::for_process("analysis"))
+}
+
 fn write(name: &str, robot: &[[f32; 3]], fish: &[[f32; 3]], rate: f32) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("fishprobe-analysis-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
+    let p = scratch().join(name);
     let t = TrialFile {
         world_size_cm: [100.0, 100.0],
         frame_rate_hz: rate,
@@ -104,9 +109,7 @@ fn unusable_trials_say_why() {
 
 /// A trial file of a robot and a group of fish (25 Hz, no task).
 fn write_group(name: &str, robot: &[[f32; 3]], fish: &[Vec<[f32; 3]>]) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("fishprobe-analysis-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
+    let p = scratch().join(name);
     let mut entities = vec![entity("robot", "robot", robot)];
     for (k, f) in fish.iter().enumerate() {
         entities.push(entity(&format!("fish_{}", k + 1), "fish", f));

@@ -2,13 +2,14 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir, stderr, stdout, train_smoke};
+use common::{fishprobe, fresh_dir, stderr, stdout, train_smoke, Scratch};
 use std::path::PathBuf;
+use std::sync::OnceLock;
 
+/// A small input file in this test binary's shared directory (the next run removes it).
 fn temp_file(name: &str, text: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("fishprobe-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("the temp dir is writable");
-    let p = dir.join(name);
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    let p = DIR.get_or_init(|| Scratch::for_process("cli")).join(name);
     std::fs::write(&p, text).expect("the temp dir is writable");
     p
 }

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir as dir, stderr, stdout};
+use common::{fishprobe, fresh_dir as dir, stderr, stdout, Scratch};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
@@ -33,7 +33,7 @@ fn ok(args: &[&str]) -> String {
 fn full_study() -> &'static Path {
     static STUDY: OnceLock<PathBuf> = OnceLock::new();
     STUDY.get_or_init(|| {
-        let d = dir("report-full");
+        let d = Scratch::for_process("e2e-report-full");
         let s = d.to_str().unwrap();
         ok(&["bench", "stats", "--size", "small", "--dir", s, "--json"]);
         ok(&["analyze", s, "--quick", "--sim-trials", "6"]);
@@ -53,7 +53,7 @@ fn full_study() -> &'static Path {
         }
         let text = ok(&["report", s]);
         assert!(text.contains("8 figures"), "{text}");
-        d.keep()
+        d
     })
 }
 
