@@ -53,7 +53,7 @@ impl OodYardstickConfig {
             return Err(ConfigError::new(
                 p,
                 "quantile",
-                self.quantile,
+                check::shown(self.quantile),
                 "must lie in (0, 1), e.g. 0.95",
             ));
         }

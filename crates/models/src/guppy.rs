@@ -110,7 +110,7 @@ impl GuppyParams {
             return Err(ConfigError::new(
                 prefix,
                 "sociability_min",
-                self.sociability_min,
+                check::shown(self.sociability_min),
                 "must not exceed sociability_max",
             ));
         }

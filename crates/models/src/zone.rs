@@ -86,7 +86,7 @@ impl ZoneParams {
             return Err(ConfigError::new(
                 prefix,
                 "orientation_zone_cm",
-                self.orientation_zone_cm,
+                check::shown(self.orientation_zone_cm),
                 "with zone_convention = radii, repulsion <= orientation <= attraction",
             ));
         }

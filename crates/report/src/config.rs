@@ -37,7 +37,7 @@ impl ReportConfig {
             return Err(ConfigError::new(
                 "report",
                 "png_scale",
-                self.png_scale,
+                check::shown(self.png_scale),
                 "at most 8 (a larger PNG is not sharper on any screen)",
             ));
         }

@@ -59,7 +59,7 @@ impl EnvConfig {
             return Err(ConfigError::new(
                 "",
                 "frame_rate_hz",
-                self.frame_rate_hz,
+                check::shown(self.frame_rate_hz),
                 &format!("must be at most {MAX_FRAME_RATE_HZ} Hz"),
             ));
         }

@@ -151,9 +151,14 @@ pub mod check {
     /// `v` as an error message shows it: plainly in the range people type, in scientific
     /// notation beyond it, so that an absurd value (`1e300`) does not print three hundred
     /// digits.
-    pub fn shown(v: f64) -> String {
-        let a = v.abs();
-        if v == 0.0 || !v.is_finite() || (1e-4..1e9).contains(&a) {
+    /// An `f32` prints as typed (`0.1`, not the `f64` it widens to).
+    pub fn shown<T>(v: T) -> String
+    where
+        T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+    {
+        let x: f64 = v.into();
+        let a = x.abs();
+        if x == 0.0 || !x.is_finite() || (1e-4..1e9).contains(&a) {
             format!("{v}")
         } else {
             format!("{v:e}")
@@ -168,7 +173,7 @@ pub mod check {
             Err(ConfigError::new(
                 prefix,
                 field,
-                v,
+                shown(v),
                 "must be a finite number",
             ))
         }
@@ -180,7 +185,12 @@ pub mod check {
         if v > 0.0 {
             Ok(())
         } else {
-            Err(ConfigError::new(prefix, field, v, "must be greater than 0"))
+            Err(ConfigError::new(
+                prefix,
+                field,
+                shown(v),
+                "must be greater than 0",
+            ))
         }
     }
 
@@ -190,7 +200,12 @@ pub mod check {
         if v >= 0.0 {
             Ok(())
         } else {
-            Err(ConfigError::new(prefix, field, v, "must not be negative"))
+            Err(ConfigError::new(
+                prefix,
+                field,
+                shown(v),
+                "must not be negative",
+            ))
         }
     }
 
@@ -203,8 +218,8 @@ pub mod check {
             Err(ConfigError::new(
                 prefix,
                 field,
-                v,
-                &format!("must lie in [{lo}, {hi}]"),
+                shown(v),
+                &format!("must lie in [{}, {}]", shown(lo), shown(hi)),
             ))
         }
     }
@@ -234,6 +249,12 @@ mod tests {
         assert_eq!(check::shown(0.0), "0");
         assert_eq!(check::shown(f64::INFINITY), "inf");
         assert_eq!(check::shown(f64::NAN), "NaN");
+        assert_eq!(check::shown(0.1f32), "0.1");
+        assert_eq!(check::shown(f32::MAX), "3.4028235e38");
+        let e = check::within("fish", "speed", 3e38, 0.0, 100.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("= 3e38") && e.contains("[0, 100]"), "{e}");
     }
 
     #[test]

@@ -291,7 +291,7 @@ impl TaskParams {
             return Err(ConfigError::new(
                 prefix,
                 "group_goal_fraction",
-                self.group_goal_fraction,
+                check::shown(self.group_goal_fraction),
                 "must lie in (0, 1]: the share of the fish that must be inside the goal",
             ));
         }
@@ -304,7 +304,7 @@ impl TaskParams {
             return Err(ConfigError::new(
                 prefix,
                 "progress_shaping_gamma",
-                self.progress_shaping_gamma,
+                check::shown(self.progress_shaping_gamma),
                 "must lie in (0, 1]: a discount",
             ));
         }
@@ -312,7 +312,7 @@ impl TaskParams {
             return Err(ConfigError::new(
                 prefix,
                 "ood_score_floor",
-                self.ood_score_floor,
+                check::shown(self.ood_score_floor),
                 "must lie in [0, ood_score_cap): scores above it are rewarded",
             ));
         }
