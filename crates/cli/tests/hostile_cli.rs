@@ -327,6 +327,48 @@ fn every_other_subcommand_refuses_cleanly() {
     );
 }
 
+/// A wrong file given as settings: a device that never ends, a large file, a minified one.
+/// Each is refused without reading it all or printing it back.
+#[test]
+fn a_wrong_settings_file_is_refused_short() {
+    let d = fresh_dir("hostile-settings");
+    let big = d.join("big.toml");
+    std::fs::write(&big, vec![b'#'; (17 << 20) as usize]).unwrap();
+    // One line of 200,000 characters with a parse error at its end.
+    let long = d.join("long.toml");
+    let n = 50_000;
+    std::fs::write(
+        &long,
+        format!("a = {}{}\n", "[".repeat(n), "]".repeat(n - 1)),
+    )
+    .unwrap();
+    let out = d.join("t");
+    for (flag, sub) in [("--settings", "train"), ("--config", "run")] {
+        let mut args = vec![sub, flag];
+        #[cfg(unix)]
+        {
+            args.push("/dev/zero");
+            args.extend(["--out", s(&out)]);
+            refused(&args, "larger than 16.0 MiB");
+            args.truncate(2);
+        }
+        args.extend([s(&big), "--out", s(&out)]);
+        refused(&args, "larger than 16.0 MiB");
+    }
+    for args in [
+        vec!["train", "--settings", s(&long), "--out", s(&out)],
+        vec!["run", "--config", s(&long), "--out", s(&out)],
+        vec!["report", s(&d), "--config", s(&long)],
+    ] {
+        let o = run_within(&args, Duration::from_secs(60));
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("line 1, column"), "{args:?}: {err}");
+        assert!(err.len() < 2_000, "{args:?} printed {} bytes", err.len());
+    }
+    refused(&["config", "check", "/dev/zero"], "larger than 16.0 MiB");
+}
+
 #[test]
 fn too_many_jobs_are_capped_with_a_note() {
     let d = fresh_dir("hostile-jobs");

@@ -96,6 +96,41 @@ fn human_bytes(b: u64) -> String {
     }
 }
 
+/// Largest text file read whole by [`read_small_text`]: settings, study and analysis files,
+/// JSON records. Default 16 MiB; fishprobe's own are a few kilobytes.
+pub const MAX_TEXT_BYTES: u64 = 16 << 20;
+
+/// A small text file (settings, a study file, a JSON record) read whole, as
+/// `std::fs::read_to_string` does, but never more than [`MAX_TEXT_BYTES`]: a wrong path
+/// (`/dev/zero`, a pipe that never ends, a 1 GB trial file given as settings) is refused once
+/// that much is read, with an error that says so, instead of filling memory first. Works on
+/// pipes too (`--settings <(...)`).
+pub fn read_small_text(path: &Path) -> std::io::Result<String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path)?;
+    let mut bytes = Vec::new();
+    file.take(MAX_TEXT_BYTES + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > MAX_TEXT_BYTES {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "larger than {}: not a settings or text file (reading stopped there; \
+                 fishprobe_io::limits::MAX_TEXT_BYTES)",
+                human_bytes(MAX_TEXT_BYTES)
+            ),
+        ));
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "not UTF-8 text (invalid byte at offset {}): a text file was expected",
+                e.utf8_error().valid_up_to()
+            ),
+        )
+    })
+}
+
 /// What kind of file system object a path is, for an error message; `None` for a regular
 /// file (following symbolic links).
 pub fn not_regular(path: &Path) -> Option<String> {
@@ -184,5 +219,24 @@ mod tests {
             assert!(not_regular(&dangling).is_some_and(|s| s.contains("cannot be followed")));
         }
         let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn a_small_text_is_read_and_an_endless_one_refused() {
+        let d = crate::ScratchDir::for_test("small-text");
+        let f = d.join("s.toml");
+        std::fs::write(&f, "a = 1\n").expect("write");
+        assert_eq!(read_small_text(&f).expect("read"), "a = 1\n");
+        std::fs::write(&f, [b'a', 0xff, b'b']).expect("write");
+        let e = read_small_text(&f).unwrap_err().to_string();
+        assert!(e.contains("not UTF-8") && e.contains("offset 1"), "{e}");
+        assert!(read_small_text(&d.join("missing")).is_err());
+        #[cfg(unix)]
+        {
+            let e = read_small_text(Path::new("/dev/zero"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("larger than 16.0 MiB"), "{e}");
+        }
     }
 }

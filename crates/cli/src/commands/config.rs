@@ -43,13 +43,13 @@ impl Default for SimSettings {
 impl SimSettings {
     /// Reads and validates a settings file.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
+        let text = fishprobe_io::read_small_text(path)
             .with_context(|| format!("cannot read settings file {}", path.display()))?;
         let is_toml = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
         let s: SimSettings = if is_toml {
-            toml::from_str(&text)
+            super::parse_toml(&text)
                 .with_context(|| format!("{} is not valid settings TOML", path.display()))?
         } else {
             serde_json::from_str(&text)

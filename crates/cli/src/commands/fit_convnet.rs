@@ -61,8 +61,9 @@ pub(super) fn pairs_or_shared(given: &[PathBuf], sub: &str) -> Result<Vec<PathBu
 
 pub fn run(a: FitConvnetArgs) -> Result<()> {
     let mut cfg: CloneConfig = match &a.config {
-        Some(p) => toml::from_str(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        Some(p) => super::parse_toml(
+            &fishprobe_io::read_small_text(p)
+                .with_context(|| format!("reading {}", p.display()))?,
         )
         .with_context(|| format!("settings {}", p.display()))?,
         None => CloneConfig::default(),

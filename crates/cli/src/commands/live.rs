@@ -149,8 +149,9 @@ fn pilot_factory(
 
 fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
     let cfg: LiveConfig = match path {
-        Some(p) => toml::from_str(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        Some(p) => super::parse_toml(
+            &fishprobe_io::read_small_text(p)
+                .with_context(|| format!("reading {}", p.display()))?,
         )
         .with_context(|| format!("settings {}", p.display()))?,
         None => LiveConfig::default(),

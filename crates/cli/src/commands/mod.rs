@@ -238,15 +238,48 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// The longest line of a settings file that a TOML error quotes (characters).
+const TOML_LINE_SHOWN: usize = 200;
+
+/// `text` parsed as TOML into `T`. The parser's error quotes the offending line whole, with a
+/// caret under the column; for a line longer than [`TOML_LINE_SHOWN`] characters (a minified
+/// or binary file given as settings) only its line, column and the parser's message are
+/// shown, so that a mistaken file does not print a megabyte of itself.
+pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(text: &str) -> anyhow::Result<T> {
+    toml::from_str(text).map_err(|e| anyhow::Error::msg(short_toml_error(text, &e)))
+}
+
+fn short_toml_error(text: &str, e: &toml::de::Error) -> String {
+    let full = e.to_string();
+    if full.lines().all(|l| l.chars().count() <= TOML_LINE_SHOWN) {
+        return full;
+    }
+    let message = e.message().trim_end();
+    let Some(span) = e.span() else {
+        return message.to_string();
+    };
+    let start = (0..=span.start.min(text.len()))
+        .rev()
+        .find(|&i| text.is_char_boundary(i))
+        .unwrap_or(0);
+    let before = &text[..start];
+    let line = before.matches('\n').count() + 1;
+    let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    format!(
+        "TOML parse error at line {line}, column {column} (the line is too long to show): \
+         {message}"
+    )
+}
+
 /// `cfg` with the `[analysis]` table of the TOML file `path` applied.
 pub(crate) fn analysis_settings(
     cfg: &fishprobe_analysis::AnalysisConfig,
     path: &std::path::Path,
 ) -> anyhow::Result<fishprobe_analysis::AnalysisConfig> {
-    let text = std::fs::read_to_string(path)
+    let text = fishprobe_io::read_small_text(path)
         .with_context(|| format!("reading analysis settings {}", path.display()))?;
     let table: toml::Table =
-        toml::from_str(&text).with_context(|| format!("analysis settings {}", path.display()))?;
+        parse_toml(&text).with_context(|| format!("analysis settings {}", path.display()))?;
     let Some(analysis) = table.get("analysis") else {
         anyhow::bail!(
             "analysis settings {}: no [analysis] table (write e.g. `[analysis]` then `competence_threshold = 0.9`)",

@@ -47,7 +47,7 @@ pub fn run(a: ModelsArgs) -> Result<()> {
     // (the name each model carries, its spec)
     let named: Vec<(String, ModelSpec)> = if let Some(dir) = &a.study {
         let file = fishprobe_io::StudyLayout::new(dir).config();
-        let text = std::fs::read_to_string(&file)
+        let text = fishprobe_io::read_small_text(&file)
             .with_context(|| format!("reading {} (made by fishprobe run)", file.display()))?;
         let cfg: fishprobe_study::StudyConfig =
             serde_json::from_str(&text).with_context(|| format!("{}", file.display()))?;

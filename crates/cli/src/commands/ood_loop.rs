@@ -550,8 +550,9 @@ fn probe_gaps(
 
 pub fn run(a: OodLoopArgs) -> Result<()> {
     let cfg: OodLoopConfig = match &a.config {
-        Some(p) => toml::from_str(
-            &std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        Some(p) => super::parse_toml(
+            &fishprobe_io::read_small_text(p)
+                .with_context(|| format!("reading {}", p.display()))?,
         )
         .with_context(|| format!("settings {}", p.display()))?,
         None => OodLoopConfig::default(),

@@ -141,8 +141,8 @@ fn trained_yardstick(policy: &str) -> Result<Option<TrainedYardstick>> {
     if !file.exists() {
         return Ok(None);
     }
-    let text =
-        std::fs::read_to_string(&file).with_context(|| format!("reading {}", file.display()))?;
+    let text = fishprobe_io::read_small_text(&file)
+        .with_context(|| format!("reading {}", file.display()))?;
     let y = serde_json::from_str(&text)
         .with_context(|| format!("{}: not a yardstick record of `train`", file.display()))?;
     Ok(Some(y))

@@ -30,9 +30,9 @@ pub struct ReportArgs {
 pub fn run(a: ReportArgs) -> Result<()> {
     let cfg: ReportConfig = match &a.config {
         Some(p) => {
-            let text = std::fs::read_to_string(p)
+            let text = fishprobe_io::read_small_text(p)
                 .with_context(|| format!("reading report settings {}", p.display()))?;
-            toml::from_str(&text).with_context(|| format!("report settings {}", p.display()))?
+            super::parse_toml(&text).with_context(|| format!("report settings {}", p.display()))?
         }
         None => ReportConfig::default(),
     };

@@ -259,13 +259,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
 /// `base` with the fields that the file at `path` sets replaced; unknown fields and values out
 /// of range are errors naming the file.
 pub fn ppo_overrides(base: PpoConfig, path: &std::path::Path) -> Result<PpoConfig> {
-    let text = std::fs::read_to_string(path)
+    let text = fishprobe_io::read_small_text(path)
         .with_context(|| format!("cannot read PPO settings file {}", path.display()))?;
     let is_toml = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     let over: serde_json::Value = if is_toml {
-        let table: toml::Table = toml::from_str(&text)
+        let table: toml::Table = super::parse_toml(&text)
             .with_context(|| format!("{} is not valid PPO settings TOML", path.display()))?;
         // Converted to JSON, TOML's inf and nan both become null; only inf lifts the bound.
         if let Some(toml::Value::Float(f)) = table.get("log_std_max") {
