@@ -4,7 +4,8 @@
 //! benchmarks) and every test that writes files takes a [`ScratchDir`]: the directory is
 //! removed when the value is dropped, however the work ends, an error included. A test's
 //! directory is kept when the test fails (the drop runs while a panic unwinds), and its path
-//! printed, for a look at what was left there.
+//! printed, for a look at what was left there. A fixture that all tests of one test binary
+//! share lives in [`ScratchDir::for_process`], which the next run removes.
 
 use crate::DirLock;
 use std::path::{Path, PathBuf};
