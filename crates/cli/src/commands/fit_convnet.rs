@@ -61,11 +61,7 @@ pub(super) fn pairs_or_shared(given: &[PathBuf], sub: &str) -> Result<Vec<PathBu
 
 pub fn run(a: FitConvnetArgs) -> Result<()> {
     let mut cfg: CloneConfig = match &a.config {
-        Some(p) => super::parse_toml(
-            &fishprobe_io::read_small_text(p)
-                .with_context(|| format!("reading {}", p.display()))?,
-        )
-        .with_context(|| format!("settings {}", p.display()))?,
+        Some(p) => super::read_toml(p, "settings")?,
         None => CloneConfig::default(),
     };
     if let Some(n) = a.max_epochs {

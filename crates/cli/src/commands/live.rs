@@ -149,11 +149,7 @@ fn pilot_factory(
 
 fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
     let cfg: LiveConfig = match path {
-        Some(p) => super::parse_toml(
-            &fishprobe_io::read_small_text(p)
-                .with_context(|| format!("reading {}", p.display()))?,
-        )
-        .with_context(|| format!("settings {}", p.display()))?,
+        Some(p) => super::read_toml(p, "settings")?,
         None => LiveConfig::default(),
     };
     cfg.validate()?;

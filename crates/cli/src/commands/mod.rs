@@ -249,6 +249,17 @@ pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(text: &str) -> anyhow::
     toml::from_str(text).map_err(|e| anyhow::Error::msg(short_toml_error(text, &e)))
 }
 
+/// The TOML file `path` (a `what`: "settings", "study file", ...) read, at most
+/// [`fishprobe_io::limits::MAX_TEXT_BYTES`], and parsed into `T`; errors name the file.
+pub(crate) fn read_toml<T: serde::de::DeserializeOwned>(
+    path: &std::path::Path,
+    what: &str,
+) -> anyhow::Result<T> {
+    let text = fishprobe_io::read_small_text(path)
+        .with_context(|| format!("reading {what} {}", path.display()))?;
+    parse_toml(&text).with_context(|| format!("{what} {}", path.display()))
+}
+
 fn short_toml_error(text: &str, e: &toml::de::Error) -> String {
     let full = e.to_string();
     if full.lines().all(|l| l.chars().count() <= TOML_LINE_SHOWN) {
@@ -258,11 +269,7 @@ fn short_toml_error(text: &str, e: &toml::de::Error) -> String {
     let Some(span) = e.span() else {
         return message.to_string();
     };
-    let start = (0..=span.start.min(text.len()))
-        .rev()
-        .find(|&i| text.is_char_boundary(i))
-        .unwrap_or(0);
-    let before = &text[..start];
+    let before = text.get(..span.start).unwrap_or(text);
     let line = before.matches('\n').count() + 1;
     let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
     format!(
@@ -276,10 +283,7 @@ pub(crate) fn analysis_settings(
     cfg: &fishprobe_analysis::AnalysisConfig,
     path: &std::path::Path,
 ) -> anyhow::Result<fishprobe_analysis::AnalysisConfig> {
-    let text = fishprobe_io::read_small_text(path)
-        .with_context(|| format!("reading analysis settings {}", path.display()))?;
-    let table: toml::Table =
-        parse_toml(&text).with_context(|| format!("analysis settings {}", path.display()))?;
+    let table: toml::Table = read_toml(path, "analysis settings")?;
     let Some(analysis) = table.get("analysis") else {
         anyhow::bail!(
             "analysis settings {}: no [analysis] table (write e.g. `[analysis]` then `competence_threshold = 0.9`)",

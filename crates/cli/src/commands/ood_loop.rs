@@ -550,11 +550,7 @@ fn probe_gaps(
 
 pub fn run(a: OodLoopArgs) -> Result<()> {
     let cfg: OodLoopConfig = match &a.config {
-        Some(p) => super::parse_toml(
-            &fishprobe_io::read_small_text(p)
-                .with_context(|| format!("reading {}", p.display()))?,
-        )
-        .with_context(|| format!("settings {}", p.display()))?,
+        Some(p) => super::read_toml(p, "settings")?,
         None => OodLoopConfig::default(),
     };
     cfg.validate()?;

@@ -29,11 +29,7 @@ pub struct ReportArgs {
 
 pub fn run(a: ReportArgs) -> Result<()> {
     let cfg: ReportConfig = match &a.config {
-        Some(p) => {
-            let text = fishprobe_io::read_small_text(p)
-                .with_context(|| format!("reading report settings {}", p.display()))?;
-            super::parse_toml(&text).with_context(|| format!("report settings {}", p.display()))?
-        }
+        Some(p) => super::read_toml(p, "report settings")?,
         None => ReportConfig::default(),
     };
     if !a.study.is_dir() {

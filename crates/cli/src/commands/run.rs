@@ -57,10 +57,7 @@ pub fn run(a: RunArgs) -> Result<()> {
     }
     let mut cfg: StudyConfig = match &a.config {
         Some(p) => {
-            let text = fishprobe_io::read_small_text(p)
-                .with_context(|| format!("reading {}", p.display()))?;
-            let f: StudyFile =
-                super::parse_toml(&text).with_context(|| format!("study file {}", p.display()))?;
+            let f: StudyFile = super::read_toml(p, "study file")?;
             let dir = p.parent().unwrap_or_else(|| std::path::Path::new("."));
             f.apply_in(&a.preset, dir)
                 .map_err(anyhow::Error::msg)
