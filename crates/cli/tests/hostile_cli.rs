@@ -369,6 +369,102 @@ fn a_wrong_settings_file_is_refused_short() {
     refused(&["config", "check", "/dev/zero"], "larger than 16.0 MiB");
 }
 
+/// A weights, sidecar or support file that is a device that never ends (here /dev/zero
+/// through a symbolic link) is refused at its limit, not read until memory runs out.
+#[cfg(unix)]
+#[test]
+fn an_endless_model_file_is_refused_at_its_limit() {
+    use std::os::unix::fs::symlink;
+    let d = fresh_dir("hostile-weights");
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../models/assets");
+    // Real weights whose sidecar never ends.
+    let w = d.join("w.safetensors");
+    std::fs::copy(assets.join("convnet.safetensors"), &w).unwrap();
+    symlink("/dev/zero", d.join("w.safetensors.json")).unwrap();
+    // Real weights and sidecar whose support file never ends.
+    let v = d.join("v.safetensors");
+    std::fs::copy(assets.join("convnet.safetensors"), &v).unwrap();
+    std::fs::copy(
+        assets.join("convnet.safetensors.json"),
+        d.join("v.safetensors.json"),
+    )
+    .unwrap();
+    symlink("/dev/zero", d.join("v.safetensors.support.json")).unwrap();
+    let out = d.join("t");
+    let zero = "convnet:/dev/zero";
+    let sidecar = format!("convnet:{}", s(&w));
+    let support = format!("convnet:{}", s(&v));
+    for (args, needle) in [
+        (
+            vec!["train", "--model", zero, "--out", s(&out)],
+            "larger than 512.0 MiB",
+        ),
+        (vec!["support", "--model", zero], "larger than 512.0 MiB"),
+        (
+            vec!["train", "--model", &sidecar, "--out", s(&out)],
+            "larger than 16.0 MiB",
+        ),
+        (
+            vec![
+                "train",
+                "--model",
+                &support,
+                "--task",
+                "ood",
+                "--out",
+                s(&out),
+            ],
+            "larger than 64.0 MiB",
+        ),
+        (
+            vec!["train", "--model", "onnx:/dev/zero", "--out", s(&out)],
+            "not a regular file",
+        ),
+    ] {
+        refused(&args, needle);
+    }
+}
+
+/// A bridge that answers with a line that never ends: the virtual lab (`lab --connect`) and
+/// `live replay` refuse it once the line passes their limit, instead of reading it into memory.
+#[test]
+fn a_bridge_whose_line_never_ends_is_refused() {
+    use std::io::Write;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    std::thread::spawn(move || {
+        for mut conn in listener.incoming().map_while(Result::ok) {
+            std::thread::spawn(move || {
+                let chunk = [b'x'; 65_536];
+                // Until the client hangs up.
+                while conn.write_all(&chunk).is_ok() {}
+            });
+        }
+    });
+    let d = fresh_dir("hostile-bridge");
+    let trial = d.join("trial.hdf5");
+    let o = run_within(
+        &["simulate", "--minutes", "0.05", "--out", s(&trial)],
+        Duration::from_secs(60),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let lab = d.join("lab");
+    for args in [
+        vec![
+            "lab",
+            "--policy",
+            "scripted:goal-seeker",
+            "--connect",
+            &addr,
+            "--out",
+            s(&lab),
+        ],
+        vec!["live", "replay", s(&trial), "--connect", &addr],
+    ] {
+        refused(&args, "a line longer than 65536 bytes");
+    }
+}
+
 #[test]
 fn too_many_jobs_are_capped_with_a_note() {
     let d = fresh_dir("hostile-jobs");

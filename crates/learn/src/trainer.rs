@@ -251,7 +251,8 @@ impl Trainer {
     /// The settings `dir`'s `params.json` records.
     pub fn recorded_spec(dir: &Path) -> Result<RunSpec, LearnError> {
         let params = dir.join("params.json");
-        let text = std::fs::read_to_string(&params)
+        // Bounded: `ood-report --policy P` reads the params.json of a directory a user names.
+        let text = fishprobe_io::read_small_text(&params)
             .map_err(|e| run_err(&params, format!("cannot resume: {e}")))?;
         serde_json::from_str(&text)
             .map_err(|e| run_err(&params, format!("not a run's parameters: {e}")))

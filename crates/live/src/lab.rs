@@ -17,7 +17,7 @@ use fishprobe_sim::{
 };
 use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufReader, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::sync::mpsc;
 use std::time::Duration;
@@ -90,10 +90,17 @@ fn normal(rng: &mut SimRng) -> f32 {
 fn reader_thread(stream: TcpStream) -> mpsc::Receiver<Result<ServerMsg, String>> {
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
-        for line in BufReader::new(stream).lines() {
-            let m = match line {
-                Ok(l) => serde_json::from_str::<ServerMsg>(&l)
+        let mut r = BufReader::new(stream);
+        loop {
+            let m = match crate::read_line_at_most(&mut r, crate::MAX_BRIDGE_LINE_BYTES) {
+                Ok(Some(l)) => serde_json::from_str::<ServerMsg>(&l)
                     .map_err(|e| format!("bad message from the bridge: {e}")),
+                Ok(None) => break,
+                Err(e) if e.kind() == std::io::ErrorKind::InvalidData => {
+                    // Reported once; the trial ends on it.
+                    let _ = tx.send(Err(format!("bad message from the bridge: {e}")));
+                    break;
+                }
                 Err(_) => break,
             };
             if tx.send(m).is_err() {

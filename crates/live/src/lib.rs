@@ -49,3 +49,4 @@ pub mod server;
 pub mod session;
 
 pub use error::LiveError;
+pub use lines::{read_line_at_most, MAX_BRIDGE_LINE_BYTES};

@@ -91,3 +91,71 @@ impl LineReader {
         }
     }
 }
+
+/// Longest line a client of a bridge (the virtual lab with `--connect`, `live replay`) reads
+/// from it: the bridge's own messages are under 1 kB, and this is the bridge's own limit on
+/// what it reads (`max_message_bytes`' default), so a hostile or broken peer cannot grow a
+/// client's memory with a line that never ends.
+pub const MAX_BRIDGE_LINE_BYTES: usize = 65_536;
+
+/// One line (without its newline) of at most `max` bytes, `None` once the peer has closed.
+/// A longer line, or one that is not UTF-8, is an error, read no further than `max + 1` bytes.
+pub fn read_line_at_most<R: BufRead>(r: &mut R, max: usize) -> std::io::Result<Option<String>> {
+    use std::io::Read;
+    let mut buf = Vec::new();
+    let n = r
+        .by_ref()
+        .take(max as u64 + 1)
+        .read_until(b'\n', &mut buf)?;
+    if n == 0 {
+        return Ok(None);
+    }
+    if buf.last() == Some(&b'\n') {
+        buf.pop();
+    } else if buf.len() > max {
+        return Err(std::io::Error::new(
+            ErrorKind::InvalidData,
+            format!("a line longer than {max} bytes (reading stopped there)"),
+        ));
+    }
+    String::from_utf8(buf)
+        .map(Some)
+        .map_err(|_| std::io::Error::new(ErrorKind::InvalidData, "a line that is not UTF-8 text"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_are_read_up_to_their_limit_and_no_further() {
+        let mut r = std::io::Cursor::new(b"abc\ndefg\nhi".to_vec());
+        assert_eq!(
+            read_line_at_most(&mut r, 4).unwrap().as_deref(),
+            Some("abc")
+        );
+        // Exactly the limit, newline not counted.
+        assert_eq!(
+            read_line_at_most(&mut r, 4).unwrap().as_deref(),
+            Some("defg")
+        );
+        // A last line without a newline.
+        assert_eq!(read_line_at_most(&mut r, 4).unwrap().as_deref(), Some("hi"));
+        assert_eq!(read_line_at_most(&mut r, 4).unwrap(), None);
+
+        let mut long = std::io::Cursor::new(b"abcdef\n".to_vec());
+        let err = read_line_at_most(&mut long, 4).unwrap_err().to_string();
+        assert!(err.contains("longer than 4 bytes"), "{err}");
+        assert_eq!(long.position(), 5, "read no further than the limit + 1");
+
+        let mut binary = std::io::Cursor::new(vec![0xff, b'\n']);
+        assert!(read_line_at_most(&mut binary, 4).is_err());
+    }
+
+    #[test]
+    fn a_line_that_never_ends_is_refused() {
+        let mut endless = std::io::BufReader::new(std::io::repeat(b'x'));
+        let err = read_line_at_most(&mut endless, MAX_BRIDGE_LINE_BYTES).unwrap_err();
+        assert_eq!(err.kind(), ErrorKind::InvalidData);
+    }
+}

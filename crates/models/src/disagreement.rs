@@ -342,7 +342,19 @@ impl Disagreement {
             }
             Ok(_) => {}
         }
-        let text = std::fs::read_to_string(&path).map_err(|e| invalid(e.to_string()))?;
+        // Bounded by reading too: the size checked above is 0 for a device or a pipe.
+        let bytes = fishprobe_nn::store::read_at_most(
+            &path,
+            MAX_FILE_BYTES,
+            "fishprobe_models::disagreement::MAX_FILE_BYTES",
+        )
+        .map_err(|e| invalid(e.to_string()))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            invalid(format!(
+                "not UTF-8 text (invalid byte at offset {})",
+                e.utf8_error().valid_up_to()
+            ))
+        })?;
         let file: DisagreementFile = serde_json::from_str(&text)
             .map_err(|e| invalid(format!("not a fishprobe disagreement file: {e}")))?;
         if file.format != FORMAT || file.version != VERSION {
@@ -381,9 +393,8 @@ impl Disagreement {
                 )));
             }
             let p = dir.join(&m.file);
-            let bytes =
-                std::fs::read(&p).map_err(|e| invalid(format!("member {}: {e}", p.display())))?;
-            let sha = crate::sha256_hex(&bytes);
+            let sha = crate::weights_sha256(&p)
+                .map_err(|e| invalid(format!("member {}: {e}", p.display())))?;
             if sha != m.sha256 {
                 return Err(invalid(format!(
                     "member {} has SHA-256 {sha}, not the {} it was fitted as: refit with \

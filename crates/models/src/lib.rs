@@ -39,6 +39,37 @@ pub mod zone;
 
 pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError};
 pub use fishprobe_onnx::sha256_hex;
+
+/// The SHA-256 of a weights file (`convnet:FILE`, a policy's `policy.safetensors`), read at
+/// most [`fishprobe_nn::store::MAX_WEIGHTS_BYTES`]: a wrong path (`/dev/zero`) is refused,
+/// never read into memory whole.
+pub fn weights_sha256(path: &std::path::Path) -> std::io::Result<String> {
+    fishprobe_nn::store::read_at_most(
+        path,
+        fishprobe_nn::store::MAX_WEIGHTS_BYTES,
+        "fishprobe_nn::store::MAX_WEIGHTS_BYTES",
+    )
+    .map(|b| sha256_hex(&b))
+}
+
+/// A weights or model file that cannot be read (or hashed), as a [`ModelError`].
+fn weights_error(path: &str, e: std::io::Error) -> ModelError {
+    ModelError::Weights(WeightsError {
+        source_name: path.to_string(),
+        what: e.to_string(),
+    })
+}
+
+/// The SHA-256 of an ONNX file, read at most [`fishprobe_onnx::MAX_FILE_BYTES`] (the size
+/// the ONNX loader accepts).
+pub fn onnx_sha256(path: &std::path::Path) -> std::io::Result<String> {
+    fishprobe_nn::store::read_at_most(
+        path,
+        fishprobe_onnx::MAX_FILE_BYTES,
+        "fishprobe_onnx::MAX_FILE_BYTES",
+    )
+    .map(|b| sha256_hex(&b))
+}
 pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
 pub use guppy::{Guppy, GuppyParams};
@@ -247,23 +278,17 @@ impl ModelSpec {
     /// The support model of this model's training data, checked to belong to its weights
     /// (by SHA-256). Data-driven models only.
     pub fn support(&self) -> Result<support::SupportModel, ModelError> {
-        let weights_hash = |path: &str| -> Result<String, ModelError> {
-            let bytes = std::fs::read(path).map_err(|e| {
-                ModelError::Weights(WeightsError {
-                    source_name: path.to_string(),
-                    what: e.to_string(),
-                })
-            })?;
-            Ok(fishprobe_onnx::sha256_hex(&bytes))
+        let hash = |path: &str, sha: fn(&std::path::Path) -> std::io::Result<String>| {
+            sha(std::path::Path::new(path)).map_err(|e| weights_error(path, e))
         };
         match (self, self.support_path()?) {
             (_, None) => Ok(convnet::shipped_support()?),
             (Self::ConvNet(p), Some(file)) => {
-                let hash = weights_hash(&p.weights)?;
+                let hash = hash(&p.weights, weights_sha256)?;
                 Ok(support::SupportModel::load(&file, &p.weights, &hash)?)
             }
             (Self::Onnx(p), Some(file)) => {
-                let hash = weights_hash(&p.path)?;
+                let hash = hash(&p.path, onnx_sha256)?;
                 Ok(support::SupportModel::load(&file, &p.path, &hash)?)
             }
             _ => Err(ModelError::NotDataDriven {
@@ -280,18 +305,9 @@ impl ModelSpec {
     pub fn disagreement(&self) -> Result<disagreement::Disagreement, ModelError> {
         match self {
             Self::ConvNet(p) if !p.weights.is_empty() => {
-                let bytes = std::fs::read(&p.weights).map_err(|e| {
-                    ModelError::Weights(WeightsError {
-                        source_name: p.weights.clone(),
-                        what: e.to_string(),
-                    })
-                })?;
                 let path = std::path::Path::new(&p.weights);
-                Ok(disagreement::Disagreement::load(
-                    path,
-                    &p.weights,
-                    &sha256_hex(&bytes),
-                )?)
+                let sha = weights_sha256(path).map_err(|e| weights_error(&p.weights, e))?;
+                Ok(disagreement::Disagreement::load(path, &p.weights, &sha)?)
             }
             _ => Err(ModelError::Support(
                 support::SupportError::MissingEnsemble {

@@ -34,9 +34,7 @@ impl OnnxParams {
     /// The model in `path`, with the file's current SHA-256 (empty if it cannot be read: the
     /// model's construction then says why).
     pub fn for_file(path: &str) -> Self {
-        let sha256 = std::fs::read(path)
-            .map(|b| fishprobe_onnx::sha256_hex(&b))
-            .unwrap_or_default();
+        let sha256 = crate::onnx_sha256(std::path::Path::new(path)).unwrap_or_default();
         Self {
             path: path.to_string(),
             sha256,

@@ -781,7 +781,19 @@ impl SupportModel {
             }
             Ok(_) => {}
         }
-        let text = std::fs::read_to_string(path).map_err(|e| invalid(e.to_string()))?;
+        // Bounded by reading too: the size checked above is 0 for a device or a pipe.
+        let bytes = fishprobe_nn::store::read_at_most(
+            path,
+            MAX_FILE_BYTES,
+            "fishprobe_models::support::MAX_FILE_BYTES",
+        )
+        .map_err(|e| invalid(e.to_string()))?;
+        let text = String::from_utf8(bytes).map_err(|e| {
+            invalid(format!(
+                "not UTF-8 text (invalid byte at offset {})",
+                e.utf8_error().valid_up_to()
+            ))
+        })?;
         let s = Self::from_json(&text).map_err(invalid)?;
         if !expected_sha256.is_empty() && s.model_sha256 != expected_sha256 {
             return Err(SupportError::OtherModel {

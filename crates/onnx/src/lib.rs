@@ -27,7 +27,7 @@
 mod net;
 mod policy;
 
-pub use net::{sha256_hex, Contract, OnnxNet};
+pub use net::{sha256_hex, Contract, OnnxNet, MAX_FILE_BYTES};
 pub use policy::OnnxPolicy;
 
 use std::path::PathBuf;

@@ -95,7 +95,7 @@ impl std::fmt::Debug for OnnxNet {
 }
 
 /// Largest ONNX file accepted (a policy of 2 x 256 units is 0.3 MB, the ConvNet fish 1 MB).
-const MAX_BYTES: u64 = 512 << 20;
+pub const MAX_FILE_BYTES: u64 = 512 << 20;
 
 fn read(path: &Path) -> Result<Vec<u8>, OnnxError> {
     let read_err = |reason| OnnxError::Read {
@@ -109,10 +109,13 @@ fn read(path: &Path) -> Result<Vec<u8>, OnnxError> {
             what: "not a regular file".into(),
         });
     }
-    if meta.len() > MAX_BYTES {
+    if meta.len() > MAX_FILE_BYTES {
         return Err(OnnxError::NotOnnx {
             path: path.to_path_buf(),
-            what: format!("{} bytes, more than the {MAX_BYTES} accepted", meta.len()),
+            what: format!(
+                "{} bytes, more than the {MAX_FILE_BYTES} accepted",
+                meta.len()
+            ),
         });
     }
     std::fs::read(path).map_err(read_err)

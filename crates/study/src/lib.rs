@@ -191,14 +191,11 @@ impl Study {
 /// The SHA-256 of a policy trained elsewhere (`onnx:PATH`: the file; a directory: its
 /// `policy.safetensors`), so that a changed file invalidates every step that ran it.
 pub(crate) fn external_policy_sha256(arg: &str) -> String {
-    let file = match arg.strip_prefix("onnx:") {
-        Some(p) => PathBuf::from(p),
-        None => PathBuf::from(arg).join("policy.safetensors"),
+    let sha = match arg.strip_prefix("onnx:") {
+        Some(p) => fishprobe_models::onnx_sha256(&PathBuf::from(p)),
+        None => fishprobe_models::weights_sha256(&PathBuf::from(arg).join("policy.safetensors")),
     };
-    std::fs::read(&file).map_or_else(
-        |e| format!("unreadable: {e}"),
-        |b| fishprobe_onnx::sha256_hex(&b),
-    )
+    sha.unwrap_or_else(|e| format!("unreadable: {e}"))
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions, Tria
 use fishprobe_live::session::LiveConfig;
 use fishprobe_models::GuppyParams;
 use fishprobe_sim::Controller;
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 
@@ -227,8 +227,9 @@ fn replay_cmd(a: ReplayArgs) -> Result<()> {
     };
     s.write_all(to_line(&hello).as_bytes())?;
     let mut r = BufReader::new(s.try_clone()?);
-    let mut line = String::new();
-    r.read_line(&mut line)?;
+    let line = fishprobe_live::read_line_at_most(&mut r, fishprobe_live::MAX_BRIDGE_LINE_BYTES)
+        .with_context(|| format!("reading the bridge's answer from {}", a.connect))?
+        .unwrap_or_default();
     if !line.contains("welcome") {
         bail!("the bridge refused: {}", line.trim());
     }
@@ -256,7 +257,9 @@ fn replay_cmd(a: ReplayArgs) -> Result<()> {
     let _ = s.write_all(to_line(&ClientMsg::End).as_bytes());
     let _ = s.shutdown(std::net::Shutdown::Write);
     let mut last = String::new();
-    for l in r.lines().map_while(Result::ok) {
+    while let Ok(Some(l)) =
+        fishprobe_live::read_line_at_most(&mut r, fishprobe_live::MAX_BRIDGE_LINE_BYTES)
+    {
         if l.contains("\"done\"") {
             last = l;
         }

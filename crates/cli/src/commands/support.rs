@@ -59,12 +59,10 @@ fn model_of(name: &str) -> Result<(ModelSpec, String)> {
     let spec = ModelSpec::by_name(name)?;
     let hash = match &spec {
         ModelSpec::ConvNet(p) if p.weights.is_empty() => shipped_sha256(),
-        ModelSpec::ConvNet(p) => fishprobe_models::sha256_hex(
-            &std::fs::read(&p.weights).with_context(|| format!("reading {}", p.weights))?,
-        ),
-        ModelSpec::Onnx(p) => fishprobe_models::sha256_hex(
-            &std::fs::read(&p.path).with_context(|| format!("reading {}", p.path))?,
-        ),
+        ModelSpec::ConvNet(p) => fishprobe_models::weights_sha256(p.weights.as_ref())
+            .with_context(|| format!("reading {}", p.weights))?,
+        ModelSpec::Onnx(p) => fishprobe_models::onnx_sha256(p.path.as_ref())
+            .with_context(|| format!("reading {}", p.path))?,
         other => bail!(
             "`{}` is not data-driven: a support model belongs to a model fitted on recordings \
              (ConvNet, convnet:FILE, onnx:FILE)",
