@@ -327,34 +327,17 @@ impl Disagreement {
             path: path.display().to_string(),
             what,
         };
-        match std::fs::metadata(&path) {
-            Err(_) => {
-                return Err(SupportError::MissingEnsemble {
-                    model: model.into(),
-                    path,
-                })
-            }
-            Ok(m) if m.len() > MAX_FILE_BYTES => {
-                return Err(invalid(format!(
-                    "{} bytes, more than the {MAX_FILE_BYTES} accepted",
-                    m.len()
-                )))
-            }
-            Ok(_) => {}
-        }
-        // Bounded by reading too: the size checked above is 0 for a device or a pipe.
-        let bytes = fishprobe_nn::store::read_at_most(
+        let text = crate::support::read_file_beside(
             &path,
-            MAX_FILE_BYTES,
-            "fishprobe_models::disagreement::MAX_FILE_BYTES",
-        )
-        .map_err(|e| invalid(e.to_string()))?;
-        let text = String::from_utf8(bytes).map_err(|e| {
-            invalid(format!(
-                "not UTF-8 text (invalid byte at offset {})",
-                e.utf8_error().valid_up_to()
-            ))
-        })?;
+            (
+                MAX_FILE_BYTES,
+                "fishprobe_models::disagreement::MAX_FILE_BYTES",
+            ),
+            || SupportError::MissingEnsemble {
+                model: model.into(),
+                path: path.clone(),
+            },
+        )?;
         let file: DisagreementFile = serde_json::from_str(&text)
             .map_err(|e| invalid(format!("not a fishprobe disagreement file: {e}")))?;
         if file.format != FORMAT || file.version != VERSION {

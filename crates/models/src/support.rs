@@ -766,34 +766,14 @@ impl SupportModel {
             path: path.display().to_string(),
             what,
         };
-        match std::fs::metadata(path) {
-            Err(_) => {
-                return Err(SupportError::Missing {
-                    model: model.into(),
-                    path: path.to_path_buf(),
-                })
-            }
-            Ok(m) if m.len() > MAX_FILE_BYTES => {
-                return Err(invalid(format!(
-                    "{} bytes, more than the {MAX_FILE_BYTES} accepted",
-                    m.len()
-                )))
-            }
-            Ok(_) => {}
-        }
-        // Bounded by reading too: the size checked above is 0 for a device or a pipe.
-        let bytes = fishprobe_nn::store::read_at_most(
+        let text = read_file_beside(
             path,
-            MAX_FILE_BYTES,
-            "fishprobe_models::support::MAX_FILE_BYTES",
-        )
-        .map_err(|e| invalid(e.to_string()))?;
-        let text = String::from_utf8(bytes).map_err(|e| {
-            invalid(format!(
-                "not UTF-8 text (invalid byte at offset {})",
-                e.utf8_error().valid_up_to()
-            ))
-        })?;
+            (MAX_FILE_BYTES, "fishprobe_models::support::MAX_FILE_BYTES"),
+            || SupportError::Missing {
+                model: model.into(),
+                path: path.to_path_buf(),
+            },
+        )?;
         let s = Self::from_json(&text).map_err(invalid)?;
         if !expected_sha256.is_empty() && s.model_sha256 != expected_sha256 {
             return Err(SupportError::OtherModel {
@@ -939,6 +919,39 @@ pub fn auc(inside: &[f32], outside: &[f32]) -> f64 {
     }
     let (n1, n0) = (outside.len() as f64, inside.len() as f64);
     (rank_sum - n1 * (n1 + 1.0) / 2.0) / (n1 * n0)
+}
+
+/// The text of a file kept beside a model's weights (a support or disagreement file):
+/// `missing()` when there is none; refused, as [`SupportError::Invalid`], when it is larger
+/// than `limit` (the bytes and the constant's name), by its stated size or, for a device or
+/// a pipe whose stated size is 0, by reading.
+pub(crate) fn read_file_beside(
+    path: &Path,
+    (max, limit_name): (u64, &str),
+    missing: impl FnOnce() -> SupportError,
+) -> Result<String, SupportError> {
+    let invalid = |what: String| SupportError::Invalid {
+        path: path.display().to_string(),
+        what,
+    };
+    match std::fs::metadata(path) {
+        Err(_) => return Err(missing()),
+        Ok(m) if m.len() > max => {
+            return Err(invalid(format!(
+                "{} bytes, more than the {max} accepted ({limit_name})",
+                m.len()
+            )))
+        }
+        Ok(_) => {}
+    }
+    let bytes = fishprobe_nn::store::read_at_most(path, max, limit_name)
+        .map_err(|e| invalid(e.to_string()))?;
+    String::from_utf8(bytes).map_err(|e| {
+        invalid(format!(
+            "not UTF-8 text (invalid byte at offset {})",
+            e.utf8_error().valid_up_to()
+        ))
+    })
 }
 
 #[cfg(test)]
