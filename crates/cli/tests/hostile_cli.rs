@@ -239,8 +239,9 @@ fn every_other_subcommand_refuses_cleanly() {
     let d = fresh_dir("hostile-rest");
     let nowhere = d.join("nowhere");
     let study = d.join("study");
-    std::fs::create_dir_all(&study).unwrap();
+    std::fs::create_dir_all(study.join("rollouts")).unwrap();
     refused(&["report", s(&nowhere)], "no such study directory");
+    refused(&["report", s(&d)], "not a study directory");
     refused(
         &["report", s(&study), "--jobs", "0"],
         "--jobs must be at least 1",

@@ -109,6 +109,22 @@ fn a_complete_study_gets_every_figure_table_and_link() {
 }
 
 #[test]
+fn a_directory_with_nothing_of_a_study_is_refused_and_left_alone() {
+    let d = dir("report-nothing");
+    std::fs::write(d.join("notes.txt"), "not a study").unwrap();
+    let o = fishprobe(&["report", d.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(err.contains("not a study directory"), "{err}");
+    assert!(err.contains("fishprobe run --out"), "{err}");
+    let left: Vec<_> = std::fs::read_dir(&d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, ["notes.txt"], "the refusal wrote into the directory");
+}
+
+#[test]
 fn a_partial_study_says_what_is_missing_and_how_to_make_it() {
     let d = dir("report-partial");
     let s = d.to_str().unwrap();

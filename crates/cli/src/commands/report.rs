@@ -35,6 +35,28 @@ pub fn run(a: ReportArgs) -> Result<()> {
     if !a.study.is_dir() {
         anyhow::bail!("{}: no such study directory", a.study.display());
     }
+    // A partial study gets a partial report; a directory with nothing of a study in it (a
+    // mistyped path) gets an error, not a report of 0 figures written into it.
+    let layout = fishprobe_io::StudyLayout::new(&a.study);
+    let study_parts = [
+        layout.config(),
+        layout.results(),
+        layout.policies_root(),
+        layout.rollouts(),
+        layout.approach_root(),
+        layout.approach_stability_root(),
+        layout.stability_root(),
+        layout.baselines_root(),
+    ];
+    if a.analysis.is_none() && !study_parts.iter().any(|p| p.exists()) {
+        anyhow::bail!(
+            "{}: not a study directory (it holds none of study.json, analysis/results.json, \
+             policies/, rollouts/, approach_test/, stability/); name the directory `fishprobe \
+             run --out` wrote, or make one with `fishprobe run --out {}`",
+            a.study.display(),
+            a.study.display()
+        );
+    }
     let out_dir = a
         .out
         .clone()
