@@ -466,6 +466,54 @@ fn a_bridge_whose_line_never_ends_is_refused() {
     }
 }
 
+/// A list option naming one value twice would count one run (a seed of the loop, a cell of
+/// the sweep) or one row twice; each is refused before any work.
+#[test]
+fn a_value_named_twice_is_refused() {
+    let d = fresh_dir("hostile-repeats");
+    let out = d.join("o");
+    for (args, needle) in [
+        (
+            vec!["ood-loop", "--out", s(&out), "--seeds", "0", "1", "0"],
+            "--seeds names 0 twice",
+        ),
+        (
+            vec![
+                "fidelity",
+                "--readings",
+                "baseline,baseline",
+                "--out",
+                s(&out),
+            ],
+            "--readings names baseline twice",
+        ),
+        (
+            vec!["fidelity", "--models", "Zone,Zone", "--out", s(&out)],
+            "--models names Zone twice",
+        ),
+        (
+            vec![
+                "compare-offline",
+                "--models",
+                "Zone,Force,Zone",
+                "--out",
+                s(&out),
+            ],
+            "--models names Zone twice",
+        ),
+        (
+            vec!["models", "--model", "Zone", "--model", "Zone"],
+            "--model names Zone twice",
+        ),
+    ] {
+        refused(&args, needle);
+    }
+    assert!(
+        !out.exists(),
+        "a refused command wrote its output directory"
+    );
+}
+
 #[test]
 fn too_many_jobs_are_capped_with_a_note() {
     let d = fresh_dir("hostile-jobs");

@@ -41,6 +41,7 @@ pub struct CompareOfflineArgs {
 }
 
 pub fn run(a: CompareOfflineArgs) -> Result<()> {
+    super::no_repeats("--models", &a.models)?;
     let mut cfg = OfflineConfig::default();
     if let Some(r) = a.reps {
         cfg.bootstrap_reps = r;

@@ -593,6 +593,8 @@ pub fn run(a: FidelityArgs) -> Result<()> {
     for m in &a.models {
         ModelSpec::by_name(m).with_context(|| format!("--models {m}"))?;
     }
+    super::no_repeats("--models", &a.models)?;
+    super::no_repeats("--readings", &a.readings)?;
     let chosen: Vec<Combo> = if a.readings.is_empty() {
         READINGS
             .iter()

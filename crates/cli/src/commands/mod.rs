@@ -198,6 +198,20 @@ pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Refuses a list option that names one value twice (`--seeds 1 1`): each value is one
+/// replicate, cell or row, and a repeat would count the same one twice.
+pub fn no_repeats<T: PartialEq + std::fmt::Display>(
+    flag: &str,
+    values: &[T],
+) -> anyhow::Result<()> {
+    for (i, v) in values.iter().enumerate() {
+        if values[..i].contains(v) {
+            anyhow::bail!("{flag} names {v} twice: name each once");
+        }
+    }
+    Ok(())
+}
+
 /// The controller of a `--policy` argument, sampling its actions with `stochastic`
 /// (`--stochastic`; only a policy directory has a Gaussian to sample).
 pub fn policy_controller(

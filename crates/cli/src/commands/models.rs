@@ -44,6 +44,7 @@ const REAL_GUPPIES: &str =
 paused (<0.5 cm/s) 0-45 % per fish; wall distance mean 13.1, median 11.1 cm; IID median 5.3 cm";
 
 pub fn run(a: ModelsArgs) -> Result<()> {
+    super::no_repeats("--model", &a.model)?;
     // (the name each model carries, its spec)
     let named: Vec<(String, ModelSpec)> = if let Some(dir) = &a.study {
         let file = fishprobe_io::StudyLayout::new(dir).config();

@@ -557,6 +557,7 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
     if a.seeds.is_empty() || a.seeds.len() > 100 {
         bail!("--seeds takes 1 to 100 seeds, got {}", a.seeds.len());
     }
+    super::no_repeats("--seeds", &a.seeds)?;
     let _lock = super::lock_out(&a.out, "ood-loop")?;
     let settings = serde_json::to_string_pretty(&cfg)? + "\n";
     let recorded = a.out.join("settings.json");
