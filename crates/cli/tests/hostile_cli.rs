@@ -242,6 +242,28 @@ fn every_other_subcommand_refuses_cleanly() {
     std::fs::create_dir_all(study.join("rollouts")).unwrap();
     refused(&["report", s(&nowhere)], "no such study directory");
     refused(&["report", s(&d)], "not a study directory");
+    // An existing file where a directory belongs: as a study, and as (or on the way to) an
+    // output directory. The file is named, and left as it was.
+    let file = d.join("results.csv");
+    std::fs::write(&file, "a,b\n").unwrap();
+    for sub in ["analyze", "report"] {
+        refused(&[sub, s(&file)], "a file, not a study directory");
+    }
+    for out in [file.clone(), file.join("sub")] {
+        refused(
+            &[
+                "train",
+                "--model",
+                "Follow",
+                "--preset",
+                "smoke",
+                "--out",
+                s(&out),
+            ],
+            "results.csv: exists and is not a directory",
+        );
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "a,b\n");
     refused(
         &["report", s(&study), "--jobs", "0"],
         "--jobs must be at least 1",

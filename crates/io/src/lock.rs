@@ -40,6 +40,19 @@ pub enum LockError {
         /// Who holds it, as the holder wrote it ("fishprobe run, PID 1234").
         holder: String,
     },
+    /// A path on the way to the output is a file (or another non-directory), so the output
+    /// directory cannot be made: `--out results.csv` where `results.csv` exists.
+    #[error(
+        "{}: exists and is not a directory{on_the_way}; name a directory (or a path that does \
+         not exist yet) for the output",
+        blocker.display()
+    )]
+    NotADirectory {
+        /// The existing non-directory.
+        blocker: PathBuf,
+        /// Empty when the blocker is the output itself, else " (on the way to OUT)".
+        on_the_way: String,
+    },
     /// The lock file cannot be created or locked.
     #[error("{}: cannot lock: {reason}", path.display())]
     Io {
@@ -72,6 +85,21 @@ impl DirLock {
             reason,
         };
         if let Some(parent) = lock.parent() {
+            // The nearest existing ancestor must be a directory; say which one is not.
+            if let Some(blocker) = parent
+                .ancestors()
+                .find(|a| !a.as_os_str().is_empty() && a.exists())
+                .filter(|a| !a.is_dir())
+            {
+                return Err(LockError::NotADirectory {
+                    blocker: blocker.to_path_buf(),
+                    on_the_way: if blocker == dir {
+                        String::new()
+                    } else {
+                        format!(" (on the way to {})", dir.display())
+                    },
+                });
+            }
             std::fs::create_dir_all(parent).map_err(io)?;
         }
         let mut file = OpenOptions::new()
@@ -139,6 +167,29 @@ mod tests {
         let step = DirLock::acquire_file(&dir, &dir.join("steps/a.lock"), "run --step a").unwrap();
         assert!(DirLock::acquire_file(&dir, &dir.join("steps/a.lock"), "x").is_err());
         drop((again, step));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn an_output_path_through_a_file_names_the_file() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-lock-file-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("results.csv");
+        std::fs::write(&file, "a,b\n").unwrap();
+        for out in [file.clone(), file.join("sub")] {
+            let e = DirLock::acquire(&out, "train").unwrap_err();
+            assert!(matches!(&e, LockError::NotADirectory { blocker, .. } if *blocker == file));
+            let e = e.to_string();
+            assert!(
+                e.contains("results.csv: exists and is not a directory"),
+                "{e}"
+            );
+        }
+        assert_eq!(
+            std::fs::read_to_string(&file).unwrap(),
+            "a,b\n",
+            "the file was touched"
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -47,9 +47,7 @@ pub fn run(a: AnalyzeArgs) -> Result<()> {
     if let Some(p) = &a.settings {
         cfg = super::analysis_settings(&cfg, p)?;
     }
-    if !a.study.is_dir() {
-        anyhow::bail!("{}: no such study directory", a.study.display());
-    }
+    super::check_study_dir(&a.study)?;
     let out = a
         .out
         .clone()

@@ -198,6 +198,22 @@ pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Refuses a study path that is not a directory, saying whether it is missing or a file.
+pub fn check_study_dir(study: &std::path::Path) -> anyhow::Result<()> {
+    if study.is_dir() {
+        return Ok(());
+    }
+    match fishprobe_io::limits::not_regular(study) {
+        // A regular file (or a link to one).
+        None => anyhow::bail!(
+            "{}: a file, not a study directory (name the directory `fishprobe run --out` wrote)",
+            study.display()
+        ),
+        Some(_) if !study.exists() => anyhow::bail!("{}: no such study directory", study.display()),
+        Some(_) => anyhow::bail!("{}: not a directory, so not a study", study.display()),
+    }
+}
+
 /// Refuses a list option that names one value twice (`--seeds 1 1`): each value is one
 /// replicate, cell or row, and a repeat would count the same one twice.
 pub fn no_repeats<T: PartialEq + std::fmt::Display>(

@@ -32,9 +32,7 @@ pub fn run(a: ReportArgs) -> Result<()> {
         Some(p) => super::read_toml(p, "report settings")?,
         None => ReportConfig::default(),
     };
-    if !a.study.is_dir() {
-        anyhow::bail!("{}: no such study directory", a.study.display());
-    }
+    super::check_study_dir(&a.study)?;
     // A partial study gets a partial report; a directory with nothing of a study in it (a
     // mistyped path) gets an error, not a report of 0 figures written into it.
     let layout = fishprobe_io::StudyLayout::new(&a.study);
