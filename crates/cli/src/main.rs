@@ -17,6 +17,10 @@ mod commands;
 use clap::Parser;
 use std::process::ExitCode;
 
+// A user's ONNX file cannot make the engine allocate gigabytes (fishprobe_onnx::CappedAlloc).
+#[global_allocator]
+static ALLOC: fishprobe_onnx::CappedAlloc = fishprobe_onnx::CappedAlloc;
+
 fn main() -> ExitCode {
     let cli = commands::Cli::parse();
     match commands::run(cli) {

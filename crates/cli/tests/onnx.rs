@@ -78,6 +78,15 @@ model("wrong_dtype", obs64, turn64, [h.make_node("ReduceSum", ["obs", "axes"], [
 model("unknown_op", obs, turn, [h.make_node("FishDance", ["obs"], ["turn"], domain="org.fishprobe.test")],
       [], domain_opsets=[("org.fishprobe.test", 1)])
 open(f"{d}/garbage.onnx", "wb").write(b"this is not a protobuf at all" * 10)
+# Files of a few hundred bytes declaring a constant of 3.2 GB (more than the cap, less than
+# the machine) and of 80 GB (more than the machine): the constant turn, plus 0 x its sum.
+for name, n in [("huge_3gb", 20000), ("huge_80gb", 100000)]:
+    shp = h.make_tensor("shp", T.INT64, [2], [n, n])
+    model(name, obs, turn, const[:2] + [
+        h.make_node("ConstantOfShape", ["shp"], ["big"]),
+        h.make_node("ReduceSum", ["big"], ["bs"], keepdims=0),
+        h.make_node("Mul", ["bs", "zero"], ["bz"]), h.make_node("Add", ["z", "bz"], ["z2"]),
+        h.make_node("Add", ["z2", "half"], ["turn"])], [half, zero, axes, shp])
 # A fish model whose logits are NaN: flatten the view, multiply by zeros, add NaN.
 view = h.make_tensor_value_info("view", T.FLOAT, ["batch", 3, 72])
 logits = h.make_tensor_value_info("logits", T.FLOAT, ["batch", 1025])
@@ -235,6 +244,14 @@ fn onnx_files_that_break_the_contract_are_refused_naming_what_was_expected() {
     );
     refused("wrong_dtype.onnx", &["expected a policy", "F64"]);
     refused("unknown_op.onnx", &["FishDance"]);
+    // Refused with bounded memory, not after allocating (and filling) the declared constant.
+    for huge in ["huge_3gb.onnx", "huge_80gb.onnx"] {
+        assert!(std::fs::metadata(d.join(huge)).unwrap().len() < 2_000);
+        refused(
+            huge,
+            &["needs more memory than fishprobe gives an ONNX network"],
+        );
+    }
     // A policy that outputs NaN: refused at its first action, naming episode and second.
     refused(
         "nan_turn.onnx",

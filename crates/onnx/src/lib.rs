@@ -10,6 +10,7 @@
 //! Every file is checked against its contract when it is loaded, before any work: a file that
 //! is missing, not ONNX, has other input or output names, shapes or types, or uses an operator
 //! the engine lacks is a one-line error naming the file, what was expected and what was found.
+//! A file that declares tensors of gigabytes is refused with bounded memory (see [`CappedAlloc`]).
 //!
 //! ```no_run
 //! use fishprobe_onnx::OnnxPolicy;
@@ -24,10 +25,17 @@
 
 #![warn(missing_docs)]
 
+mod guard;
 mod net;
 mod policy;
 
+pub use guard::{CappedAlloc, MAX_ALLOCATION_BYTES};
 pub use net::{sha256_hex, Contract, OnnxNet, MAX_FILE_BYTES};
+
+// The unit tests check the allocation cap, so their binary installs it as binaries do.
+#[cfg(test)]
+#[global_allocator]
+static ALLOC: CappedAlloc = CappedAlloc;
 pub use policy::OnnxPolicy;
 
 use std::path::PathBuf;

@@ -188,7 +188,20 @@ impl OnnxNet {
             .collect())
     }
 
+    /// [`Self::plan_unguarded`] with bounded memory: the engine folds constants while it
+    /// plans, so a tiny file can make it allocate gigabytes (`crate::guard`).
     fn plan(
+        path: &Path,
+        bytes: Arc<Vec<u8>>,
+        contract: Contract,
+        metadata: std::collections::BTreeMap<String, String>,
+        batch: usize,
+    ) -> Result<Self, OnnxError> {
+        crate::guard::capped(|| Self::plan_unguarded(path, bytes, contract, metadata, batch))
+            .map_err(|what| too_much_memory(path, batch, &what))?
+    }
+
+    fn plan_unguarded(
         path: &Path,
         bytes: Arc<Vec<u8>>,
         contract: Contract,
@@ -334,9 +347,9 @@ impl OnnxNet {
             )));
         }
         let t = Tensor::from_shape(&self.input_dims, input).map_err(|e| run_err(first_line(&e)))?;
-        let out = self
-            .plan
-            .run(tvec!(t.into()))
+        // Bounded like planning: a shape the network computes at run time can be huge too.
+        let out = crate::guard::capped(|| self.plan.run(tvec!(t.into())))
+            .map_err(|what| too_much_memory(&self.path, self.batch, &what))?
             .map_err(|e| run_err(first_line(&e)))?;
         let view = out[0]
             .to_plain_array_view::<f32>()
@@ -348,6 +361,19 @@ impl OnnxNet {
             *o = *v;
         }
         Ok(())
+    }
+}
+
+/// The engine stopped inside [`crate::guard::capped`]: an allocation over the cap failed (or,
+/// rarely, another panic of the engine's, whose message is kept).
+fn too_much_memory(path: &Path, batch: usize, what: &str) -> OnnxError {
+    OnnxError::Unsupported {
+        path: path.to_path_buf(),
+        what: format!(
+            "it needs more memory than fishprobe gives an ONNX network (no single tensor over \
+             {} MiB at a batch of {batch}; fishprobe_onnx::MAX_ALLOCATION_BYTES): {what}",
+            crate::MAX_ALLOCATION_BYTES >> 20
+        ),
     }
 }
 

@@ -13,6 +13,10 @@
 mod fish;
 mod render;
 
+// A user's ONNX file cannot make the engine allocate gigabytes (fishprobe_onnx::CappedAlloc).
+#[global_allocator]
+static ALLOC: fishprobe_onnx::CappedAlloc = fishprobe_onnx::CappedAlloc;
+
 use fish::PyFish;
 use fishprobe_io::{IoError, TrialFile};
 use fishprobe_learn::yardstick::OodYardstickConfig;
