@@ -39,6 +39,18 @@ pub mod zone;
 
 pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError};
 pub use fishprobe_onnx::sha256_hex;
+pub use follow::{Follow, FollowParams};
+pub use force::{Force, ForceParams, NoiseConvention};
+pub use guppy::{Guppy, GuppyParams};
+pub use onnx::{OnnxFish, OnnxParams};
+pub use python::PythonParams;
+pub use stationary::{Stationary, StationaryParams};
+pub use zone::{Zone, ZoneConvention, ZoneParams};
+
+use fishprobe_sim::params::{ConfigError, DocumentedParams, FieldDoc};
+use fishprobe_sim::FishModel;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 
 /// The SHA-256 of a weights file (`convnet:FILE`, a policy's `policy.safetensors`), read at
 /// most [`fishprobe_nn::store::MAX_WEIGHTS_BYTES`]: a wrong path (`/dev/zero`) is refused,
@@ -70,18 +82,6 @@ pub fn onnx_sha256(path: &std::path::Path) -> std::io::Result<String> {
     )
     .map(|b| sha256_hex(&b))
 }
-pub use follow::{Follow, FollowParams};
-pub use force::{Force, ForceParams, NoiseConvention};
-pub use guppy::{Guppy, GuppyParams};
-pub use onnx::{OnnxFish, OnnxParams};
-pub use python::PythonParams;
-pub use stationary::{Stationary, StationaryParams};
-pub use zone::{Zone, ZoneConvention, ZoneParams};
-
-use fishprobe_sim::params::{ConfigError, DocumentedParams, FieldDoc};
-use fishprobe_sim::FishModel;
-use serde::{Deserialize, Serialize};
-use std::sync::Arc;
 
 /// Errors of the model registry.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
