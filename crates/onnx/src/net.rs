@@ -198,7 +198,7 @@ impl OnnxNet {
         batch: usize,
     ) -> Result<Self, OnnxError> {
         crate::guard::capped(|| Self::plan_unguarded(path, bytes, contract, metadata, batch))
-            .map_err(|what| too_much_memory(path, batch, &what))?
+            .map_err(|what| engine_stopped(path, batch, &what))?
     }
 
     fn plan_unguarded(
@@ -349,7 +349,7 @@ impl OnnxNet {
         let t = Tensor::from_shape(&self.input_dims, input).map_err(|e| run_err(first_line(&e)))?;
         // Bounded like planning: a shape the network computes at run time can be huge too.
         let out = crate::guard::capped(|| self.plan.run(tvec!(t.into())))
-            .map_err(|what| too_much_memory(&self.path, self.batch, &what))?
+            .map_err(|what| engine_stopped(&self.path, self.batch, &what))?
             .map_err(|e| run_err(first_line(&e)))?;
         let view = out[0]
             .to_plain_array_view::<f32>()
@@ -364,16 +364,22 @@ impl OnnxNet {
     }
 }
 
-/// The engine stopped inside [`crate::guard::capped`]: an allocation over the cap failed (or,
-/// rarely, another panic of the engine's, whose message is kept).
-fn too_much_memory(path: &Path, batch: usize, what: &str) -> OnnxError {
-    OnnxError::Unsupported {
-        path: path.to_path_buf(),
-        what: format!(
+/// The engine stopped (panicked) inside [`crate::guard::capped`]: most likely an allocation
+/// over the cap failed (the engine asserts its allocations succeed); any other panic of the
+/// engine's is reported with its own message.
+fn engine_stopped(path: &Path, batch: usize, what: &str) -> OnnxError {
+    let what = if what.contains("allocat") {
+        format!(
             "it needs more memory than fishprobe gives an ONNX network (no single tensor over \
              {} MiB at a batch of {batch}; fishprobe_onnx::MAX_ALLOCATION_BYTES): {what}",
             crate::MAX_ALLOCATION_BYTES >> 20
-        ),
+        )
+    } else {
+        format!("the engine stopped: {what}")
+    };
+    OnnxError::Unsupported {
+        path: path.to_path_buf(),
+        what,
     }
 }
 
