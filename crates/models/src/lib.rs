@@ -278,17 +278,15 @@ impl ModelSpec {
     /// The support model of this model's training data, checked to belong to its weights
     /// (by SHA-256). Data-driven models only.
     pub fn support(&self) -> Result<support::SupportModel, ModelError> {
-        let hash = |path: &str, sha: fn(&std::path::Path) -> std::io::Result<String>| {
-            sha(std::path::Path::new(path)).map_err(|e| weights_error(path, e))
-        };
         match (self, self.support_path()?) {
             (_, None) => Ok(convnet::shipped_support()?),
             (Self::ConvNet(p), Some(file)) => {
-                let hash = hash(&p.weights, weights_sha256)?;
+                let hash =
+                    weights_sha256(p.weights.as_ref()).map_err(|e| weights_error(&p.weights, e))?;
                 Ok(support::SupportModel::load(&file, &p.weights, &hash)?)
             }
             (Self::Onnx(p), Some(file)) => {
-                let hash = hash(&p.path, onnx_sha256)?;
+                let hash = onnx_sha256(p.path.as_ref()).map_err(|e| weights_error(&p.path, e))?;
                 Ok(support::SupportModel::load(&file, &p.path, &hash)?)
             }
             _ => Err(ModelError::NotDataDriven {
@@ -305,9 +303,13 @@ impl ModelSpec {
     pub fn disagreement(&self) -> Result<disagreement::Disagreement, ModelError> {
         match self {
             Self::ConvNet(p) if !p.weights.is_empty() => {
-                let path = std::path::Path::new(&p.weights);
-                let sha = weights_sha256(path).map_err(|e| weights_error(&p.weights, e))?;
-                Ok(disagreement::Disagreement::load(path, &p.weights, &sha)?)
+                let sha =
+                    weights_sha256(p.weights.as_ref()).map_err(|e| weights_error(&p.weights, e))?;
+                Ok(disagreement::Disagreement::load(
+                    p.weights.as_ref(),
+                    &p.weights,
+                    &sha,
+                )?)
             }
             _ => Err(ModelError::Support(
                 support::SupportError::MissingEnsemble {

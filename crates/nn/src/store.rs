@@ -76,10 +76,10 @@ pub const MAX_SIDECAR_BYTES: u64 = 16 << 20;
 /// ([`MAX_WEIGHTS_BYTES`], [`MAX_SIDECAR_BYTES`]), so a wrong path (`/dev/zero`, a pipe, a
 /// trial file of gigabytes) is refused once that much is read instead of filling memory.
 pub fn load(path: &Path) -> Result<(Tensors, serde_json::Value), NnError> {
-    let read_at_most = |p: &Path, max, name| {
+    let read = |p: &Path, max, name| {
         read_at_most(p, max, name).map_err(|e| NnError::Io(format!("{}: {e}", p.display())))
     };
-    let bytes = read_at_most(
+    let bytes = read(
         path,
         MAX_WEIGHTS_BYTES,
         "fishprobe_nn::store::MAX_WEIGHTS_BYTES",
@@ -87,7 +87,7 @@ pub fn load(path: &Path) -> Result<(Tensors, serde_json::Value), NnError> {
     let tensors =
         from_bytes(&bytes).map_err(|e| NnError::Format(format!("{}: {e}", path.display())))?;
     let sidecar = sidecar_path(path);
-    let text = read_at_most(
+    let text = read(
         &sidecar,
         MAX_SIDECAR_BYTES,
         "fishprobe_nn::store::MAX_SIDECAR_BYTES",
