@@ -265,9 +265,9 @@ impl Trainer {
     ) -> Result<Self, LearnError> {
         spec.ppo.validate()?;
         let mut t = Self::build(dir, spec, model)?;
-        match std::fs::read_to_string(dir.join("checkpoints/latest")) {
-            Ok(name) => t.load_checkpoint(&dir.join("checkpoints").join(name.trim()))?,
-            Err(_) => t
+        match latest_checkpoint(dir)? {
+            Some(ckpt) => t.load_checkpoint(&ckpt)?,
+            None => t
                 .venv
                 .reset(derive_seed(t.spec.seed, "envs", 0))
                 .map(|_| ())?,
@@ -434,18 +434,26 @@ impl Trainer {
             }),
         ] {
             let p = self.dir.join(name);
-            let text = std::fs::read_to_string(&p).unwrap_or_default();
-            let kept: String = text
-                .lines()
-                .filter(|l| !l.trim().is_empty() && keep(l, field))
-                .map(|l| format!("{l}\n"))
-                .collect();
-            let kept = if name == "progress.csv" && kept.is_empty() {
-                format!("{CSV_HEADER}\n")
-            } else {
-                kept
+            // A log that cannot be read is an error, never an empty log: rewriting it from
+            // nothing would erase the finished iterations. Lines are kept as bytes, so a
+            // damaged line (not UTF-8, say) stays as it was.
+            let bytes = match std::fs::read(&p) {
+                Ok(b) => b,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+                Err(e) => return Err(run_err(&p, format!("cannot read the run's log: {e}"))),
             };
-            write_atomic(&p, kept.as_bytes())?;
+            let mut kept = Vec::with_capacity(bytes.len());
+            for line in bytes.split(|&b| b == b'\n') {
+                let text = String::from_utf8_lossy(line);
+                if !text.trim().is_empty() && keep(&text, field) {
+                    kept.extend_from_slice(line);
+                    kept.push(b'\n');
+                }
+            }
+            if name == "progress.csv" && kept.is_empty() {
+                kept = format!("{CSV_HEADER}\n").into_bytes();
+            }
+            write_atomic(&p, &kept)?;
         }
         Ok(())
     }
@@ -542,6 +550,62 @@ impl Trainer {
     }
 }
 
+/// The checkpoint a resumed run continues from: the one `checkpoints/latest` names, or `None`
+/// when the run was stopped before its first checkpoint was complete. `latest` is written after
+/// each checkpoint and only ever replaced, so it is missing beside at most one (the first, cut
+/// short); beside two or more it was lost, and a `latest` that cannot be read is refused too,
+/// since starting the run over would overwrite its checkpoints and erase its logs.
+fn latest_checkpoint(dir: &Path) -> Result<Option<PathBuf>, LearnError> {
+    let checkpoints = dir.join("checkpoints");
+    let latest = checkpoints.join("latest");
+    let name = match fishprobe_io::read_small_text(&latest) {
+        Ok(name) => name,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let mut held: Vec<String> = std::fs::read_dir(&checkpoints)
+                .map(|entries| {
+                    entries
+                        .filter_map(|e| e.ok())
+                        .map(|e| e.file_name().to_string_lossy().into_owned())
+                        .filter(|n| is_checkpoint_name(n))
+                        .collect()
+                })
+                .unwrap_or_default();
+            held.sort();
+            return match held.last() {
+                Some(newest) if held.len() >= 2 => Err(run_err(
+                    &latest,
+                    format!(
+                        "missing, but checkpoints/ holds {} checkpoint(s), the newest {newest}: \
+                         write the name of the one to resume from into this file (the newest \
+                         may be incomplete if the run was stopped while writing it), or start \
+                         the run over in another directory",
+                        held.len()
+                    ),
+                )),
+                _ => Ok(None),
+            };
+        }
+        Err(e) => return Err(run_err(&latest, format!("cannot read: {e}"))),
+    };
+    let name = name.trim();
+    if !is_checkpoint_name(name) {
+        return Err(run_err(
+            &latest,
+            format!(
+                "names {name:?}, not a checkpoint of this run (ckpt_ and the iteration, as \
+                 ckpt_000012)"
+            ),
+        ));
+    }
+    Ok(Some(checkpoints.join(name)))
+}
+
+/// `ckpt_` and digits: the names [`Trainer`] gives its checkpoints.
+fn is_checkpoint_name(name: &str) -> bool {
+    name.strip_prefix("ckpt_")
+        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+}
+
 /// Observation length of an environment configuration (for checking policies).
 pub fn obs_dim(env: &EnvConfig) -> usize {
     env.observation.size()
@@ -550,6 +614,96 @@ pub fn obs_dim(env: &EnvConfig) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A smoke run of `iterations` iterations (a checkpoint after each) in a fresh `dir`.
+    fn smoke_run(dir: &Path, iterations: usize) {
+        let _ = std::fs::remove_dir_all(dir);
+        let mut ppo = PpoConfig::preset("smoke").unwrap();
+        ppo.total_timesteps = 1_000_000;
+        let spec = RunSpec {
+            ppo,
+            env: EnvConfig::default(),
+            model: ModelSpec::by_name("Zone").unwrap(),
+            seed: 0,
+            preset: "smoke".into(),
+            program_version: "test".into(),
+        };
+        let mut t = Trainer::create(dir, spec).unwrap();
+        for _ in 0..iterations {
+            t.iterate().unwrap();
+        }
+    }
+
+    #[test]
+    fn checkpoint_names_are_the_trainers_own() {
+        for good in ["ckpt_000001", "ckpt_1", "ckpt_123456789"] {
+            assert!(is_checkpoint_name(good), "{good}");
+        }
+        for bad in [
+            "",
+            "ckpt_",
+            "ckpt_-1",
+            "ckpt_1/../..",
+            "/etc",
+            "../ckpt_1",
+            "latest",
+        ] {
+            assert!(!is_checkpoint_name(bad), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_resume_never_erases_finished_iterations() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-keeplogs-{}", std::process::id()));
+        smoke_run(&dir, 3);
+        let (csv, latest) = (dir.join("progress.csv"), dir.join("checkpoints/latest"));
+        // A damaged byte (not UTF-8) in iteration 2's row: the row is kept as it was.
+        let mut bytes = std::fs::read(&csv).unwrap();
+        let row2 = bytes.windows(3).position(|w| w == b"\n2,").unwrap() + 1;
+        let end = row2 + bytes[row2..].iter().position(|&b| b == b'\n').unwrap();
+        bytes[end - 1] = 0xff;
+        std::fs::write(&csv, &bytes).unwrap();
+        let r = Trainer::resume(&dir).unwrap();
+        assert_eq!(r.iteration(), 3);
+        drop(r);
+        assert_eq!(
+            std::fs::read(&csv).unwrap(),
+            bytes,
+            "the log changed on resume"
+        );
+
+        // `latest` unreadable (here a directory): refused, not started over.
+        std::fs::remove_file(&latest).unwrap();
+        std::fs::create_dir(&latest).unwrap();
+        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        assert!(e.contains("checkpoints/latest: cannot read"), "{e}");
+        std::fs::remove_dir(&latest).unwrap();
+        // `latest` lost beside the two checkpoints kept: refused, naming the newest.
+        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        assert!(
+            e.contains("missing, but checkpoints/ holds 2 checkpoint(s), the newest ckpt_000003"),
+            "{e}"
+        );
+        // `latest` naming something else than a checkpoint.
+        std::fs::write(&latest, "../../elsewhere").unwrap();
+        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        assert!(e.contains("not a checkpoint of this run"), "{e}");
+        // Every refusal left the logs as they were.
+        assert_eq!(std::fs::read(&csv).unwrap(), bytes);
+        assert_eq!(
+            std::fs::read_to_string(dir.join("result.json"))
+                .unwrap()
+                .lines()
+                .count(),
+            3
+        );
+        // A run stopped while writing its first checkpoint (one, no `latest`) starts over.
+        smoke_run(&dir, 1);
+        std::fs::remove_file(&latest).unwrap();
+        let r = Trainer::resume(&dir).unwrap();
+        assert_eq!(r.iteration(), 0);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn divergence_stops_with_an_error_and_keeps_the_last_good_checkpoint() {
