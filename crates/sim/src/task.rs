@@ -20,7 +20,8 @@ pub enum TaskMode {
 crate::documented_params! {
     /// Goals, episode lengths and reward (SPEC §4).
     pub struct TaskParams {
-        /// Goal radius; a goal is reached when the fish's position is inside it (paper: 5 cm).
+        /// Goal radius; a goal is reached when the fish's position is inside it (paper: 5 cm; at
+        /// most the tank's half-width).
         pub goal_radius_cm: f32 = 5.0; "cm",
         /// Actions (seconds) per training episode (paper: 41 s).
         pub training_episode_actions: u32 = 41; "actions",
@@ -243,6 +244,20 @@ impl TaskParams {
     /// Checks the ranges against the tank; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str, tank: &Tank) -> Result<(), ConfigError> {
         check::positive(prefix, "goal_radius_cm", self.goal_radius_cm)?;
+        if self.goal_radius_cm > tank.half {
+            // A goal as wide as the tank is reached wherever the fish swims: every step would
+            // pay the goal reward and count a goal.
+            return Err(ConfigError::new(
+                prefix,
+                "goal_radius_cm",
+                check::shown(self.goal_radius_cm),
+                &format!(
+                    "must be at most the tank's half-width ({} cm): a larger goal is reached \
+                     wherever the fish swims",
+                    check::shown(tank.half)
+                ),
+            ));
+        }
         if self.training_episode_actions == 0 {
             return Err(ConfigError::new(
                 prefix,
@@ -633,6 +648,22 @@ mod tests {
         }
         let p: TaskParams = serde_json::from_str(r#"{"group_goal": "centroid"}"#).unwrap();
         assert_eq!(p.group_goal, GroupGoal::Centroid);
+    }
+
+    #[test]
+    fn a_goal_wider_than_the_tank_is_refused() {
+        let tank = Tank::default();
+        let with = |r: f32| TaskParams {
+            goal_radius_cm: r,
+            ..TaskParams::default()
+        };
+        assert!(with(tank.half).validate("task", &tank).is_ok());
+        for bad in [0.0, -1.0, tank.half + 0.1, 1e30, f32::NAN] {
+            let e = with(bad).validate("task", &tank).unwrap_err().to_string();
+            assert!(e.contains("goal_radius_cm"), "{e}");
+        }
+        let e = with(1e30).validate("task", &tank).unwrap_err().to_string();
+        assert!(e.contains("at most the tank's half-width (50 cm)"), "{e}");
     }
 
     #[test]
