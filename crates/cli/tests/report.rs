@@ -125,6 +125,33 @@ fn a_directory_with_nothing_of_a_study_is_refused_and_left_alone() {
 }
 
 #[test]
+fn a_study_file_that_never_ends_is_reported_not_read_to_the_end() {
+    use std::os::unix::fs::symlink;
+    let d = dir("report-endless");
+    for sub in ["analysis", "policies/Zone"] {
+        std::fs::create_dir_all(d.join(sub)).unwrap();
+    }
+    for f in [
+        "study.json",
+        "analysis/results.json",
+        "analysis/summary.md",
+        "policies/Zone/params.json",
+        "policies/Zone/progress.csv",
+    ] {
+        symlink("/dev/zero", d.join(f)).unwrap();
+    }
+    let o = fishprobe(&["report", d.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let html = read(&d.join("report/index.html"));
+    for needle in [
+        "results.json: larger than 16.0 MiB",
+        "progress.csv</code>: larger than 256.0 MiB: not a training log fishprobe wrote",
+    ] {
+        assert!(html.contains(needle), "missing `{needle}`");
+    }
+}
+
+#[test]
 fn a_partial_study_says_what_is_missing_and_how_to_make_it() {
     let d = dir("report-partial");
     let s = d.to_str().unwrap();

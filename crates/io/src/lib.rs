@@ -39,7 +39,7 @@ pub use attr::Attr;
 pub use error::IoError;
 pub use layout::{Arm, StudyLayout};
 pub use legacy::read_legacy;
-pub use limits::{read_small_text, ReadLimits};
+pub use limits::{read_small_text, read_text_at_most, ReadLimits};
 pub use lock::{DirLock, LockError};
 pub use robofish::{read_trial, write_atomically, write_trial};
 pub use scratch::ScratchDir;

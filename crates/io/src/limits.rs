@@ -106,17 +106,33 @@ pub const MAX_TEXT_BYTES: u64 = 16 << 20;
 /// that much is read, with an error that says so, instead of filling memory first. Works on
 /// pipes too (`--settings <(...)`).
 pub fn read_small_text(path: &Path) -> std::io::Result<String> {
+    read_text_at_most(
+        path,
+        MAX_TEXT_BYTES,
+        "not a settings or text file",
+        "fishprobe_io::limits::MAX_TEXT_BYTES",
+    )
+}
+
+/// A text file read whole, but never more than `max` bytes (see [`read_small_text`]); over
+/// it, an `InvalidData` error says "larger than `max`: `what`" and names the limit's constant
+/// (`limit_name`).
+pub fn read_text_at_most(
+    path: &Path,
+    max: u64,
+    what: &str,
+    limit_name: &str,
+) -> std::io::Result<String> {
     use std::io::Read;
     let file = std::fs::File::open(path)?;
     let mut bytes = Vec::new();
-    file.take(MAX_TEXT_BYTES + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > MAX_TEXT_BYTES {
+    file.take(max.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidData,
             format!(
-                "larger than {}: not a settings or text file (reading stopped there; \
-                 fishprobe_io::limits::MAX_TEXT_BYTES)",
-                human_bytes(MAX_TEXT_BYTES)
+                "larger than {}: {what} (reading stopped there; {limit_name})",
+                human_bytes(max)
             ),
         ));
     }

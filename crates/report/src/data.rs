@@ -137,7 +137,7 @@ pub struct StudyData {
 /// The candidates `fishprobe run` recorded in `study.json`, with their origin (built in,
 /// changed parameters, or an ONNX file with its SHA-256); none for a study made otherwise.
 fn candidates(root: &Path) -> Vec<(String, String, String)> {
-    let Ok(text) = std::fs::read_to_string(StudyLayout::new(root).config()) else {
+    let Ok(text) = fishprobe_io::read_small_text(&StudyLayout::new(root).config()) else {
         return Vec::new();
     };
     let Ok(v) = serde_json::from_str::<Value>(&text) else {
@@ -177,7 +177,7 @@ pub fn gather(
     };
     let results_path = StudyLayout::results_in(analysis_dir);
     let mut acfg = AnalysisConfig::default();
-    match std::fs::read_to_string(&results_path) {
+    match fishprobe_io::read_small_text(&results_path) {
         Ok(text) => match serde_json::from_str::<Value>(&text) {
             Ok(v) if v.is_object() => match serde_json::from_value::<Results>(v) {
                 Ok(r) => {
@@ -199,9 +199,13 @@ pub fn gather(
                 remedy: format!("fishprobe analyze {root_s}"),
             }),
         },
-        Err(_) => d.missing.push(Missing {
+        Err(e) => d.missing.push(Missing {
             what: "analysis results (tables, sim-to-real and sim-to-sim figures)".into(),
-            why: format!("{} not found", results_path.display()),
+            why: if e.kind() == std::io::ErrorKind::NotFound {
+                format!("{} not found", results_path.display())
+            } else {
+                format!("{}: {e}", results_path.display())
+            },
             remedy: format!("fishprobe analyze {root_s}"),
         }),
     }
@@ -482,6 +486,12 @@ fn approach(study: &StudyFiles, cfg: &ReportConfig, acfg: &AnalysisConfig, d: &m
     }
 }
 
+/// Largest training log (`progress.csv`) the report reads. A `paper`-preset run logs about
+/// 810 iterations of some 170 bytes (0.14 MB); 256 MiB holds over a million and a half, and
+/// stops a log that is not one (a link to a device, a file that never ends) before it fills
+/// memory.
+pub const MAX_TRAINING_LOG_BYTES: u64 = 256 << 20;
+
 /// Reads `policies/<Model>/progress.csv` (+ `params.json`). Column names: fishprobe's
 /// (`timesteps`, `episode_return_mean`, `goals_per_episode`) or RLlib's (`timesteps_total`,
 /// `episode_reward_mean`), as in the paper's archive.
@@ -507,16 +517,24 @@ fn training_logs(root: &Path, d: &mut StudyData) -> BTreeMap<String, TrainingLog
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         let csv = m.join("progress.csv");
-        let params = std::fs::read_to_string(m.join("params.json"))
+        let params = fishprobe_io::read_small_text(&m.join("params.json"))
             .ok()
             .and_then(|t| serde_json::from_str::<Value>(&t).ok());
-        match std::fs::read_to_string(&csv) {
+        match fishprobe_io::read_text_at_most(
+            &csv,
+            MAX_TRAINING_LOG_BYTES,
+            "not a training log fishprobe wrote",
+            "fishprobe_report::data::MAX_TRAINING_LOG_BYTES",
+        ) {
             Ok(text) => match parse_progress(&text) {
                 Ok(rows) => {
                     out.insert(name, TrainingLog { rows, params });
                 }
                 Err(why) => d.unreadable.push((csv, why)),
             },
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                d.unreadable.push((csv, e.to_string()))
+            }
             Err(_) => d.missing.push(Missing {
                 what: format!("training log of {name}"),
                 why: format!("{} not found", csv.display()),

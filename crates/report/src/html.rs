@@ -835,7 +835,7 @@ impl Page<'_> {
         if d.arm.as_deref() == Some(VIRTUAL_LAB) {
             s += "**VIRTUAL LAB: the reality arm is simulated. These are not live-fish results.**\n\n";
         }
-        match std::fs::read_to_string(d.analysis_dir.join("summary.md")) {
+        match fishprobe_io::read_small_text(&d.analysis_dir.join("summary.md")) {
             Ok(a) => {
                 s += &a.replacen("# fishprobe analysis", "## Analysis", 1);
                 s.push('\n');
