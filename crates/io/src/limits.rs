@@ -255,4 +255,23 @@ mod tests {
             assert!(e.contains("larger than 16.0 MiB"), "{e}");
         }
     }
+
+    #[test]
+    fn a_text_of_exactly_the_limit_is_read_and_one_byte_more_refused() {
+        let d = crate::ScratchDir::for_test("text-at-most");
+        let f = d.join("log.csv");
+        std::fs::write(&f, "0123456789").expect("write");
+        let read = |max| read_text_at_most(&f, max, "not a log", "the::LIMIT");
+        assert_eq!(read(10).expect("read"), "0123456789");
+        let e = read(9).unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidData);
+        assert_eq!(
+            e.to_string(),
+            "larger than 9 bytes: not a log (reading stopped there; the::LIMIT)"
+        );
+        assert_eq!(
+            read(u64::MAX).expect("no overflow at the largest limit"),
+            "0123456789"
+        );
+    }
 }

@@ -129,6 +129,10 @@ impl IterationStats {
     }
 }
 
+/// Largest `state.json` a resumed run reads. It holds every environment's state and
+/// observation: at the limits (4,096 environments of 16 fish) some tens of megabytes.
+pub const MAX_STATE_BYTES: u64 = 1 << 30;
+
 /// Trainer state that is not networks: `state.json` of a checkpoint.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct State {
@@ -536,7 +540,13 @@ impl Trainer {
             }
         }
         let p = dir.join("state.json");
-        let text = std::fs::read_to_string(&p).map_err(|e| run_err(&p, e))?;
+        let text = fishprobe_io::read_text_at_most(
+            &p,
+            MAX_STATE_BYTES,
+            "not a checkpoint's state",
+            "fishprobe_learn::trainer::MAX_STATE_BYTES",
+        )
+        .map_err(|e| run_err(&p, e))?;
         let s: State = serde_json::from_str(&text).map_err(|e| run_err(&p, e))?;
         self.venv.restore(&s.envs, &s.obs)?;
         self.iteration = s.iteration;

@@ -21,13 +21,13 @@ pub struct ModelsArgs {
     #[arg(long)]
     measure: bool,
     /// Episodes per model and condition for --measure.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, requires = "measure")]
     episodes: u32,
     /// Minutes per episode for --measure.
-    #[arg(long, default_value_t = 6.0)]
+    #[arg(long, default_value_t = 6.0, requires = "measure")]
     minutes: f32,
     /// Master seed for --measure.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, requires = "measure")]
     seed: u64,
     /// List (and measure) these models instead of the built-in ones: names, or `onnx:FILE`
     /// for a model brought as an ONNX file (repeat the option).
