@@ -5,7 +5,12 @@
 //!
 //! ```sh
 //! cargo run --release -p fishprobe-learn --example training_task -- MODEL EPISODES [POLICY_DIR...]
+//! cargo run --release -p fishprobe-learn --example training_task -- --evaluation MODEL EPISODES [POLICY_DIR...]
 //! ```
+//!
+//! With `--evaluation` the same controllers meet evaluation episodes instead (15 minutes, the
+//! two corner goals; SPEC §4), where a study measures probe competence against the goal-seeker
+//! and fetch-and-lead (docs/validation.md, "What the policy's view of the goal costs").
 //!
 //! Prints, per controller, goals per episode (mean ± standard error), the mean return (goals
 //! minus the wall penalties) and the robot's wall-contact frames per episode. For a policy's
@@ -23,6 +28,8 @@
 //! - `fetch D cm`: the fish while it is farther than D cm from the robot, else the lead point
 //!   10 cm ahead of it: fetch the fish, then lead it (for fish that perceive the robot only
 //!   nearby, like M_Zone's 18 cm and M_Force's 15 cm).
+//! - `fetch-and-lead`: fishprobe's scripted baseline of that name, with its settings (the
+//!   one a study's probe competence compares with).
 //!
 //! For M_Follow it first prints a limit no controller can pass: a fish that swims straight to
 //! every goal at M_Follow's constant speed, from each episode's start position and first goal
@@ -32,7 +39,8 @@ use fishprobe_learn::{to_env_action, GaussianPolicy};
 use fishprobe_models::{FollowParams, ModelSpec};
 use fishprobe_nn::MlpWorkspace;
 use fishprobe_sim::{
-    derive_seed, stream, wrap_angle, ControlInput, Controller, Env, EnvConfig, GoalSeeker, TankEnv,
+    derive_seed, stream, wrap_angle, ControlInput, Controller, Env, EnvConfig, FetchAndLead,
+    GoalSeeker, TankEnv, TaskMode,
 };
 use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
@@ -46,6 +54,7 @@ enum Pilot {
     NearEdge(f32),
     Lead(f32),
     Fetch(f32),
+    FetchAndLead(FetchAndLead),
     Policy(Box<GaussianPolicy>, bool),
 }
 
@@ -113,8 +122,12 @@ fn main() {
 }
 
 fn run() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: training_task MODEL EPISODES [POLICY_DIR...]";
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let evaluation = args.first().is_some_and(|a| a == "--evaluation");
+    if evaluation {
+        args.remove(0);
+    }
+    let usage = "usage: training_task [--evaluation] MODEL EPISODES [POLICY_DIR...]";
     let model = ModelSpec::by_name(args.first().ok_or(usage)?)?;
     let episodes: u64 = args
         .get(1)
@@ -134,6 +147,10 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     for d in [8.0, 12.0, 16.0] {
         pilots.push((format!("fetch {d} cm"), Pilot::Fetch(d)));
     }
+    pilots.push((
+        "fetch-and-lead".into(),
+        Pilot::FetchAndLead(FetchAndLead::default()),
+    ));
     for dir in &args[2..] {
         let (p, _) = GaussianPolicy::load(Path::new(dir))?;
         pilots.push((
@@ -142,11 +159,19 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         ));
         pilots.push((format!("{dir}, sampled"), Pilot::Policy(Box::new(p), true)));
     }
-    let cfg = EnvConfig::default();
+    let cfg = EnvConfig {
+        mode: if evaluation {
+            TaskMode::Evaluation
+        } else {
+            TaskMode::Training
+        },
+        ..EnvConfig::default()
+    };
     let radius = cfg.task.goal_radius_cm;
     let mut stdout = std::io::stdout().lock();
-    writeln!(stdout, "{}, {episodes} training episodes", model.name())?;
-    if model.name() == "Follow" {
+    let kind = if evaluation { "evaluation" } else { "training" };
+    writeln!(stdout, "{}, {episodes} {kind} episodes", model.name())?;
+    if model.name() == "Follow" && !evaluation {
         let speed = FollowParams::default().speed_cm_s;
         let (mean, se) = straight_fish(&cfg, &model, speed, episodes)?;
         writeln!(
@@ -204,6 +229,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                             toward([f.x + ahead * to_goal[0], f.y + ahead * to_goal[1]])
                         }
                     }
+                    Pilot::FetchAndLead(c) => c.clone().act(
+                        &ControlInput {
+                            obs: &obs,
+                            robot: r,
+                            fish: env.fish(),
+                            goal: g,
+                        },
+                        &mut rng,
+                    ),
                     Pilot::Policy(p, sampled) => {
                         let y = p.pi.forward(&obs, 1, &mut ws);
                         let z: f32 = if *sampled {
