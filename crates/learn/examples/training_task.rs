@@ -197,17 +197,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 let toward = |t: [f32; 2]| wrap_angle((t[1] - r.y).atan2(t[0] - r.x) - r.heading);
                 let to_goal = unit([g[0] - f.x, g[1] - f.y]);
                 let fish_goal = (g[0] - f.x).hypot(g[1] - f.y);
+                let input = ControlInput {
+                    obs: &obs,
+                    robot: r,
+                    fish: env.fish(),
+                    goal: g,
+                };
                 let action = match pilot {
                     // fishprobe's one goal-seeker, the baseline of `evaluate` and the bridge.
-                    Pilot::Seek => GoalSeeker.act(
-                        &ControlInput {
-                            obs: &obs,
-                            robot: r,
-                            fish: env.fish(),
-                            goal: g,
-                        },
-                        &mut rng,
-                    ),
+                    Pilot::Seek => GoalSeeker.act(&input, &mut rng),
                     Pilot::SeekSectors(n) => {
                         let w = std::f32::consts::TAU / *n as f32;
                         let i = ((toward(g) + std::f32::consts::PI) / w).floor();
@@ -229,15 +227,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                             toward([f.x + ahead * to_goal[0], f.y + ahead * to_goal[1]])
                         }
                     }
-                    Pilot::FetchAndLead(c) => c.clone().act(
-                        &ControlInput {
-                            obs: &obs,
-                            robot: r,
-                            fish: env.fish(),
-                            goal: g,
-                        },
-                        &mut rng,
-                    ),
+                    Pilot::FetchAndLead(c) => c.clone().act(&input, &mut rng),
                     Pilot::Policy(p, sampled) => {
                         let y = p.pi.forward(&obs, 1, &mut ws);
                         let z: f32 = if *sampled {

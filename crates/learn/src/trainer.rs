@@ -626,7 +626,7 @@ mod tests {
     use super::*;
 
     /// A smoke run of `iterations` iterations (a checkpoint after each) in a fresh `dir`.
-    fn smoke_run(dir: &Path, iterations: usize) {
+    fn smoke_run(dir: &Path, iterations: usize) -> Trainer {
         let _ = std::fs::remove_dir_all(dir);
         let mut ppo = PpoConfig::preset("smoke").unwrap();
         ppo.total_timesteps = 1_000_000;
@@ -642,6 +642,7 @@ mod tests {
         for _ in 0..iterations {
             t.iterate().unwrap();
         }
+        t
     }
 
     #[test]
@@ -665,7 +666,7 @@ mod tests {
     #[test]
     fn a_resume_never_erases_finished_iterations() {
         let dir = std::env::temp_dir().join(format!("fishprobe-keeplogs-{}", std::process::id()));
-        smoke_run(&dir, 3);
+        drop(smoke_run(&dir, 3));
         let (csv, latest) = (dir.join("progress.csv"), dir.join("checkpoints/latest"));
         // A damaged byte (not UTF-8) in iteration 2's row: the row is kept as it was.
         let mut bytes = std::fs::read(&csv).unwrap();
@@ -708,7 +709,7 @@ mod tests {
             3
         );
         // A run stopped while writing its first checkpoint (one, no `latest`) starts over.
-        smoke_run(&dir, 1);
+        drop(smoke_run(&dir, 1));
         std::fs::remove_file(&latest).unwrap();
         let r = Trainer::resume(&dir).unwrap();
         assert_eq!(r.iteration(), 0);
@@ -718,19 +719,7 @@ mod tests {
     #[test]
     fn divergence_stops_with_an_error_and_keeps_the_last_good_checkpoint() {
         let dir = std::env::temp_dir().join(format!("fishprobe-diverge-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let mut ppo = PpoConfig::preset("smoke").unwrap();
-        ppo.total_timesteps = 1_000_000;
-        let spec = RunSpec {
-            ppo,
-            env: EnvConfig::default(),
-            model: ModelSpec::by_name("Zone").unwrap(),
-            seed: 0,
-            preset: "smoke".into(),
-            program_version: "test".into(),
-        };
-        let mut t = Trainer::create(&dir, spec).unwrap();
-        t.iterate().unwrap();
+        let mut t = smoke_run(&dir, 1);
         let good = std::fs::read(dir.join("checkpoints/ckpt_000001/policy.safetensors")).unwrap();
         // Poison the policy: the next update meets non-finite values.
         t.policy.pi.params_mut()[0] = f32::NAN;
