@@ -229,7 +229,7 @@ fn simulate_rejects_bad_arguments_before_work() {
         (vec!["--model", "Couzin"], "unknown fish model `Couzin`"),
         (
             vec!["--minutes", "0"],
-            "--minutes must be a number of minutes in (0, 1440]",
+            "--minutes must lie in [1/60, 1440] minutes (one second to 24 hours)",
         ),
     ] {
         let mut all = vec!["simulate", "--out", f];

@@ -59,11 +59,11 @@ fn absurd_numbers_are_refused_before_any_work() {
     let d = fresh_dir("hostile-numbers");
     let trial = d.join("t.hdf5");
     let out = d.join("out");
-    for m in ["1e9", "1e7", "NaN", "inf", "-1", "0"] {
+    for m in ["1e9", "1e7", "NaN", "inf", "-1", "0", "1e-40", "0.01"] {
         let flag = format!("--minutes={m}");
         refused(
             &["simulate", "--model", "Zone", &flag, "--out", s(&trial)],
-            "--minutes must be a number of minutes in (0, 1440]",
+            "--minutes must lie in [1/60, 1440] minutes (one second to 24 hours)",
         );
     }
     refused(
@@ -78,7 +78,7 @@ fn absurd_numbers_are_refused_before_any_work() {
             "--out",
             s(&out),
         ],
-        "--minutes must be",
+        "--minutes must lie in",
     );
     refused(
         &[
@@ -112,7 +112,7 @@ fn absurd_numbers_are_refused_before_any_work() {
     );
     refused(
         &["models", "--measure", "--minutes", "1e9"],
-        "--minutes must be",
+        "--minutes must lie in",
     );
     refused(
         &[
@@ -124,7 +124,7 @@ fn absurd_numbers_are_refused_before_any_work() {
             "--out",
             s(&out),
         ],
-        "--minutes must be",
+        "--minutes must lie in",
     );
     refused(
         &[

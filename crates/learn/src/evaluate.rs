@@ -15,6 +15,22 @@ use std::sync::Arc;
 /// are read back (`fishprobe_io::ReadLimits::max_frames`).
 pub const MAX_MINUTES: f32 = 24.0 * 60.0;
 
+/// Shortest evaluation episode, in minutes: one second, the paper's control period. A shorter
+/// one still runs one whole action, and its rates ("goals per 0.000001 min") would describe a
+/// time that was never simulated.
+pub const MIN_MINUTES: f32 = 1.0 / 60.0;
+
+/// The range of episode lengths, as error messages show it.
+pub const MINUTES_RANGE: &str = "[1/60, 1440] minutes (one second to 24 hours)";
+
+/// Whether `minutes` is an episode length fishprobe accepts: finite, from [`MIN_MINUTES`] to
+/// [`MAX_MINUTES`]. One second written with six decimals (`0.016667`) counts as one second.
+pub fn minutes_in_range(minutes: f64) -> bool {
+    minutes.is_finite()
+        && minutes >= f64::from(MIN_MINUTES) * (1.0 - 1e-4)
+        && minutes <= f64::from(MAX_MINUTES)
+}
+
 /// Most episodes one evaluation runs (each is one trial file).
 pub const MAX_EPISODES: usize = 100_000;
 
@@ -243,6 +259,27 @@ pub fn goals_mean_sd(r: &[EpisodeResult]) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn an_episode_lasts_from_one_second_to_one_day() {
+        use super::minutes_in_range as ok;
+        for m in [1.0 / 60.0, 0.016667, 0.0166667, 0.05, 15.0, 1440.0] {
+            assert!(ok(m), "{m} minutes refused");
+        }
+        for m in [
+            0.0,
+            -1.0,
+            1e-40,
+            0.0166,
+            0.01,
+            1440.01,
+            1e9,
+            f64::NAN,
+            f64::INFINITY,
+        ] {
+            assert!(!ok(m), "{m} minutes accepted");
+        }
+    }
+
     use super::*;
     use fishprobe_sim::{FishMind, FishMotion, FishView, SimRng};
     use std::sync::Mutex;

@@ -163,6 +163,82 @@ pub struct Trainer {
     scratch: Scratch,
 }
 
+/// Longest line a run's log may have (1 MiB): fishprobe writes lines of some hundred bytes
+/// (`progress.csv`) to a few kilobytes (`result.json`), so a longer one means the file is not
+/// the run's log, and reading on would fill memory with it.
+pub const MAX_LOG_LINE_BYTES: u64 = 1 << 20;
+
+/// Rewrites a run's log `path`, keeping the lines `keep` accepts (blank lines go), through a
+/// temporary file and a rename. The log is streamed, so memory stays at one line however long
+/// the run. A log that cannot be read is an error, never an empty log: rewriting it from
+/// nothing would erase the finished iterations. Lines are kept as bytes, so a damaged line
+/// (not UTF-8, say) stays as it was. A missing log becomes empty (`progress.csv`: its header).
+fn filter_log(path: &Path, is_csv: bool, keep: impl Fn(&str) -> bool) -> Result<(), LearnError> {
+    use std::io::{BufRead, Read, Write};
+    let refuse = |what: String| run_err(path, format!("cannot rewrite the run's log: {what}"));
+    let reader = match std::fs::File::open(path) {
+        Ok(f) => {
+            match f.metadata() {
+                Ok(m) if m.is_file() => {}
+                Ok(_) => return Err(refuse("not a regular file".into())),
+                Err(e) => return Err(refuse(e.to_string())),
+            }
+            Some(std::io::BufReader::new(f))
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(refuse(e.to_string())),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.{}.partial", std::process::id()));
+    let result = (|| -> Result<(), LearnError> {
+        let file = std::fs::File::create(&tmp).map_err(|e| refuse(e.to_string()))?;
+        let mut out = std::io::BufWriter::new(file);
+        let mut wrote = false;
+        if let Some(mut reader) = reader {
+            let mut line = Vec::new();
+            loop {
+                line.clear();
+                let n = (&mut reader)
+                    .take(MAX_LOG_LINE_BYTES + 1)
+                    .read_until(b'\n', &mut line)
+                    .map_err(|e| refuse(e.to_string()))?;
+                if n == 0 {
+                    break;
+                }
+                if line.last() == Some(&b'\n') {
+                    line.pop();
+                } else if n as u64 > MAX_LOG_LINE_BYTES {
+                    return Err(refuse(format!(
+                        "a line longer than {MAX_LOG_LINE_BYTES} bytes, so not a log fishprobe \
+                         wrote (fishprobe_learn::trainer::MAX_LOG_LINE_BYTES)"
+                    )));
+                }
+                let text = String::from_utf8_lossy(&line);
+                if !text.trim().is_empty() && keep(&text) {
+                    out.write_all(&line).map_err(|e| refuse(e.to_string()))?;
+                    out.write_all(b"\n").map_err(|e| refuse(e.to_string()))?;
+                    wrote = true;
+                }
+            }
+        }
+        if is_csv && !wrote {
+            writeln!(out, "{CSV_HEADER}").map_err(|e| refuse(e.to_string()))?;
+        }
+        let file = out
+            .into_inner()
+            .map_err(|e| refuse(e.error().to_string()))?;
+        file.sync_all().map_err(|e| refuse(e.to_string()))?;
+        std::fs::rename(&tmp, path).map_err(|e| refuse(e.to_string()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
 fn run_err(path: &Path, what: impl std::fmt::Display) -> LearnError {
     LearnError::Run(format!("{}: {what}", path.display()))
 }
@@ -438,26 +514,7 @@ impl Trainer {
             }),
         ] {
             let p = self.dir.join(name);
-            // A log that cannot be read is an error, never an empty log: rewriting it from
-            // nothing would erase the finished iterations. Lines are kept as bytes, so a
-            // damaged line (not UTF-8, say) stays as it was.
-            let bytes = match std::fs::read(&p) {
-                Ok(b) => b,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
-                Err(e) => return Err(run_err(&p, format!("cannot read the run's log: {e}"))),
-            };
-            let mut kept = Vec::with_capacity(bytes.len());
-            for line in bytes.split(|&b| b == b'\n') {
-                let text = String::from_utf8_lossy(line);
-                if !text.trim().is_empty() && keep(&text, field) {
-                    kept.extend_from_slice(line);
-                    kept.push(b'\n');
-                }
-            }
-            if name == "progress.csv" && kept.is_empty() {
-                kept = format!("{CSV_HEADER}\n").into_bytes();
-            }
-            write_atomic(&p, &kept)?;
+            filter_log(&p, name == "progress.csv", |line| keep(line, field))?;
         }
         Ok(())
     }
@@ -682,6 +739,34 @@ mod tests {
             bytes,
             "the log changed on resume"
         );
+
+        // A line longer than any fishprobe writes (a file that is not the run's log): refused,
+        // with the log left as it was and no temporary file behind.
+        let result = dir.join("result.json");
+        let kept = std::fs::read(&result).unwrap();
+        let mut long = kept.clone();
+        long.extend(std::iter::repeat_n(b'x', MAX_LOG_LINE_BYTES as usize + 2));
+        std::fs::write(&result, &long).unwrap();
+        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        assert!(e.contains("a line longer than 1048576 bytes"), "{e}");
+        assert_eq!(std::fs::read(&result).unwrap(), long);
+        std::fs::write(&result, &kept).unwrap();
+        // A log that is not a file (here a directory): refused.
+        let aside = dir.join("progress.aside");
+        std::fs::rename(&csv, &aside).unwrap();
+        std::fs::create_dir(&csv).unwrap();
+        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        assert!(
+            e.contains("progress.csv: cannot rewrite the run's log: not a regular file"),
+            "{e}"
+        );
+        std::fs::remove_dir(&csv).unwrap();
+        std::fs::rename(&aside, &csv).unwrap();
+        let partial = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .find(|e| e.file_name().to_string_lossy().ends_with(".partial"));
+        assert!(partial.is_none(), "{partial:?} left behind");
 
         // `latest` unreadable (here a directory): refused, not started over.
         std::fs::remove_file(&latest).unwrap();

@@ -12,7 +12,7 @@
 //! --ood-yardstick POLICY` and the Python package's `train(..., ood_yardstick=POLICY)` both
 //! start their runs through [`start_run`].
 
-use crate::evaluate::MAX_MINUTES;
+use crate::evaluate::{minutes_in_range, MINUTES_RANGE};
 use crate::{Evaluation, LearnError, RunSpec, Trainer};
 use fishprobe_analysis::ood::{disagreement_of_trials, quantile, score_trials, SourceScores};
 use fishprobe_models::support::SupportModel;
@@ -38,7 +38,7 @@ fishprobe_sim::documented_params! {
         /// Episodes of the yardstick policy (choice: 6, `ood-report`'s default, so that its
         /// report measures the policy against the same yardstick).
         pub episodes: usize = 6; "episodes",
-        /// Minutes per episode (choice: 5, `ood-report`'s default). In (0, 1440].
+        /// Minutes per episode (choice: 5, `ood-report`'s default). From one second (1/60) to 1440.
         pub minutes: f32 = 5.0; "min",
         /// Master seed of the episodes (choice: 0, `ood-report`'s default).
         pub seed: u64 = 0; "-",
@@ -66,13 +66,12 @@ impl OodYardstickConfig {
                 "must lie in [1, 1000]",
             ));
         }
-        check::positive(p, "minutes", self.minutes)?;
-        if self.minutes > MAX_MINUTES {
+        if !minutes_in_range(f64::from(self.minutes)) {
             return Err(ConfigError::new(
                 p,
                 "minutes",
                 self.minutes,
-                &format!("must be at most {MAX_MINUTES} (24 hours)"),
+                &format!("must lie in {MINUTES_RANGE}"),
             ));
         }
         Ok(())

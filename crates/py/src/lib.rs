@@ -882,15 +882,15 @@ fn evaluate<'py>(
     seed: u64,
     settings: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    use fishprobe_learn::evaluate::{MAX_EPISODES, MAX_MINUTES};
+    use fishprobe_learn::evaluate::{minutes_in_range, MAX_EPISODES, MINUTES_RANGE};
     if !(1..=MAX_EPISODES).contains(&episodes) {
         return Err(PyValueError::new_err(format!(
             "episodes = {episodes}: must lie in [1, {MAX_EPISODES}]"
         )));
     }
-    if !(minutes.is_finite() && minutes > 0.0 && minutes <= MAX_MINUTES) {
+    if !minutes_in_range(f64::from(minutes)) {
         return Err(PyValueError::new_err(format!(
-            "minutes = {minutes}: must lie in (0, {MAX_MINUTES}] (24 hours)"
+            "minutes = {minutes}: must lie in {MINUTES_RANGE}"
         )));
     }
     let resolved = Model::resolve(model)?;

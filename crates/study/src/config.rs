@@ -362,9 +362,10 @@ impl StudyConfig {
             ("approach_minutes", f64::from(self.approach_minutes)),
             ("virtual_minutes", self.virtual_minutes),
         ] {
-            if !(v.is_finite() && v > 0.0 && v <= 1440.0) {
+            if !fishprobe_learn::evaluate::minutes_in_range(v) {
                 return bad(format!(
-                    "{f} must lie in (0, 1440] minutes, got {}",
+                    "{f} must lie in {}, got {}",
+                    fishprobe_learn::evaluate::MINUTES_RANGE,
                     fishprobe_sim::params::check::shown(v)
                 ));
             }

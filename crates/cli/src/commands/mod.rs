@@ -183,15 +183,13 @@ pub fn note(line: &str) {
     }
 }
 
-/// Longest episode or trial a command accepts, in minutes (24 hours; see
-/// [`fishprobe_learn::evaluate::MAX_MINUTES`]).
-pub const MAX_MINUTES: f64 = fishprobe_learn::evaluate::MAX_MINUTES as f64;
-
-/// Checks a `--minutes` value: positive, finite, at most [`MAX_MINUTES`].
+/// Checks a `--minutes` value: one second to 24 hours
+/// ([`fishprobe_learn::evaluate::minutes_in_range`]).
 pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
-    if !(m.is_finite() && m > 0.0 && m <= MAX_MINUTES) {
+    use fishprobe_learn::evaluate::{minutes_in_range, MINUTES_RANGE};
+    if !minutes_in_range(m) {
         anyhow::bail!(
-            "{flag} must be a number of minutes in (0, {MAX_MINUTES}], got {}",
+            "{flag} must lie in {MINUTES_RANGE}, got {}",
             fishprobe_sim::params::check::shown(m)
         );
     }
