@@ -68,7 +68,7 @@ crate::documented_params! {
         /// `lab`, in [0, 1] (choice: 0.5; the rest start at random poses, so that a policy
         /// learns both to fetch a fish from a corner and to lead one from anywhere).
         pub lab_start_share: f32 = 0.5; "1",
-        /// Reward per goal reached (paper: +1).
+        /// Reward per goal reached (paper: +1). In (0, 100] (`MAX_REWARD_WEIGHT`).
         pub goal_reward: f32 = 1.0; "1",
         /// Who reaching a *training* goal counts (and re-draws it): `fish` (choice: the task is
         /// to bring the fish there, and evaluation counts only the fish), `robot` (the paper's
@@ -83,9 +83,11 @@ crate::documented_params! {
         /// With `group_goal = fraction`: the share of the fish that must be inside the goal at
         /// once, in (0, 1] (choice: 0.5, a majority for odd groups).
         pub group_goal_fraction: f32 = 0.5; "1",
-        /// Penalty subtracted once per action when the robot came near a wall (paper: 0.1).
+        /// Penalty subtracted once per action when the robot came near a wall (paper: 0.1). In
+        /// [0, 100]: a negative one would reward the walls.
         pub wall_penalty: f32 = 0.1; "1",
-        /// Robot-to-wall distance below which the wall penalty applies (paper: 3 cm).
+        /// Robot-to-wall distance below which the wall penalty applies (paper: 3 cm). At most
+        /// the tank's half-width.
         pub wall_penalty_distance_cm: f32 = 3.0; "cm",
         /// What the robot is rewarded for: `goal` (the paper's lead-to-goal task) or `ood`
         /// (issue 23, the paper's outlook): each second, by how far out of the fish model's
@@ -310,8 +312,23 @@ impl TaskParams {
                 "must lie in (0, 1]: the share of the fish that must be inside the goal",
             ));
         }
-        check::finite(prefix, "goal_reward", self.goal_reward)?;
-        check::within(prefix, "ood_weight", self.ood_weight, 0.0, 100.0)?;
+        if !(self.goal_reward > 0.0 && self.goal_reward <= MAX_REWARD_WEIGHT) {
+            return Err(ConfigError::new(
+                prefix,
+                "goal_reward",
+                check::shown(self.goal_reward),
+                &format!(
+                    "must lie in (0, {MAX_REWARD_WEIGHT}]: a goal is rewarded (paper: +1), and PPO is tuned for rewards of order 1"
+                ),
+            ));
+        }
+        check::within(
+            prefix,
+            "ood_weight",
+            self.ood_weight,
+            0.0,
+            MAX_REWARD_WEIGHT,
+        )?;
         check::within(prefix, "ood_score_cap", self.ood_score_cap, 0.1, 1000.0)?;
         check::within(prefix, "ood_goal_weight", self.ood_goal_weight, 0.0, 10.0)?;
         check::within(prefix, "progress_shaping", self.progress_shaping, 0.0, 10.0)?;
@@ -339,12 +356,28 @@ impl TaskParams {
                 "must lie in [1, 10000]",
             ));
         }
-        check::finite(prefix, "wall_penalty", self.wall_penalty)?;
-        check::non_negative(
-            prefix,
-            "wall_penalty_distance_cm",
-            self.wall_penalty_distance_cm,
-        )
+        if !(0.0..=MAX_REWARD_WEIGHT).contains(&self.wall_penalty) {
+            return Err(ConfigError::new(
+                prefix,
+                "wall_penalty",
+                check::shown(self.wall_penalty),
+                &format!(
+                    "must lie in [0, {MAX_REWARD_WEIGHT}]: it is subtracted (paper: 0.1), so a negative one would reward the walls"
+                ),
+            ));
+        }
+        if !(0.0..=tank.half).contains(&self.wall_penalty_distance_cm) {
+            return Err(ConfigError::new(
+                prefix,
+                "wall_penalty_distance_cm",
+                check::shown(self.wall_penalty_distance_cm),
+                &format!(
+                    "must lie in [0, {}] cm: beyond the tank's half-width every place would be near a wall",
+                    tank.half
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// Episode length in actions for a mode.
@@ -355,6 +388,12 @@ impl TaskParams {
         }
     }
 }
+
+/// Largest weight a reward term may have (`goal_reward`, `wall_penalty`, `ood_weight`): PPO's
+/// learning rates, value clip and entropy weight are set for rewards of order 1 (the paper's +1
+/// per goal and 0.1 per wall contact). A hundredfold is already far beyond what was tested;
+/// 1e30 made the update diverge.
+pub const MAX_REWARD_WEIGHT: f32 = 100.0;
 
 /// A goal reached: at which frame, which goal.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -664,6 +703,104 @@ mod tests {
         }
         let e = with(1e30).validate("task", &tank).unwrap_err().to_string();
         assert!(e.contains("at most the tank's half-width (50 cm)"), "{e}");
+    }
+
+    #[test]
+    fn rewards_keep_their_sign_and_scale() {
+        let tank = Tank::default();
+        let ok = |p: TaskParams| p.validate("task", &tank).map_err(|e| e.to_string());
+        let d = TaskParams::default;
+        for (p, field) in [
+            (
+                TaskParams {
+                    goal_reward: 0.0,
+                    ..d()
+                },
+                "goal_reward",
+            ),
+            (
+                TaskParams {
+                    goal_reward: -1.0,
+                    ..d()
+                },
+                "goal_reward",
+            ),
+            (
+                TaskParams {
+                    goal_reward: 1e30,
+                    ..d()
+                },
+                "goal_reward",
+            ),
+            (
+                TaskParams {
+                    goal_reward: f32::NAN,
+                    ..d()
+                },
+                "goal_reward",
+            ),
+            (
+                TaskParams {
+                    wall_penalty: -0.1,
+                    ..d()
+                },
+                "wall_penalty",
+            ),
+            (
+                TaskParams {
+                    wall_penalty: 1e30,
+                    ..d()
+                },
+                "wall_penalty",
+            ),
+            (
+                TaskParams {
+                    wall_penalty: f32::NAN,
+                    ..d()
+                },
+                "wall_penalty",
+            ),
+            (
+                TaskParams {
+                    wall_penalty_distance_cm: 50.5,
+                    ..d()
+                },
+                "wall_penalty_distance_cm",
+            ),
+            (
+                TaskParams {
+                    wall_penalty_distance_cm: -1.0,
+                    ..d()
+                },
+                "wall_penalty_distance_cm",
+            ),
+        ] {
+            let e = ok(p).unwrap_err();
+            assert!(e.contains(field), "{e}");
+        }
+        let e = ok(TaskParams {
+            wall_penalty: -0.1,
+            ..d()
+        })
+        .unwrap_err();
+        assert!(e.contains("would reward the walls"), "{e}");
+        for p in [
+            TaskParams {
+                goal_reward: MAX_REWARD_WEIGHT,
+                ..d()
+            },
+            TaskParams {
+                wall_penalty: 0.0,
+                wall_penalty_distance_cm: 0.0,
+                ..d()
+            },
+            TaskParams {
+                wall_penalty_distance_cm: tank.half,
+                ..d()
+            },
+        ] {
+            ok(p).unwrap();
+        }
     }
 
     #[test]
