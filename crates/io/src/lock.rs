@@ -113,7 +113,9 @@ impl DirLock {
             Ok(()) => {}
             Err(TryLockError::WouldBlock) => {
                 let mut holder = String::new();
-                let _ = file.read_to_string(&mut holder);
+                // The holder's line is short; a lock file that is not one (replaced by
+                // something large) is read no further than this.
+                let _ = (&file).take(4096).read_to_string(&mut holder);
                 let holder = holder.trim();
                 return Err(LockError::Busy {
                     dir: dir.to_path_buf(),

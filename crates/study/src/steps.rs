@@ -143,7 +143,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
                 program_version: env!("CARGO_PKG_VERSION").into(),
             };
             // Resume a run of the same spec; a run of another spec is stale and starts over.
-            let same = std::fs::read_to_string(out.join("params.json"))
+            let same = fishprobe_io::read_small_text(&out.join("params.json"))
                 .ok()
                 .and_then(|t| serde_json::from_str::<RunSpec>(&t).ok())
                 .is_some_and(|old| {

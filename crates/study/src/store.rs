@@ -16,7 +16,7 @@ impl Study {
     /// output is there, and the output holds exactly the files (names and sizes) the marker
     /// recorded when the step finished.
     pub fn is_complete(&self, s: &Step) -> bool {
-        let Some(marker) = std::fs::read_to_string(self.marker(s))
+        let Some(marker) = fishprobe_io::read_small_text(&self.marker(s))
             .ok()
             .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
         else {

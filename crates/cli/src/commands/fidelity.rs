@@ -378,7 +378,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     // As the file will hold it (an f32 becomes its shortest decimal there).
     let settings: Value = serde_json::from_str(&serde_json::to_string(&settings)?)?;
     let done = dir.join("cell.json");
-    if let Ok(text) = std::fs::read_to_string(&done) {
+    if let Ok(text) = fishprobe_io::read_small_text(&done) {
         if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
             if v["settings"] == settings {
                 // Cells made before the scoreboard gave the time to reach the fish get it from
@@ -661,7 +661,7 @@ fn with_finished_cells(a: &FidelityArgs, rows: &[Value]) -> Vec<Value> {
             .flatten()
             .flatten()
         {
-            let Ok(text) = std::fs::read_to_string(model.path().join("cell.json")) else {
+            let Ok(text) = fishprobe_io::read_small_text(&model.path().join("cell.json")) else {
                 continue;
             };
             let Ok(mut v) = serde_json::from_str::<Value>(&text) else {

@@ -561,7 +561,7 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
     let _lock = super::lock_out(&a.out, "ood-loop")?;
     let settings = serde_json::to_string_pretty(&cfg)? + "\n";
     let recorded = a.out.join("settings.json");
-    match std::fs::read_to_string(&recorded) {
+    match fishprobe_io::read_small_text(&recorded) {
         // Compared as settings, not as text: a loop recorded before a setting existed has
         // that setting's default, and resumes when the new run keeps it.
         Ok(old) => {

@@ -153,7 +153,8 @@ pub fn run(a: RunArgs) -> Result<()> {
     };
     bar.finish_and_clear();
     result.with_context(|| format!("running the study in {}", a.out.display()))?;
-    let summary = std::fs::read_to_string(a.out.join("analysis/summary.md")).unwrap_or_default();
+    let summary =
+        fishprobe_io::read_small_text(&a.out.join("analysis/summary.md")).unwrap_or_default();
     emit(&format!(
         "{summary}\nStudy complete in {:.1} min: {}/report/index.html\n",
         started.elapsed().as_secs_f64() / 60.0,
