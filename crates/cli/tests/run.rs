@@ -201,6 +201,24 @@ fn bad_study_inputs_fail_before_any_work() {
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("does not exist"), "{}", stderr(&o));
+    // A file where the directory belongs is named as what it is, not as missing.
+    std::fs::write(d.join("trial.hdf5"), b"").unwrap();
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--real",
+        d.join("trial.hdf5").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("trial.hdf5 is not a directory"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
     std::fs::create_dir_all(d.join("real/Zone__Real")).unwrap();
     let o = fishprobe(&[
         "run",

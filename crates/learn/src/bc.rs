@@ -353,6 +353,7 @@ pub fn load_pairs(
         }
     }
     if d.is_empty() {
+        let given = dirs;
         let dirs: Vec<String> = dirs.iter().map(|p| p.display().to_string()).collect();
         let why: Vec<String> = d
             .skipped
@@ -365,13 +366,31 @@ pub fn load_pairs(
             dirs.join(", "),
             files.len(),
             if why.is_empty() {
-                "no trial files found".into()
+                dirs_without_files(given)
             } else {
                 why.join("; ")
             }
         )));
     }
     Ok(d)
+}
+
+/// Why `dirs` gave no trial file, each path in a few words (missing, a device, an empty
+/// directory).
+fn dirs_without_files(dirs: &[PathBuf]) -> String {
+    dirs.iter()
+        .map(|d| {
+            let what = if std::fs::symlink_metadata(d).is_err() {
+                "does not exist".to_string()
+            } else if d.is_dir() {
+                "holds no trial files (*.hdf5, *.h5)".to_string()
+            } else {
+                fishprobe_io::limits::not_regular(d).unwrap_or_else(|| "not a trial file".into())
+            };
+            format!("{}: {what}", d.display())
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// Zeroes the neighbour channels (the "no neighbour" baseline network sees walls only).
@@ -543,6 +562,29 @@ pub fn fit(
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    #[test]
+    fn data_without_trial_files_says_why_per_path() {
+        let empty = std::env::temp_dir().join(format!("fishprobe-bc-empty-{}", std::process::id()));
+        std::fs::create_dir_all(&empty).unwrap();
+        let dirs = [
+            empty.clone(),
+            PathBuf::from("/nonexistent/pairs"),
+            PathBuf::from("/dev/zero"),
+        ];
+        let e = load_pairs(&dirs, &ConvNetArch::default(), &CloneConfig::default())
+            .err()
+            .unwrap()
+            .to_string();
+        for part in [
+            format!("{}: holds no trial files", empty.display()),
+            "/nonexistent/pairs: does not exist".into(),
+            "/dev/zero: a device, not a regular file".into(),
+        ] {
+            assert!(e.contains(&part), "{part} not in: {e}");
+        }
+        let _ = std::fs::remove_dir_all(&empty);
+    }
 
     #[test]
     fn smoothing_removes_jitter_keeps_turns_and_wraps_at_pi() {

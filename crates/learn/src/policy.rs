@@ -139,9 +139,16 @@ impl GaussianPolicy {
         };
         let bad = |what: String| LearnError::Policy(format!("{}: {what}", file.display()));
         if !file.is_file() {
-            return Err(bad(
-                "missing: not a policy directory (train one with `fishprobe train`)".into(),
-            ));
+            // Missing, or something else than a file (a device, a link that leads nowhere):
+            // say which.
+            let what = match fishprobe_io::limits::not_regular(&file) {
+                Some(_) if std::fs::symlink_metadata(&file).is_err() => "missing:".to_string(),
+                Some(kind) => format!("{kind}, so"),
+                None => "not a file, so".to_string(),
+            };
+            return Err(bad(format!(
+                "{what} not a policy directory (train one with `fishprobe train`)"
+            )));
         }
         let (tensors, meta) = load(&file)?;
         if meta["format"] != "fishprobe-policy" {
@@ -220,6 +227,26 @@ impl GaussianPolicy {
 mod tests {
     use super::*;
     use rand::SeedableRng;
+
+    #[test]
+    fn a_path_that_is_no_policy_says_what_it_is() {
+        let e = |p: &str| {
+            GaussianPolicy::load(Path::new(p))
+                .err()
+                .unwrap()
+                .to_string()
+        };
+        let missing = e("/nonexistent/policy");
+        assert!(
+            missing.contains("missing: not a policy directory"),
+            "{missing}"
+        );
+        let device = e("/dev/zero");
+        assert!(
+            device.contains("/dev/zero: a device, not a regular file, so not a policy directory"),
+            "{device}"
+        );
+    }
 
     #[test]
     fn the_log_std_bound_caps_and_travels_with_the_policy() {

@@ -72,15 +72,11 @@ fn weights_error(path: &str, e: std::io::Error) -> ModelError {
     })
 }
 
-/// The SHA-256 of an ONNX file, read at most [`fishprobe_onnx::MAX_FILE_BYTES`] (the size
-/// the ONNX loader accepts).
-pub fn onnx_sha256(path: &std::path::Path) -> std::io::Result<String> {
-    fishprobe_nn::store::read_at_most(
-        path,
-        fishprobe_onnx::MAX_FILE_BYTES,
-        "fishprobe_onnx::MAX_FILE_BYTES",
-    )
-    .map(|b| sha256_hex(&b))
+/// The SHA-256 of an ONNX file, read as the ONNX loader reads it
+/// ([`fishprobe_onnx::read_model_file`]: a regular file of at most
+/// [`fishprobe_onnx::MAX_FILE_BYTES`]), so both refuse a file with the same words.
+pub fn onnx_sha256(path: &std::path::Path) -> Result<String, fishprobe_onnx::OnnxError> {
+    fishprobe_onnx::read_model_file(path).map(|b| sha256_hex(&b))
 }
 
 /// Errors of the model registry.
@@ -286,7 +282,7 @@ impl ModelSpec {
                 Ok(support::SupportModel::load(&file, &p.weights, &hash)?)
             }
             (Self::Onnx(p), Some(file)) => {
-                let hash = onnx_sha256(p.path.as_ref()).map_err(|e| weights_error(&p.path, e))?;
+                let hash = onnx_sha256(p.path.as_ref())?;
                 Ok(support::SupportModel::load(&file, &p.path, &hash)?)
             }
             _ => Err(ModelError::NotDataDriven {
@@ -406,6 +402,34 @@ impl ModelSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_onnx_file_is_hashed_as_the_loader_reads_it() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-onnx-sha-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // A directory, a device and a file over the limit: refused in the loader's words,
+        // never as "ConvNet weights".
+        let big = dir.join("big.onnx");
+        std::fs::File::create(&big)
+            .unwrap()
+            .set_len(fishprobe_onnx::MAX_FILE_BYTES + 1)
+            .unwrap();
+        for (path, why) in [
+            (dir.clone(), "not an ONNX model: not a regular file"),
+            (std::path::PathBuf::from("/dev/zero"), "not a regular file"),
+            (big, "more than the 536870912 accepted"),
+        ] {
+            let e = onnx_sha256(&path).unwrap_err().to_string();
+            assert!(e.contains(why) && !e.contains("ConvNet"), "{e}");
+        }
+        let small = dir.join("small.onnx");
+        std::fs::write(&small, b"abc").unwrap();
+        assert_eq!(
+            onnx_sha256(&small).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn names_round_trip_and_unknown_is_clear() {

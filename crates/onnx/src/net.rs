@@ -97,10 +97,18 @@ impl std::fmt::Debug for OnnxNet {
 /// Largest ONNX file accepted (a policy of 2 x 256 units is 0.3 MB, the ConvNet fish 1 MB).
 pub const MAX_FILE_BYTES: u64 = 512 << 20;
 
-fn read(path: &Path) -> Result<Vec<u8>, OnnxError> {
+/// The bytes of an ONNX file, as the loader reads them: a regular file of at most
+/// [`MAX_FILE_BYTES`] (bounded by reading too, so a file that grows meanwhile is refused
+/// all the same). Also what a model's SHA-256 is taken of.
+pub fn read_model_file(path: &Path) -> Result<Vec<u8>, OnnxError> {
+    use std::io::Read;
     let read_err = |reason| OnnxError::Read {
         path: path.to_path_buf(),
         reason,
+    };
+    let too_big = |len: u64| OnnxError::NotOnnx {
+        path: path.to_path_buf(),
+        what: format!("{len} bytes, more than the {MAX_FILE_BYTES} accepted"),
     };
     let meta = std::fs::metadata(path).map_err(read_err)?;
     if !meta.is_file() {
@@ -110,15 +118,16 @@ fn read(path: &Path) -> Result<Vec<u8>, OnnxError> {
         });
     }
     if meta.len() > MAX_FILE_BYTES {
-        return Err(OnnxError::NotOnnx {
-            path: path.to_path_buf(),
-            what: format!(
-                "{} bytes, more than the {MAX_FILE_BYTES} accepted",
-                meta.len()
-            ),
-        });
+        return Err(too_big(meta.len()));
     }
-    std::fs::read(path).map_err(read_err)
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes))
+        .map_err(read_err)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(too_big(bytes.len() as u64));
+    }
+    Ok(bytes)
 }
 
 /// The SHA-256 of `bytes`, lower-case hex (what trial files record for a model file).
@@ -145,7 +154,7 @@ impl OnnxNet {
             &std::collections::BTreeMap<String, String>,
         ) -> Result<Contract, String>,
     ) -> Result<Self, OnnxError> {
-        let bytes = Arc::new(read(path)?);
+        let bytes = Arc::new(read_model_file(path)?);
         let metadata = Self::metadata_of(path, &bytes)?;
         let contract = contract_of(&metadata).map_err(|what| OnnxError::Contract {
             path: path.to_path_buf(),

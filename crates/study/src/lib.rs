@@ -118,8 +118,13 @@ impl Study {
         }
         if let Some(r) = &real {
             if !r.is_dir() {
+                let what = if r.exists() {
+                    "is not a directory (it holds <Policy>__Real/ with the live trials)"
+                } else {
+                    "does not exist"
+                };
                 return Err(StudyError::Input(format!(
-                    "real-trials directory {} does not exist",
+                    "real-trials directory {} {what}",
                     r.display()
                 )));
             }
@@ -192,8 +197,9 @@ impl Study {
 /// `policy.safetensors`), so that a changed file invalidates every step that ran it.
 pub(crate) fn external_policy_sha256(arg: &str) -> String {
     let sha = match arg.strip_prefix("onnx:") {
-        Some(p) => fishprobe_models::onnx_sha256(&PathBuf::from(p)),
-        None => fishprobe_models::weights_sha256(&PathBuf::from(arg).join("policy.safetensors")),
+        Some(p) => fishprobe_models::onnx_sha256(&PathBuf::from(p)).map_err(|e| e.to_string()),
+        None => fishprobe_models::weights_sha256(&PathBuf::from(arg).join("policy.safetensors"))
+            .map_err(|e| e.to_string()),
     };
     sha.unwrap_or_else(|e| format!("unreadable: {e}"))
 }
