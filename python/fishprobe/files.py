@@ -59,19 +59,34 @@ def read_trial(path: str | os.PathLike) -> Trial:
     return Trial(path=os.fspath(path), **d)
 
 
+#: Largest ``results.json`` :func:`load_results` reads, as the report (``fishprobe_io``'s
+#: ``MAX_TEXT_BYTES``, 16 MiB); a study's results are tens of kilobytes.
+MAX_RESULTS_BYTES = 16 << 20
+
+
 def load_results(study: str | os.PathLike) -> dict[str, Any]:
     """A study's ``analysis/results.json`` (``fishprobe run``/``analyze``'s output) as Python
     objects: ``study`` is the study directory or the file itself. Missing values (no test
-    possible) are ``None``."""
+    possible) are ``None``. Raises ``FileNotFoundError`` when there are no results and
+    ``ValueError`` for a file that is not JSON or larger than :data:`MAX_RESULTS_BYTES`."""
     path = _native.results_path(os.fspath(study))
     try:
-        with open(path, encoding="utf-8") as f:
-            return json.load(f)
+        with open(path, "rb") as f:
+            # Read no further than the report does (a device or a wrong file would fill
+            # memory): a study's results are tens of kilobytes.
+            data = f.read(MAX_RESULTS_BYTES + 1)
     except FileNotFoundError:
         raise FileNotFoundError(
             f"{path}: no results (run `fishprobe analyze` or `fishprobe run` on the study first)"
         ) from None
-    except json.JSONDecodeError as e:
+    if len(data) > MAX_RESULTS_BYTES:
+        raise ValueError(
+            f"{path}: larger than {MAX_RESULTS_BYTES >> 20} MiB, so not a results file "
+            "(reading stopped there)"
+        )
+    try:
+        return json.loads(data)
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: not a results file ({e})") from None
 
 

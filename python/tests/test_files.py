@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -74,6 +75,13 @@ def test_load_results_reads_a_study_or_its_file(tmp_path):
     (study / "analysis" / "results.json").write_text("{not json")
     with pytest.raises(ValueError, match="not a results file"):
         fishprobe.load_results(study)
+    (study / "analysis" / "results.json").write_bytes(b"\xff\xfe{}")
+    with pytest.raises(ValueError, match="not a results file"):
+        fishprobe.load_results(study)
+    # A file that never ends is read no further than the limit.
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(ValueError, match="larger than 16 MiB"):
+            fishprobe.load_results("/dev/zero")
 
 
 def test_policy_acts_on_batches_like_the_cli_policy(smoke_policy, tmp_path, cli):
