@@ -190,48 +190,31 @@ fn bad_study_inputs_fail_before_any_work() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("Couzin"), "{}", stderr(&o));
     assert!(!out.exists(), "work started despite a bad config");
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--real",
-        d.join("nope").to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("does not exist"), "{}", stderr(&o));
-    // A file where the directory belongs is named as what it is, not as missing.
+    // `--real`: missing, a file where the directory belongs (named as what it is, not as
+    // missing), and a directory without every policy's trials. Each refused before any work.
+    let run_real = |real: &str| {
+        fishprobe(&[
+            "run",
+            "--preset",
+            "smoke",
+            "--real",
+            d.join(real).to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
     std::fs::write(d.join("trial.hdf5"), b"").unwrap();
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--real",
-        d.join("trial.hdf5").to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("trial.hdf5 is not a directory"),
-        "{}",
-        stderr(&o)
-    );
-    assert!(!out.exists());
     std::fs::create_dir_all(d.join("real/Zone__Real")).unwrap();
-    let o = fishprobe(&[
-        "run",
-        "--preset",
-        "smoke",
-        "--real",
-        d.join("real").to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("Follow"), "{}", stderr(&o));
-    assert!(!out.exists());
+    for (real, says) in [
+        ("nope", "does not exist"),
+        ("trial.hdf5", "trial.hdf5 is not a directory"),
+        ("real", "Follow"),
+    ] {
+        let o = run_real(real);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+        assert!(!out.exists());
+    }
     let o = fishprobe(&["run", "--preset", "huge", "--out", out.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("huge"), "{}", stderr(&o));
