@@ -106,10 +106,6 @@ pub fn read_model_file(path: &Path) -> Result<Vec<u8>, OnnxError> {
         path: path.to_path_buf(),
         reason,
     };
-    let too_big = |len: u64| OnnxError::NotOnnx {
-        path: path.to_path_buf(),
-        what: format!("{len} bytes, more than the {MAX_FILE_BYTES} accepted"),
-    };
     let meta = std::fs::metadata(path).map_err(read_err)?;
     if !meta.is_file() {
         return Err(OnnxError::NotOnnx {
@@ -118,14 +114,24 @@ pub fn read_model_file(path: &Path) -> Result<Vec<u8>, OnnxError> {
         });
     }
     if meta.len() > MAX_FILE_BYTES {
-        return Err(too_big(meta.len()));
+        return Err(OnnxError::NotOnnx {
+            path: path.to_path_buf(),
+            what: format!(
+                "{} bytes, more than the {MAX_FILE_BYTES} accepted",
+                meta.len()
+            ),
+        });
     }
     let mut bytes = Vec::new();
     std::fs::File::open(path)
         .and_then(|f| f.take(MAX_FILE_BYTES + 1).read_to_end(&mut bytes))
         .map_err(read_err)?;
     if bytes.len() as u64 > MAX_FILE_BYTES {
-        return Err(too_big(bytes.len() as u64));
+        // It grew since its size was read.
+        return Err(OnnxError::NotOnnx {
+            path: path.to_path_buf(),
+            what: format!("more than the {MAX_FILE_BYTES} bytes accepted (reading stopped there)"),
+        });
     }
     Ok(bytes)
 }
