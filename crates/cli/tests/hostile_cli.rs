@@ -66,6 +66,18 @@ fn absurd_numbers_are_refused_before_any_work() {
             "--minutes must lie in [1/60, 1440] minutes (one second to 24 hours)",
         );
     }
+    // The value as given, not the f64 noise of the nearest f32.
+    refused(
+        &[
+            "simulate",
+            "--model",
+            "Zone",
+            "--minutes=1e-40",
+            "--out",
+            s(&trial),
+        ],
+        "got 1e-40",
+    );
     refused(
         &[
             "evaluate",

@@ -132,6 +132,27 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
         "redoing the damaged steps changed the results"
     );
 
+    // A training run whose spec cannot be read (not text) is kept, not deleted as stale:
+    // the study stops naming it, and runs on once the spec is back.
+    let params = a.join("policies/Zone/params.json");
+    let spec = std::fs::read(&params).unwrap();
+    let mut damaged = vec![0xff];
+    damaged.extend_from_slice(&spec);
+    std::fs::write(&params, &damaged).unwrap();
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("cannot tell whether the partly trained run is stale (it is kept"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(a.join("policies/Zone/policy.safetensors").is_file());
+    assert_eq!(std::fs::read(&params).unwrap(), damaged);
+    std::fs::write(&params, &spec).unwrap();
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(results(&a) == before, "the kept run changed the results");
+
     // Killed (SIGKILL) once some steps are done, then rerun: the same results.
     let b = base.join("b");
     let mut child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))

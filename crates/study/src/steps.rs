@@ -143,15 +143,28 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
                 program_version: env!("CARGO_PKG_VERSION").into(),
             };
             // Resume a run of the same spec; a run of another spec is stale and starts over.
-            let same = fishprobe_io::read_small_text(&out.join("params.json"))
-                .ok()
-                .and_then(|t| serde_json::from_str::<RunSpec>(&t).ok())
-                .is_some_and(|old| {
+            let params = out.join("params.json");
+            let same = match fishprobe_io::read_small_text(&params) {
+                Ok(t) => serde_json::from_str::<RunSpec>(&t).is_ok_and(|old| {
                     RunSpec {
                         program_version: spec.program_version.clone(),
                         ..old
                     } == spec
-                });
+                }),
+                // No run yet, or one stopped before it wrote its spec: nothing to keep.
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
+                // A spec that cannot be read now (a read error, bytes that are not text):
+                // whether the run is stale is unknown, so it is kept, not deleted with its
+                // finished iterations.
+                Err(e) => {
+                    return Err(StepError::io(
+                        "cannot tell whether the partly trained run is stale (it is kept; \
+                         delete its directory to train it anew): reading",
+                        &params,
+                        e,
+                    ))
+                }
+            };
             let mut t = if same {
                 say("resuming from the last checkpoint");
                 Trainer::resume(&out)?

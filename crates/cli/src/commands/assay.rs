@@ -61,7 +61,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
     if a.episodes == 0 || a.episodes > 10_000 {
         bail!("--episodes must lie in [1, 10000], got {}", a.episodes);
     }
-    super::check_minutes("--minutes", f64::from(a.minutes))?;
+    super::check_minutes("--minutes", a.minutes)?;
     let cfg = match &a.settings {
         Some(p) => super::analysis_settings(&AnalysisConfig::default(), p)?,
         None => AnalysisConfig::default(),

@@ -54,7 +54,7 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
             a.episodes
         );
     }
-    super::check_minutes("--minutes", f64::from(a.minutes))?;
+    super::check_minutes("--minutes", a.minutes)?;
     let mut settings = match &a.settings {
         Some(p) => SimSettings::load(p)?,
         None => SimSettings::default(),

@@ -185,9 +185,14 @@ pub fn note(line: &str) {
 
 /// Checks a `--minutes` value: one second to 24 hours
 /// ([`fishprobe_learn::evaluate::minutes_in_range`]).
-pub fn check_minutes(flag: &str, m: f64) -> anyhow::Result<()> {
+pub fn check_minutes<T>(flag: &str, m: T) -> anyhow::Result<()>
+where
+    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+{
     use fishprobe_learn::evaluate::{minutes_in_range, MINUTES_RANGE};
-    if !minutes_in_range(m) {
+    // Shown in the type it was given in: `--minutes 1e-40` says 1e-40, not the f64 noise of
+    // the nearest f32.
+    if !minutes_in_range(m.into()) {
         anyhow::bail!(
             "{flag} must lie in {MINUTES_RANGE}, got {}",
             fishprobe_sim::params::check::shown(m)

@@ -70,7 +70,7 @@ pub fn run(a: ModelsArgs) -> Result<()> {
     };
     let specs: Vec<ModelSpec> = named.iter().map(|(_, s)| s.clone()).collect();
     let measurements = if a.measure {
-        super::check_minutes("--minutes", f64::from(a.minutes))?;
+        super::check_minutes("--minutes", a.minutes)?;
         if a.episodes == 0 || a.episodes > 10_000 {
             anyhow::bail!("--episodes must lie in [1, 10000], got {}", a.episodes);
         }

@@ -107,8 +107,8 @@ impl OodLoopConfig {
                 self.train_steps
             );
         }
-        super::check_minutes("episode_minutes", f64::from(self.episode_minutes))?;
-        super::check_minutes("gap_minutes", f64::from(self.gap_minutes))?;
+        super::check_minutes("episode_minutes", self.episode_minutes)?;
+        super::check_minutes("gap_minutes", self.gap_minutes)?;
         check::non_negative(
             "",
             "support_partner_range_cm",

@@ -235,7 +235,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     if a.episodes == 0 || a.episodes > 1000 {
         bail!("--episodes must lie in [1, 1000], got {}", a.episodes);
     }
-    super::check_minutes("--minutes", f64::from(a.minutes))?;
+    super::check_minutes("--minutes", a.minutes)?;
     let policy = a.policy.as_deref();
     let recorded = policy
         .and_then(run_dir)

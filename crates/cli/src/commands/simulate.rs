@@ -45,7 +45,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     if let Some(m) = &a.model {
         settings.apply_model_flag(m)?;
     }
-    super::check_minutes("--minutes", f64::from(a.minutes))?;
+    super::check_minutes("--minutes", a.minutes)?;
     if let Some(dir) = a.robot.strip_prefix("policy:") {
         return simulate_policy(dir, &settings, &a);
     }
