@@ -97,7 +97,8 @@ def evaluate(
             its mean action.
         model: as for :func:`train`, including a fish model written in Python (which the
             command line cannot run).
-        out: the output directory (one writer at a time).
+        out: the output directory (one writer at a time; ``FileExistsError`` if it already
+            holds an evaluation, whose trials the new one would overwrite in part).
         episodes, minutes, seed: the episodes; the same seed gives the same episodes.
         settings: environment settings dict (``env`` table of a settings file).
 

@@ -145,6 +145,11 @@ def test_the_random_robot_runs_from_python_and_is_reproducible(tmp_path):
     np.testing.assert_array_equal(robot(r), robot(again))  # same seed, same turns
     assert not np.allclose(robot(r), robot(seeker))
     assert "scripted:random" in str(fishprobe.read_trial(r["files"][0]).fishprobe["policy"])
+    # A directory that holds an evaluation is not written into again (it would mix the two).
+    before = sorted(p.name for p in (tmp_path / "a").iterdir())
+    with pytest.raises(FileExistsError, match="already holds an evaluation"):
+        fishprobe.evaluate("scripted:goal-seeker", out=tmp_path / "a", **kw)
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == before
 
 
 def test_bad_evaluations_are_refused_before_the_directory_exists(tmp_path):

@@ -131,6 +131,33 @@ fn evaluate_export_and_simulate_a_trained_policy() {
     );
     let summary = std::fs::read_to_string(ev.join("summary.csv")).unwrap();
     assert_eq!(summary.lines().count(), 4);
+    // A second evaluation into the same directory would overwrite trial_000 and leave the
+    // first one's trial_001 and trial_002 beside it: refused, with nothing touched.
+    let first = std::fs::read(ev.join("trial_000.hdf5")).unwrap();
+    let o = fishprobe(&[
+        "evaluate",
+        "--policy",
+        "scripted:goal-seeker",
+        "--model",
+        "Zone",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        ev.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("already holds an evaluation (3 trial files and summary.csv)"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(std::fs::read(ev.join("trial_000.hdf5")).unwrap(), first);
+    assert_eq!(
+        std::fs::read_to_string(ev.join("summary.csv")).unwrap(),
+        summary
+    );
     let t = fishprobe_io::read_trial(&ev.join("trial_000.hdf5")).unwrap();
     let task = t.task.unwrap();
     assert_eq!(task.fish_model, "Follow");

@@ -31,6 +31,38 @@ pub fn minutes_in_range(minutes: f64) -> bool {
         && minutes <= f64::from(MAX_MINUTES)
 }
 
+/// Refuses an output directory that already holds an evaluation (trial files
+/// `<prefix>_*.hdf5` or a `summary.csv`): writing into it would overwrite some of the earlier
+/// trials and leave the others beside the new ones, so that a later analysis would count both
+/// as one evaluation. A missing directory is fresh; one that cannot be listed is left to the
+/// writing to report. `fishprobe evaluate` and Python's `fishprobe.evaluate` check this; a
+/// study evaluates into fresh staging directories of its own.
+pub fn check_fresh_output(out: &Path, prefix: &str) -> Result<(), LearnError> {
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return Ok(());
+    };
+    let (mut trials, mut summary) = (0usize, false);
+    let trial_start = format!("{prefix}_");
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let name = name.to_string_lossy();
+        if name == "summary.csv" {
+            summary = true;
+        } else if name.starts_with(&trial_start) && name.ends_with(".hdf5") {
+            trials += 1;
+        }
+    }
+    if trials > 0 || summary {
+        return Err(LearnError::Run(format!(
+            "{}: already holds an evaluation ({trials} trial files{}); choose another output \
+             directory, or remove them to evaluate again",
+            out.display(),
+            if summary { " and summary.csv" } else { "" }
+        )));
+    }
+    Ok(())
+}
+
 /// Most episodes one evaluation runs (each is one trial file).
 pub const MAX_EPISODES: usize = 100_000;
 

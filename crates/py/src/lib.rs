@@ -908,6 +908,8 @@ fn evaluate<'py>(
     // Checked before the directory exists: a refused evaluation leaves none.
     let _lock = fishprobe_io::DirLock::acquire(&out, "fishprobe.evaluate")
         .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    fishprobe_learn::evaluate::check_fresh_output(&out, &e.prefix)
+        .map_err(|e| pyo3::exceptions::PyFileExistsError::new_err(e.to_string()))?;
     // A Python fish is shared by the episodes; every other model is built as the CLI builds it.
     let fish = resolved.python.is_some().then(|| resolved.model.clone());
     let r = py.detach(|| fishprobe_learn::evaluate_with_model(c.as_ref(), &e, fish));

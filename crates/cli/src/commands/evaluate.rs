@@ -72,6 +72,7 @@ pub fn run(a: EvaluateArgs) -> Result<()> {
         prefix: "trial".into(),
     };
     let _lock = super::lock_out(&a.out, "evaluate")?;
+    fishprobe_learn::evaluate::check_fresh_output(&a.out, &e.prefix)?;
     let results = super::with_jobs(a.jobs, || evaluate(c.as_ref(), &e))??;
     let (mean, sd) = goals_mean_sd(&results);
     emit(&format!(
