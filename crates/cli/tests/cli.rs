@@ -399,6 +399,32 @@ fn the_approach_assay_of_one_policy() {
         "{}",
         stderr(&o)
     );
+    // With --out the episodes stay; a second assay into the same directory is refused, not
+    // mixed with them.
+    let out = fresh_dir("assay-out");
+    let with_out = |policy: &str| {
+        fishprobe(&[
+            "assay",
+            "approach",
+            "--policy",
+            policy,
+            "--episodes",
+            "2",
+            "--minutes",
+            "0.2",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let o = with_out("scripted:goal-seeker");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("approach_001.hdf5").is_file());
+    let o = with_out("scripted:fetch-and-lead");
+    assert!(
+        !o.status.success() && stderr(&o).contains("already holds an evaluation (2 trial files"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// `--stochastic` runs the assay with the policy's sampled actions (RLlib's default when a

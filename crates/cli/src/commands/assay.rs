@@ -89,6 +89,10 @@ pub fn run(a: AssayArgs) -> Result<()> {
     let _scratch = temporary.then(|| fishprobe_io::ScratchDir::remove_on_drop(out.clone()));
     let _lock = super::lock_out(&out, "assay approach")?;
     let mut e = fishprobe_learn::approach_assay(a.episodes, a.minutes, a.seed, out.clone())?;
+    if !temporary {
+        // Another assay's episodes there would be overwritten in part and mixed with these.
+        fishprobe_learn::evaluate::check_fresh_output(&out, &e.prefix)?;
+    }
     e.env.observation.centroid_bins = centroid_bins;
     let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
     let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
