@@ -445,6 +445,30 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "no ensemble, no disagreement: {r}"
     );
 
+    // A second report into the same --out would overwrite some of these episodes and leave
+    // the rest beside its own: refused.
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&seed_dir.join("policy-ood")),
+        "--compare",
+        s(&seed_dir.join("policy-goal")),
+        "--data",
+        s(&seed_dir.join("data/narrow")),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&report),
+    ]);
+    assert!(
+        !o.status.success()
+            && stderr(&o).contains("episodes/ood: already holds an evaluation (2 trial files"),
+        "{}",
+        stderr(&o)
+    );
+
     // Recorded trials (here: the report's own episodes, as live trials would be given) are
     // scored exactly as the episodes were when simulated.
     let rescored = dir.join("report-recorded");

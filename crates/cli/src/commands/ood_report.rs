@@ -316,6 +316,15 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         (&ood_src, "ood", "OOD policy"),
         (&goal_src, "goal", "lead-to-goal policy"),
     ];
+    // An earlier report's episodes would be overwritten in part and mixed with these.
+    for (src, name, _) in &both {
+        if matches!(src, Source::Simulated(_)) {
+            fishprobe_learn::evaluate::check_fresh_output(
+                &a.out.join("episodes").join(name),
+                name,
+            )?;
+        }
+    }
     for (k, (src, name, label)) in both.into_iter().enumerate() {
         let run = match src {
             Source::Recorded(files) => recorded_run(&support, label, files)?,
