@@ -33,6 +33,11 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
         serde_json::from_str(&std::fs::read_to_string(out.join("scoreboard.json")).unwrap())
             .unwrap();
     assert_eq!(rows.len(), 6);
+    let first_zone = rows
+        .iter()
+        .find(|r| r["reading"] == "baseline" && r["model"] == "Zone")
+        .cloned()
+        .unwrap();
     for r in &rows {
         assert!(
             r["goals"].is_number() && r["nearer_fish"].is_number(),
@@ -146,6 +151,54 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
             && board.contains("| time-limit-terminal | Follow |"),
         "{board}"
     );
+    // A cell stopped before it finished (no cell.json) is redone: its training resumes only
+    // if it is this cell's, and its evaluation starts afresh (the time to reach the fish is
+    // read from every trial file there, so a stale one would count).
+    let zone = out.join("baseline/Zone");
+    std::fs::remove_file(zone.join("cell.json")).unwrap();
+    let one = |seed: &str| {
+        fishprobe(&[
+            "fidelity",
+            "--preset",
+            "smoke",
+            "--readings",
+            "baseline",
+            "--models",
+            "Zone",
+            "--episodes",
+            "2",
+            "--approach-episodes",
+            "1",
+            "--seed",
+            seed,
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let o5 = one("1");
+    assert!(
+        !o5.status.success()
+            && stderr(&o5).contains("holds a partly trained policy made with other settings"),
+        "{}",
+        stderr(&o5)
+    );
+    std::fs::create_dir_all(zone.join("eval")).unwrap();
+    let stale = zone.join("eval/trial_099.hdf5");
+    std::fs::copy(zone.join("baseline-goal-seeker/trial_000.hdf5"), &stale).unwrap();
+    let o6 = one("0");
+    assert!(o6.status.success(), "{}", stderr(&o6));
+    assert!(!stale.exists(), "a stale trial file was kept");
+    let redone: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(zone.join("cell.json")).unwrap()).unwrap();
+    for k in [
+        "goals",
+        "reach_s",
+        "baselines_reach_s",
+        "closest_cm",
+        "competence",
+    ] {
+        assert_eq!(redone[k], first_zone[k], "{k}");
+    }
 }
 
 #[test]

@@ -411,20 +411,32 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     }
     let train_dir = dir.join("policy");
     let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
+    let run_spec = RunSpec {
+        ppo,
+        env: env.clone(),
+        model: spec.clone(),
+        seed,
+        preset: a.preset.clone(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+    };
     let mut t = if train_dir.join("params.json").exists() {
+        // A cell stopped before it finished resumes its training only if that training is
+        // this cell's: resumed with other settings, it would be scored as this reading.
+        let old = Trainer::recorded_spec(&train_dir)?;
+        let same = RunSpec {
+            program_version: run_spec.program_version.clone(),
+            ..old
+        } == run_spec;
+        if !same {
+            bail!(
+                "{} holds a partly trained policy made with other settings (another --preset or \
+                 --seed, or fishprobe's defaults changed since): use another --out or remove it",
+                train_dir.display()
+            );
+        }
         Trainer::resume(&train_dir)?
     } else {
-        Trainer::create(
-            &train_dir,
-            RunSpec {
-                ppo,
-                env: env.clone(),
-                model: spec.clone(),
-                seed,
-                preset: a.preset.clone(),
-                program_version: env!("CARGO_PKG_VERSION").into(),
-            },
-        )?
+        Trainer::create(&train_dir, run_spec)?
     };
     while !t.done() {
         let s = t.iterate()?;
@@ -438,6 +450,22 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     }
     t.finish()?;
     let policy = PolicyController::load(&train_dir, false)?;
+    // The cell is not finished (it has no cell.json), so its episodes, if any, are from a run
+    // that stopped, perhaps with another --episodes: they go, or the times to reach the fish
+    // (read from every trial file there) would count them with the new ones.
+    for sub in std::iter::once("eval".to_string())
+        .chain(std::iter::once("approach".to_string()))
+        .chain(
+            fishprobe_sim::SCRIPTED
+                .iter()
+                .map(|n| format!("baseline-{n}")),
+        )
+    {
+        let d = dir.join(&sub);
+        if d.exists() {
+            std::fs::remove_dir_all(&d).with_context(|| format!("removing {}", d.display()))?;
+        }
+    }
     // Evaluation on the 15-minute task (evaluation goals always count the fish).
     let e = Evaluation {
         model: spec.clone(),
