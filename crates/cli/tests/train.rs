@@ -102,6 +102,16 @@ fn a_killed_run_resumes_to_the_same_result() {
         "{}",
         stderr(&o)
     );
+    // A finished run resumed without its flags continues with its own seed and preset, and
+    // says so (with them, it says nothing).
+    let o = fishprobe(&["train", "--resume", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("resuming with the run's own seed 4 and preset `smoke` (params.json), not --seed 0 --preset paper"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!stderr(&fishprobe(&resume)).contains("run's own seed"));
 }
 
 #[test]

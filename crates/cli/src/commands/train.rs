@@ -236,7 +236,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
         {
             say!("note: --resume continues the run as params.json records it; --model, --settings, --steps, --ppo, --task, --ood-goal-weight and --ood-yardstick are ignored");
         }
-        Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?
+        let t = Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?;
+        // The seed and the preset have defaults, so they are always "given": say only when
+        // the run's own differ from them.
+        let (seed, preset) = (t.spec().seed, &t.spec().preset);
+        if seed != a.seed || *preset != a.preset {
+            say!(
+                "note: resuming with the run's own seed {seed} and preset `{preset}` (params.json), \
+                 not --seed {} --preset {}",
+                a.seed,
+                a.preset
+            );
+        }
+        t
     } else {
         // (Checked above unless the run's params.json vanished since.)
         let f = match fresh.take() {
