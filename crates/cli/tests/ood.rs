@@ -408,21 +408,24 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
 
     // What the OOD policy finds.
     let report = dir.join("report");
-    let o = fishprobe(&[
-        "ood-report",
-        "--policy",
-        s(&seed_dir.join("policy-ood")),
-        "--compare",
-        s(&seed_dir.join("policy-goal")),
-        "--data",
-        s(&seed_dir.join("data/narrow")),
-        "--episodes",
-        "2",
-        "--minutes",
-        "0.5",
-        "--out",
-        s(&report),
-    ]);
+    let report_of = |episodes: &str| {
+        fishprobe(&[
+            "ood-report",
+            "--policy",
+            s(&seed_dir.join("policy-ood")),
+            "--compare",
+            s(&seed_dir.join("policy-goal")),
+            "--data",
+            s(&seed_dir.join("data/narrow")),
+            "--episodes",
+            episodes,
+            "--minutes",
+            "0.5",
+            "--out",
+            s(&report),
+        ])
+    };
+    let o = report_of("2");
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("Data wishlist"), "{}", stdout(&o));
     for f in [
@@ -447,21 +450,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
 
     // A second report into the same --out would overwrite some of these episodes and leave
     // the rest beside its own: refused.
-    let o = fishprobe(&[
-        "ood-report",
-        "--policy",
-        s(&seed_dir.join("policy-ood")),
-        "--compare",
-        s(&seed_dir.join("policy-goal")),
-        "--data",
-        s(&seed_dir.join("data/narrow")),
-        "--episodes",
-        "1",
-        "--minutes",
-        "0.5",
-        "--out",
-        s(&report),
-    ]);
+    let o = report_of("1");
     assert!(
         !o.status.success()
             && stderr(&o).contains("episodes/ood: already holds an evaluation (2 trial files"),
