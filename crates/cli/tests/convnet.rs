@@ -174,6 +174,41 @@ fn bad_pair_files_are_skipped_by_name_and_an_empty_dataset_is_an_error() {
             "no warning for {file} ({why}): {e}"
         );
     }
+    // An ensemble, then one network into the same file: the first fit's further member and
+    // disagreement file go (they belong to the old weights).
+    let w3 = d.join("w3.safetensors");
+    let fit = |members: &str| {
+        fishprobe(&[
+            "fit-convnet",
+            "--data",
+            good.to_str().unwrap(),
+            "--validation",
+            bad.to_str().unwrap(),
+            "--out",
+            w3.to_str().unwrap(),
+            "--max-epochs",
+            "1",
+            "--no-baselines",
+            "--members",
+            members,
+        ])
+    };
+    let ensemble = [
+        "w3.safetensors.member-2.safetensors",
+        "w3.safetensors.member-2.safetensors.json",
+        "w3.safetensors.disagreement.json",
+    ];
+    let o = fit("2");
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ensemble {
+        assert!(d.join(f).is_file(), "{f}");
+    }
+    let o = fit("1");
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ensemble {
+        assert!(!d.join(f).exists(), "{f} left behind");
+    }
+    assert!(w3.is_file() && d.join("w3.safetensors.support.json").is_file());
     // Training and validation must not mix.
     let o = fishprobe(&[
         "fit-convnet",

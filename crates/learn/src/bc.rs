@@ -888,6 +888,7 @@ pub fn fit_convnet(
             .map_err(|e| LearnError::Run(format!("creating {}: {e}", parent.display())))?;
     }
     fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
+    remove_stale_ensemble(out, cfg.ensemble_members)?;
     let support = support_beside(out);
     let bytes = std::fs::read(out)
         .map_err(|e| LearnError::Run(format!("reading back {}: {e}", out.display())))?;
@@ -995,6 +996,30 @@ pub fn fit_convnet(
         members,
         disagreement,
     })
+}
+
+/// Removes what an earlier fit into `out` left of its ensemble that this fit, of `members`
+/// members, will not write again: further members beyond `members` (with their sidecars) and
+/// the disagreement file (rewritten when `members` > 1). They belonged to the old weights.
+fn remove_stale_ensemble(out: &Path, members: usize) -> Result<(), LearnError> {
+    use fishprobe_models::disagreement::{file_beside, member_beside, MAX_MEMBERS};
+    let stale = (members.max(1) + 1..=MAX_MEMBERS)
+        .map(|i| member_beside(out, i))
+        .flat_map(|m| [fishprobe_nn::store::sidecar_path(&m), m])
+        .chain(std::iter::once(file_beside(out)));
+    for f in stale {
+        match std::fs::remove_file(&f) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(LearnError::Run(format!(
+                    "removing {} (of the ensemble an earlier fit left beside {}): {e}",
+                    f.display(),
+                    out.display()
+                )))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// The support file of a weights (or ONNX) file: `FILE.support.json` beside it.
