@@ -156,7 +156,10 @@ fn a_partial_study_says_what_is_missing_and_how_to_make_it() {
     let d = dir("report-partial");
     let s = d.to_str().unwrap();
     ok(&["bench", "stats", "--size", "small", "--dir", s, "--json"]);
-    // No analysis, no policies, no approach assay, no reality arm.
+    ok(&["report", s]);
+    assert!(d.join("report/figures/gap_heatmap.svg").is_file());
+    // No analysis, no policies, no approach assay, no reality arm. The report made again
+    // into the same directory keeps none of the first one's figures it no longer draws.
     let _ = std::fs::remove_dir_all(d.join("analysis"));
     let _ = std::fs::remove_dir_all(d.join("approach_test"));
     for e in std::fs::read_dir(d.join("rollouts")).unwrap() {
@@ -181,7 +184,17 @@ fn a_partial_study_says_what_is_missing_and_how_to_make_it() {
     for f in ["goals_over_time", "iid_density", "trajectories"] {
         assert!(d.join(format!("report/figures/{f}.svg")).is_file(), "{f}");
     }
-    assert!(!d.join("report/figures/gap_heatmap.svg").exists());
+    for f in [
+        "gap_heatmap.svg",
+        "gap_heatmap.png",
+        "approach.svg",
+        "approach.png",
+    ] {
+        assert!(
+            !d.join("report/figures").join(f).exists(),
+            "{f} left behind"
+        );
+    }
 }
 
 #[test]

@@ -83,6 +83,45 @@ pub fn write_figure(
     Ok(portable)
 }
 
+/// Every figure a study report can draw (which it draws depends on what the study holds).
+const STUDY_FIGURES: [&str; 8] = [
+    "goals",
+    "gap_heatmap",
+    "sim_to_sim",
+    "goals_over_time",
+    "approach",
+    "iid_density",
+    "trajectories",
+    "training",
+];
+
+/// Removes the figures of an earlier report into the same directory that this one does not
+/// draw (it no longer has their data), so that `figures/` shows only what `index.html` does.
+/// Files of other names are left alone.
+fn remove_stale_figures(
+    fig_dir: &Path,
+    rendered: &[(figures::Figure, String)],
+) -> Result<(), ReportError> {
+    for name in STUDY_FIGURES {
+        if rendered.iter().any(|(f, _)| f.name == name) {
+            continue;
+        }
+        for ext in ["svg", "png"] {
+            let path = fig_dir.join(format!("{name}.{ext}"));
+            match std::fs::remove_file(&path) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(ReportError::Write {
+                        path,
+                        what: format!("removing an earlier report's figure: {e}"),
+                    })
+                }
+                _ => {}
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Makes the report of the study at `root` into `out` (default `root/report`), reading the
 /// analysis from `analysis` (default `root/analysis`).
 pub fn build_report(
@@ -109,6 +148,7 @@ pub fn build_report(
     .into_iter()
     .flatten()
     .collect();
+    debug_assert!(figs.iter().all(|f| STUDY_FIGURES.contains(&f.name)));
     let fig_dir = out.join("figures");
     std::fs::create_dir_all(&fig_dir).map_err(|e| ReportError::Write {
         path: fig_dir.clone(),
@@ -121,6 +161,7 @@ pub fn build_report(
             Ok((f, portable))
         })
         .collect::<Result<_, ReportError>>()?;
+    remove_stale_figures(&fig_dir, &rendered)?;
     let page = html::Page {
         data: &data,
         figures: rendered,
