@@ -153,6 +153,63 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(results(&a) == before, "the kept run changed the results");
 
+    // Live trials as the reality arm (here the virtual lab's, which record the weights that
+    // drove them): taken when they are the study's policies'; refused, naming the trial, when
+    // one was driven by other weights under the same name; taken with a warning when one
+    // does not say.
+    let real = base.join("real");
+    for p in ["Follow", "Zone", "Force", "ConvNet"] {
+        let to = real.join(format!("{p}__Real"));
+        std::fs::create_dir_all(&to).unwrap();
+        for f in fishprobe_io::trial_files(&a.join(format!("rollouts/{p}__VirtualLab"))) {
+            std::fs::copy(&f, to.join(f.file_name().unwrap())).unwrap();
+        }
+    }
+    let with_real = |dir: &Path| {
+        fishprobe(&[
+            "run",
+            "--preset",
+            "smoke",
+            "--out",
+            a.to_str().unwrap(),
+            "--real",
+            dir.to_str().unwrap(),
+        ])
+    };
+    let o = with_real(&real);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("do not record"), "{}", stderr(&o));
+    let retrained = base.join("real-retrained");
+    std::fs::rename(&real, &retrained).unwrap();
+    let trial = retrained.join("Zone__Real/trial_001.hdf5");
+    let mut t = fishprobe_io::read_trial(&trial).unwrap();
+    let task = t.task.as_mut().unwrap();
+    let sha = task.policy_sha256().unwrap();
+    assert_eq!(sha.len(), 64);
+    task.config_json = task.config_json.replace(&sha, &"0".repeat(64));
+    fishprobe_io::write_trial(&trial, &t).unwrap();
+    let o = with_real(&retrained);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("trial_001.hdf5")
+            && stderr(&o).contains("another policy under the same name")
+            && stderr(&o).contains("policies/Zone"),
+        "{}",
+        stderr(&o)
+    );
+    let unsaid = base.join("real-unsaid");
+    std::fs::rename(&retrained, &unsaid).unwrap();
+    let task = t.task.as_mut().unwrap();
+    task.config_json = "{}".into();
+    fishprobe_io::write_trial(&unsaid.join("Zone__Real/trial_001.hdf5"), &t).unwrap();
+    let o = with_real(&unsaid);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("1 of the live trials") && stderr(&o).contains("do not record"),
+        "{}",
+        stderr(&o)
+    );
+
     // Killed (SIGKILL) once some steps are done, then rerun: the same results.
     let b = base.join("b");
     let mut child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))

@@ -16,6 +16,7 @@ pub struct PolicyController {
     pub stochastic: bool,
     name: String,
     description: String,
+    fingerprint: String,
     ws: MlpWorkspace,
 }
 
@@ -29,6 +30,7 @@ impl PolicyController {
         description: String,
     ) -> Self {
         Self {
+            fingerprint: policy.fingerprint(),
             policy: Box::new(policy),
             stochastic,
             name,
@@ -64,6 +66,10 @@ impl Controller for PolicyController {
 
     fn describe(&self) -> String {
         self.description.clone()
+    }
+
+    fn fingerprint(&self) -> Option<String> {
+        Some(self.fingerprint.clone())
     }
 
     fn check_observation(&self, dim: usize) -> Result<(), String> {
@@ -142,6 +148,10 @@ impl Controller for Named {
 
     fn describe(&self) -> String {
         self.inner.describe()
+    }
+
+    fn fingerprint(&self) -> Option<String> {
+        self.inner.fingerprint()
     }
 
     fn check_observation(&self, dim: usize) -> Result<(), String> {

@@ -171,7 +171,12 @@ pub fn run_episode_with(
         fish_model: e.model.name().to_string(),
         seed,
         goal_radius_cm: cfg.task.goal_radius_cm,
-        config_json: serde_json::json!({"env": cfg, "fish": e.model}).to_string(),
+        config_json: serde_json::json!({
+            "env": cfg,
+            "fish": e.model,
+            fishprobe_io::POLICY_SHA256_KEY: c.fingerprint(),
+        })
+        .to_string(),
         experiment_setup: format!(
             "fishprobe evaluate: {} against {}",
             c.describe(),

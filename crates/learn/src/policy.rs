@@ -210,6 +210,27 @@ impl GaussianPolicy {
         Ok((policy, meta))
     }
 
+    /// SHA-256 (hex) of what decides the policy's actions: the policy network's layer sizes
+    /// and weights (little-endian f32) and its log-s.d. bound. The value network is left
+    /// out: two policies that differ only there drive the robot alike. Trial files record it
+    /// ([`fishprobe_sim::Controller::fingerprint`]).
+    pub fn fingerprint(&self) -> String {
+        let sizes = &self.pi.spec().sizes;
+        let params = self.pi.params();
+        let mut bytes = Vec::with_capacity(8 * (sizes.len() + 1) + 4 * params.len());
+        for &n in sizes {
+            bytes.extend_from_slice(&(n as u64).to_le_bytes());
+        }
+        for v in params {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        match self.log_std_max {
+            Some(m) => bytes.extend_from_slice(&m.to_le_bytes()),
+            None => bytes.extend_from_slice(b"unbounded"),
+        }
+        fishprobe_onnx::sha256_hex(&bytes)
+    }
+
     /// Checks the policy fits an environment's observation size.
     pub fn check_obs_dim(&self, env_obs: usize) -> Result<(), LearnError> {
         if self.obs_dim() == env_obs {
@@ -270,6 +291,19 @@ mod tests {
         meta.as_object_mut().unwrap().remove("log_std_max");
         std::fs::write(&sidecar, meta.to_string()).unwrap();
         assert_eq!(GaussianPolicy::load(&dir).unwrap().0.log_std_max, None);
+
+        // The fingerprint: the same after a save and a load, another for other policy
+        // weights or bound, the same for another value network.
+        let loaded = GaussianPolicy::load(&dir).unwrap().0;
+        let mut q = p.clone();
+        q.log_std_max = None;
+        assert_eq!(loaded.fingerprint(), q.fingerprint());
+        assert_ne!(p.fingerprint(), q.fingerprint());
+        assert_eq!(p.fingerprint().len(), 64);
+        q.vf.params_mut()[0] += 1.0;
+        assert_eq!(loaded.fingerprint(), q.fingerprint());
+        q.pi.params_mut()[0] += 1.0;
+        assert_ne!(loaded.fingerprint(), q.fingerprint());
 
         meta["log_std_max"] = json!("wide");
         std::fs::write(&sidecar, meta.to_string()).unwrap();

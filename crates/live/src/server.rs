@@ -171,6 +171,7 @@ pub fn serve(
     mut on_trial: impl FnMut(&TrialOutcome),
 ) -> Result<Vec<TrialOutcome>, LiveError> {
     opts.validate()?;
+    check_provenance(opts, pilot()?.as_ref())?;
     listener
         .set_nonblocking(true)
         .map_err(|e| LiveError::Net(format!("listener: {e}")))?;
@@ -402,6 +403,23 @@ fn check_hello(
             "source `{source}`: expected \"lab\" or \"virtual_lab\""
         )),
     }
+}
+
+/// Refuses to add the pilot's trials to directories that hold another policy's under its
+/// name (trials that record no fingerprint, from scripted pilots or older files, pass).
+fn check_provenance(opts: &ServeOptions, pilot: &dyn Controller) -> Result<(), LiveError> {
+    let Some(sha) = pilot.fingerprint() else {
+        return Ok(());
+    };
+    let name = StudyLayout::safe_name(&pilot.name());
+    for arm in [Arm::Real, Arm::VirtualLab] {
+        let dir = opts.out.join(StudyLayout::arm_dir_name(&name, &arm));
+        let p = fishprobe_io::Provenance::of_dir(&dir, &sha)?;
+        if let Some(why) = p.describe_other(&dir, &sha) {
+            return Err(LiveError::Mixed(why));
+        }
+    }
+    Ok(())
 }
 
 /// Runs one admitted trial to its end and keeps its file.

@@ -544,6 +544,7 @@ impl Session {
         };
         attributes.insert("experiment_setup".into(), Attr::Text(setup.into()));
         let config = serde_json::json!({
+            fishprobe_io::POLICY_SHA256_KEY: self.pilot.fingerprint(),
             "live": self.cfg,
             "stops": self.stops,
             "tracking_gaps_frames": self.gaps,

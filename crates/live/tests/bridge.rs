@@ -310,3 +310,81 @@ fn a_bridge_with_a_token_refuses_a_hello_without_it() {
     BufReader::new(s).read_line(&mut line).unwrap();
     assert!(line.contains("token"), "{line}");
 }
+
+/// The goal-seeker standing in for a trained policy with weights of fingerprint `.0`.
+#[derive(Clone)]
+struct Weighted(&'static str);
+impl Controller for Weighted {
+    fn name(&self) -> String {
+        "Zone".into()
+    }
+    fn fingerprint(&self) -> Option<String> {
+        Some(self.0.into())
+    }
+    fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
+        GoalSeeker.act(input, rng)
+    }
+}
+
+fn serve_weighted(
+    out: &std::path::Path,
+    sha: &'static str,
+) -> (
+    SocketAddr,
+    JoinHandle<Result<Vec<TrialOutcome>, fishprobe_live::LiveError>>,
+) {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let opts = ServeOptions {
+        live: short(),
+        task: TaskParams::default(),
+        out: out.to_path_buf(),
+        token: None,
+        max_trials: Some(1),
+        fish_label: "live guppy".into(),
+        guard: BridgeGuard::default(),
+    };
+    let h = std::thread::spawn(move || {
+        serve(
+            &listener,
+            &opts,
+            &mut || Ok(Box::new(Weighted(sha)) as Box<dyn Controller>),
+            |_| {},
+        )
+    });
+    (addr, h)
+}
+
+/// A policy retrained under the same name does not add its trials to the old one's: each
+/// trial records the weights' fingerprint, and the bridge refuses, before it listens, an
+/// output directory holding trials of other weights under the pilot's name.
+#[test]
+fn trials_of_a_retrained_policy_are_not_mixed_with_the_old_ones() {
+    let out = tmp("provenance");
+    let lab = LabConfig::default();
+    let (addr, h) = serve_weighted(&out, "aaaa");
+    let t = run_trial(addr, &lab, &GuppyParams::default(), 1).unwrap();
+    h.join().unwrap().unwrap();
+    let task = read_trial(std::path::Path::new(&t.file))
+        .unwrap()
+        .task
+        .unwrap();
+    assert_eq!(task.policy_sha256().as_deref(), Some("aaaa"));
+    // Other weights under the same name: refused, naming the directory and the trial.
+    let (_, h) = serve_weighted(&out, "bbbb");
+    let e = h.join().unwrap().expect_err("refused");
+    let msg = e.to_string();
+    assert!(
+        matches!(e, fishprobe_live::LiveError::Mixed(_))
+            && msg.contains("Zone__VirtualLab")
+            && msg.contains("trial_000.hdf5")
+            && msg.contains("aaaa")
+            && msg.contains("another output directory"),
+        "{msg}"
+    );
+    // The same weights go on numbering their trials.
+    let (addr, h) = serve_weighted(&out, "aaaa");
+    let t = run_trial(addr, &lab, &GuppyParams::default(), 2).unwrap();
+    h.join().unwrap().unwrap();
+    assert!(t.file.ends_with("trial_001.hdf5"), "{}", t.file);
+}

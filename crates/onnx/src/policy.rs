@@ -49,6 +49,11 @@ impl Controller for OnnxPolicy {
         )
     }
 
+    /// The file's SHA-256.
+    fn fingerprint(&self) -> Option<String> {
+        Some(self.net.sha256().to_string())
+    }
+
     fn check_observation(&self, dim: usize) -> Result<(), String> {
         match &Contract::policy().input_dims[..] {
             [d] if *d == dim => Ok(()),

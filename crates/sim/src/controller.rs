@@ -50,6 +50,13 @@ pub trait Controller: Send + Sync + ControllerClone {
     fn describe(&self) -> String {
         self.name()
     }
+    /// The SHA-256 (hex) of what decides this controller's actions, if it has more than
+    /// code: a trained policy's weights, an ONNX file. Trial files record it, so trials of a
+    /// policy retrained under the same name are told apart from the old one's. `None` for
+    /// scripted controllers (their name says it all).
+    fn fingerprint(&self) -> Option<String> {
+        None
+    }
     /// Checks that the controller can read observations of `dim` floats.
     fn check_observation(&self, dim: usize) -> Result<(), String> {
         let _ = dim;

@@ -20,6 +20,9 @@ pub enum Event {
     Started(String),
     /// A step finished after this many seconds.
     Finished(String, f64),
+    /// A finished step's warning (also in its log): what the user should know about its
+    /// result.
+    Warning(String, String),
 }
 
 impl Study {
@@ -41,6 +44,7 @@ impl Study {
             )));
         }
         let start = Instant::now();
+        // A SLURM task's warnings stay in the step's log.
         steps::run_step(self, s).map_err(|source| StudyError::Step {
             step: s.id.clone(),
             source: Box::new(source),
@@ -60,7 +64,7 @@ impl Study {
         let jobs = jobs.max(1);
         let threads = (std::thread::available_parallelism().map_or(1, |n| n.get()) / jobs).max(1);
         let mut running = vec![false; steps.len()];
-        let (tx, rx) = mpsc::channel::<(usize, Result<f64, StepError>)>();
+        let (tx, rx) = mpsc::channel::<(usize, Result<(f64, Vec<String>), StepError>)>();
         let mut failure: Option<StudyError> = None;
         std::thread::scope(|scope| loop {
             let active = running.iter().filter(|r| **r).count();
@@ -81,7 +85,7 @@ impl Study {
                             .build()
                             .map_err(StepError::from)
                             .and_then(|pool| pool.install(|| steps::run_step(self, step)))
-                            .map(|()| start.elapsed().as_secs_f64());
+                            .map(|w| (start.elapsed().as_secs_f64(), w));
                         let _ = tx.send((i, r));
                     });
                 }
@@ -92,7 +96,7 @@ impl Study {
             let Ok((i, r)) = rx.recv() else { break };
             running[i] = false;
             let outcome = match r {
-                Ok(secs) => self.mark(&steps[i], secs).map(|()| secs),
+                Ok((secs, warnings)) => self.mark(&steps[i], secs).map(|()| (secs, warnings)),
                 Err(source) => Err(StudyError::Step {
                     step: steps[i].id.clone(),
                     source: Box::new(source),
@@ -100,8 +104,11 @@ impl Study {
                 }),
             };
             match outcome {
-                Ok(secs) => {
+                Ok((secs, warnings)) => {
                     done[i] = true;
+                    for w in warnings {
+                        on_event(Event::Warning(steps[i].id.clone(), w));
+                    }
                     on_event(Event::Finished(steps[i].id.clone(), secs));
                 }
                 Err(e) => {

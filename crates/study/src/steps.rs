@@ -13,7 +13,16 @@ use fishprobe_sim::{derive_seed, Controller};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-fn log(study: &Study, s: &Step) -> impl FnMut(&str) {
+/// Prefix of a step's log lines that the user must see (they are passed on as
+/// [`crate::Event::Warning`]).
+const WARNING: &str = "warning: ";
+
+/// A step's log: each line goes to its log file; warnings are also kept in `warnings`.
+fn log<'a>(
+    study: &Study,
+    s: &Step,
+    warnings: &'a std::cell::RefCell<Vec<String>>,
+) -> impl FnMut(&str) + 'a {
     let path = study.log_path(s);
     let mut f = std::fs::OpenOptions::new()
         .create(true)
@@ -23,6 +32,9 @@ fn log(study: &Study, s: &Step) -> impl FnMut(&str) {
     move |line: &str| {
         if let Some(f) = f.as_mut() {
             let _ = writeln!(f, "{line}");
+        }
+        if let Some(w) = line.strip_prefix(WARNING) {
+            warnings.borrow_mut().push(w.to_string());
         }
     }
 }
@@ -91,8 +103,10 @@ fn policy_of(study: &Study, m: usize, k: usize) -> Result<Box<dyn Controller>, S
 }
 
 /// Runs one step.
-pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
-    let mut say = log(study, s);
+/// Runs one step; its warnings on success.
+pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError> {
+    let warnings = std::cell::RefCell::new(Vec::new());
+    let mut say = log(study, s, &warnings);
     say(&format!("step {} (inputs hash {:016x})", s.id, s.hash));
     let c = &study.cfg;
     let seed = |label: &str| derive_seed(c.seed, label, 0);
@@ -256,7 +270,8 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<(), StepError> {
         Err(e) => format!("failed: {e}"),
     }
     .as_str());
-    r
+    drop(say);
+    r.map(|()| warnings.into_inner())
 }
 
 fn reality(
@@ -271,6 +286,32 @@ fn reality(
     fresh(&tmp)?;
     if let Some(real) = &study.real {
         let src = real.join(StudyLayout::arm_dir_name(&name, &Arm::Real));
+        // The live trials must be of the policy this study trained (not of one trained
+        // under the same name before a retraining).
+        if let Some(sha) = policy_of(study, p, 0)?.fingerprint() {
+            let prov = fishprobe_io::Provenance::of_dir(&src, &sha)
+                .map_err(|e| StepError::Missing(format!("checking the live trials: {e}")))?;
+            if let Some(why) = prov.describe_other(&src, &sha) {
+                return Err(StepError::Missing(format!(
+                    "{why}. The study's {name} policy ({}) did not drive them: record \
+                     its live trials with that policy (`fishprobe live serve --policy` it), \
+                     and keep other policies' trials out of --real",
+                    study.external_policy(p).map_or_else(
+                        || train_dir(study, p, 0).display().to_string(),
+                        str::to_string
+                    )
+                )));
+            }
+            if !prov.unrecorded.is_empty() {
+                say(&format!(
+                    "{WARNING}{} of the live trials in {} do not record which weights drove \
+                     them (written before fishprobe recorded it, or by another tool): they \
+                     are taken as the study's {name} policy's",
+                    prov.unrecorded.len(),
+                    src.display()
+                ));
+            }
+        }
         let mut n = 0;
         for f in fishprobe_io::trial_files(&src) {
             let to = tmp.join(f.file_name().unwrap_or_default());
@@ -324,7 +365,7 @@ fn reality(
         let t = run_trial(addr, &LabConfig::default(), &GuppyParams::default(), s)?;
         say(&format!("virtual trial {k}: {} goals", t.goals_reached));
         for w in &t.warnings {
-            say(&format!("warning: the bridge says: {w}"));
+            say(&format!("{WARNING}the bridge says: {w}"));
         }
     }
     bridge

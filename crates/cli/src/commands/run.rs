@@ -114,6 +114,11 @@ pub fn run(a: RunArgs) -> Result<()> {
                 bar.inc(1);
                 format!("finished {id} in {secs:.1} s")
             }
+            Event::Warning(id, w) => {
+                // Shown whether or not the progress bar is.
+                bar.suspend(|| say!("warning: {id}: {w}"));
+                return;
+            }
         };
         bar.set_message(r.iter().cloned().collect::<Vec<_>>().join(", "));
         if bar.is_hidden() {
