@@ -162,6 +162,26 @@ fn absurd_numbers_are_refused_before_any_work() {
         &["bench", "sim", "--seconds", "1e12"],
         "--seconds must lie in (0, 3600], got 1e12",
     );
+    // Physically absurd settings: refused by name, whether typed on the command line or
+    // in a settings file.
+    refused(
+        &["collective", "--orientation", "1.8e19", "--out", s(&d.join("c"))],
+        "Δr_o = 1.8e19, Δr_a = 4: invalid configuration: `orientation_zone_cm` = 1.8e19: must lie in [0, 1000]",
+    );
+    let robot = d.join("robot.toml");
+    std::fs::write(&robot, "[env.robot]\nmax_speed_cm_s = 1e30\n").unwrap();
+    refused(
+        &[
+            "simulate",
+            "--model",
+            "Zone",
+            "--settings",
+            s(&robot),
+            "--out",
+            s(&trial),
+        ],
+        "`robot.max_speed_cm_s` = 1e30: must lie in (0, 1000]",
+    );
     // An absurd number is named as typed, not in three hundred digits.
     refused(
         &["bench", "ood", "--seconds", "1e300"],

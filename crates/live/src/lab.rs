@@ -48,7 +48,13 @@ impl LabConfig {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
         check::positive("lab", "tracking_hz", self.tracking_hz)?;
-        check::non_negative("lab", "position_noise_cm", self.position_noise_cm)?;
+        check::within(
+            "lab",
+            "position_noise_cm",
+            self.position_noise_cm,
+            0.0,
+            check::MAX_LENGTH_CM,
+        )?;
         check::non_negative("lab", "heading_noise_rad", self.heading_noise_rad)?;
         check::non_negative("lab", "dropouts_per_min", self.dropouts_per_min)?;
         check::non_negative("lab", "dropout_min_s", self.dropout_min_s)?;

@@ -84,7 +84,12 @@ impl LiveConfig {
                 &format!("must lie in [1, {}]", fishprobe_sim::MAX_FISH),
             ));
         }
-        check::positive("live", "mill_radius_cm", self.mill_radius_cm)?;
+        check::positive_at_most(
+            "live",
+            "mill_radius_cm",
+            self.mill_radius_cm,
+            check::MAX_LENGTH_CM,
+        )?;
         check::positive("live", "file_rate_hz", self.file_rate_hz)?;
         if self.max_message_bytes < 256 {
             return Err(ConfigError::new(

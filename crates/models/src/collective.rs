@@ -63,7 +63,12 @@ impl CollectiveParams {
             0.0,
             self.seconds * 0.99,
         )?;
-        check::positive(prefix, "start_radius_cm", self.start_radius_cm)?;
+        check::positive_at_most(
+            prefix,
+            "start_radius_cm",
+            self.start_radius_cm,
+            check::MAX_LENGTH_CM,
+        )?;
         check::within(prefix, "cohesive_share", self.cohesive_share, 0.0, 1.0)?;
         if self.sample_every == 0 {
             return Err(ConfigError::new(

@@ -19,7 +19,7 @@ fishprobe_sim::documented_params! {
 impl FollowParams {
     /// Checks the ranges.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        check::positive(prefix, "speed_cm_s", self.speed_cm_s)
+        check::positive_at_most(prefix, "speed_cm_s", self.speed_cm_s, check::MAX_SPEED_CM_S)
     }
 }
 

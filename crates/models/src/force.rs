@@ -64,8 +64,12 @@ fishprobe_sim::documented_params! {
 impl ForceParams {
     /// Checks the ranges; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        check::non_negative(prefix, "interaction_range_cm", self.interaction_range_cm)?;
-        check::non_negative(prefix, "preferred_distance_cm", self.preferred_distance_cm)?;
+        for (f, v) in [
+            ("interaction_range_cm", self.interaction_range_cm),
+            ("preferred_distance_cm", self.preferred_distance_cm),
+        ] {
+            check::within(prefix, f, v, 0.0, check::MAX_LENGTH_CM)?;
+        }
         check::non_negative(prefix, "alignment", self.alignment)?;
         check::non_negative(prefix, "distance_regulation", self.distance_regulation)?;
         check::non_negative(prefix, "distance_slope", self.distance_slope)?;
@@ -85,10 +89,11 @@ impl ForceParams {
             self.wall_perpendicular_factor,
         )?;
         check::non_negative(prefix, "wall_attraction", self.wall_attraction)?;
-        check::positive(
+        check::positive_at_most(
             prefix,
             "wall_repulsion_range_cm",
             self.wall_repulsion_range_cm,
+            check::MAX_LENGTH_CM,
         )?;
         check::non_negative(
             prefix,

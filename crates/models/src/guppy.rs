@@ -84,6 +84,27 @@ impl GuppyParams {
         ] {
             check::positive(prefix, f, v)?;
         }
+        for (f, v, hi) in [
+            (
+                "kick_speed_cm_s",
+                self.kick_speed_cm_s,
+                check::MAX_SPEED_CM_S,
+            ),
+            (
+                "max_turn_rad_s",
+                self.max_turn_rad_s,
+                check::MAX_TURN_RATE_RAD_S,
+            ),
+            ("wall_range_cm", self.wall_range_cm, check::MAX_LENGTH_CM),
+            (
+                "social_range_cm",
+                self.social_range_cm,
+                check::MAX_LENGTH_CM,
+            ),
+            ("repulsion_cm", self.repulsion_cm, check::MAX_LENGTH_CM),
+        ] {
+            check::within(prefix, f, v, 0.0, hi)?;
+        }
         for (f, v) in [
             ("speed_spread", self.speed_spread),
             ("kick_cv", self.kick_cv),

@@ -76,9 +76,13 @@ fishprobe_sim::documented_params! {
 impl ZoneParams {
     /// Checks the ranges; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        check::non_negative(prefix, "repulsion_zone_cm", self.repulsion_zone_cm)?;
-        check::non_negative(prefix, "orientation_zone_cm", self.orientation_zone_cm)?;
-        check::non_negative(prefix, "attraction_zone_cm", self.attraction_zone_cm)?;
+        for (f, v) in [
+            ("repulsion_zone_cm", self.repulsion_zone_cm),
+            ("orientation_zone_cm", self.orientation_zone_cm),
+            ("attraction_zone_cm", self.attraction_zone_cm),
+        ] {
+            check::within(prefix, f, v, 0.0, check::MAX_LENGTH_CM)?;
+        }
         if self.zone_convention == ZoneConvention::Radii
             && !(self.repulsion_zone_cm <= self.orientation_zone_cm
                 && self.orientation_zone_cm <= self.attraction_zone_cm)
@@ -90,8 +94,14 @@ impl ZoneParams {
                 "with zone_convention = radii, repulsion <= orientation <= attraction",
             ));
         }
-        check::positive(prefix, "speed_cm_s", self.speed_cm_s)?;
-        check::non_negative(prefix, "speed_noise_cm_s", self.speed_noise_cm_s)?;
+        check::positive_at_most(prefix, "speed_cm_s", self.speed_cm_s, check::MAX_SPEED_CM_S)?;
+        check::within(
+            prefix,
+            "speed_noise_cm_s",
+            self.speed_noise_cm_s,
+            0.0,
+            check::MAX_SPEED_CM_S,
+        )?;
         check::within(
             prefix,
             "field_of_view_rad",
@@ -100,12 +110,18 @@ impl ZoneParams {
             TAU,
         )?;
         check::non_negative(prefix, "turn_noise_rad", self.turn_noise_rad)?;
-        check::positive(prefix, "max_turn_rate_rad_s", self.max_turn_rate_rad_s)?;
+        check::positive_at_most(
+            prefix,
+            "max_turn_rate_rad_s",
+            self.max_turn_rate_rad_s,
+            check::MAX_TURN_RATE_RAD_S,
+        )?;
         check::within(prefix, "smoothing", self.smoothing, 1e-3, 1.0)?;
-        check::positive(
+        check::positive_at_most(
             prefix,
             "wall_repulsion_radius_cm",
             self.wall_repulsion_radius_cm,
+            check::MAX_LENGTH_CM,
         )?;
         check::within(
             prefix,

@@ -119,8 +119,19 @@ crate::documented_params! {
 impl FetchParams {
     /// Checks both distances.
     pub fn validate(&self, prefix: &str) -> Result<(), crate::params::ConfigError> {
-        crate::params::check::positive(prefix, "fetch_radius_cm", self.fetch_radius_cm)?;
-        crate::params::check::positive(prefix, "lead_distance_cm", self.lead_distance_cm)
+        use crate::params::check;
+        check::positive_at_most(
+            prefix,
+            "fetch_radius_cm",
+            self.fetch_radius_cm,
+            check::MAX_LENGTH_CM,
+        )?;
+        check::positive_at_most(
+            prefix,
+            "lead_distance_cm",
+            self.lead_distance_cm,
+            check::MAX_LENGTH_CM,
+        )
     }
 }
 

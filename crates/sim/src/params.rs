@@ -209,6 +209,33 @@ pub mod check {
         }
     }
 
+    /// Largest length (cm) a setting of an animal or the robot may have: ten metres, ten
+    /// times the 1 m tank. Only a typing error goes beyond it (the simulation would run, and
+    /// its numbers mean nothing).
+    pub const MAX_LENGTH_CM: f32 = 1000.0;
+    /// Largest speed (cm/s): ten metres per second, some twenty times a guppy's burst speed
+    /// and the robot's top speed.
+    pub const MAX_SPEED_CM_S: f32 = 1000.0;
+    /// Largest acceleration (cm/s²): 100 m/s², about 10 g.
+    pub const MAX_ACCELERATION_CM_S2: f32 = 10_000.0;
+    /// Largest turn rate (rad/s): some 160 turns a second, beyond any fish or robot.
+    pub const MAX_TURN_RATE_RAD_S: f32 = 1000.0;
+
+    /// A finite number in `(0, hi]`.
+    pub fn positive_at_most(prefix: &str, field: &str, v: f32, hi: f32) -> Result<(), ConfigError> {
+        positive(prefix, field, v)?;
+        if v <= hi {
+            Ok(())
+        } else {
+            Err(ConfigError::new(
+                prefix,
+                field,
+                shown(v),
+                &format!("must lie in (0, {}]", shown(hi)),
+            ))
+        }
+    }
+
     /// A finite number in `[lo, hi]`.
     pub fn within(prefix: &str, field: &str, v: f32, lo: f32, hi: f32) -> Result<(), ConfigError> {
         finite(prefix, field, v)?;
@@ -251,6 +278,12 @@ mod tests {
         assert_eq!(check::shown(f64::NAN), "NaN");
         assert_eq!(check::shown(0.1f32), "0.1");
         assert_eq!(check::shown(f32::MAX), "3.4028235e38");
+        let e = check::positive_at_most("robot", "max_speed_cm_s", 1e30, 1000.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("= 1e30") && e.contains("(0, 1000]"), "{e}");
+        assert!(check::positive_at_most("robot", "max_speed_cm_s", 1000.0, 1000.0).is_ok());
+        assert!(check::positive_at_most("robot", "max_speed_cm_s", 0.0, 1000.0).is_err());
         let e = check::within("fish", "speed", 3e38, 0.0, 100.0)
             .unwrap_err()
             .to_string();

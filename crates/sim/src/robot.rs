@@ -47,20 +47,30 @@ crate::documented_params! {
 impl RobotParams {
     /// Checks the ranges; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        check::positive(prefix, "max_speed_cm_s", self.max_speed_cm_s)?;
-        check::positive(prefix, "max_turn_rate_rad_s", self.max_turn_rate_rad_s)?;
+        check::positive_at_most(
+            prefix,
+            "max_speed_cm_s",
+            self.max_speed_cm_s,
+            check::MAX_SPEED_CM_S,
+        )?;
+        check::positive_at_most(
+            prefix,
+            "max_turn_rate_rad_s",
+            self.max_turn_rate_rad_s,
+            check::MAX_TURN_RATE_RAD_S,
+        )?;
         check::positive(prefix, "heading_gain", self.heading_gain)?;
         check::positive(prefix, "heading_slope_rad", self.heading_slope_rad)?;
         check::within(prefix, "forward_gain", self.forward_gain, 0.0, 1.0)?;
         check::non_negative(prefix, "heading_gate_exponent", self.heading_gate_exponent)?;
         check::non_negative(prefix, "actuator_lag_s", self.actuator_lag_s)?;
-        check::positive(prefix, "acceleration_cm_s2", self.acceleration_cm_s2)?;
-        check::positive(prefix, "braking_cm_s2", self.braking_cm_s2)?;
-        check::positive(
-            prefix,
-            "glide_deceleration_cm_s2",
-            self.glide_deceleration_cm_s2,
-        )?;
+        for (f, v) in [
+            ("acceleration_cm_s2", self.acceleration_cm_s2),
+            ("braking_cm_s2", self.braking_cm_s2),
+            ("glide_deceleration_cm_s2", self.glide_deceleration_cm_s2),
+        ] {
+            check::positive_at_most(prefix, f, v, check::MAX_ACCELERATION_CM_S2)?;
+        }
         check::non_negative(prefix, "burst_duration_s", self.burst_duration_s)
     }
 }

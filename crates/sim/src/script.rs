@@ -54,8 +54,13 @@ crate::documented_params! {
 impl ScriptParams {
     /// Checks the ranges; `prefix` is the field path of this struct.
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
-        check::positive(prefix, "speed_cm_s", self.speed_cm_s)?;
-        check::positive(prefix, "circle_radius_cm", self.circle_radius_cm)
+        check::positive_at_most(prefix, "speed_cm_s", self.speed_cm_s, check::MAX_SPEED_CM_S)?;
+        check::positive_at_most(
+            prefix,
+            "circle_radius_cm",
+            self.circle_radius_cm,
+            check::MAX_LENGTH_CM,
+        )
     }
 }
 

@@ -9,6 +9,7 @@ use fishprobe_models::collective::{
     COUZIN_TURN_RATE_RAD_S,
 };
 use fishprobe_models::{ForceParams, ZoneParams};
+use fishprobe_sim::params::check::shown;
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use std::fmt::Write as _;
@@ -98,7 +99,7 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
                     };
                     let s = Swimmer::zone(zp)
                         .map_err(|e| anyhow::anyhow!("{e}"))
-                        .with_context(|| format!("Δr_o = {ro}, Δr_a = {ra}"))?;
+                        .with_context(|| format!("Δr_o = {}, Δr_a = {}", shown(ro), shown(ra)))?;
                     v.push((vec![ro, ra], s));
                 }
             }
