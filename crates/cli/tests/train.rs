@@ -173,6 +173,18 @@ fn evaluate_export_and_simulate_a_trained_policy() {
     assert_eq!(task.fish_model, "Follow");
     assert!(task.policy.starts_with("Follow"), "{}", task.policy);
     assert_eq!(task.command_frames.len(), 30, "one command per second");
+    // Which weights drove it: the policy's fingerprint, as `inspect` shows it.
+    let sha = task.policy_sha256().unwrap();
+    assert!(
+        sha.len() == 64 && sha.bytes().all(|b| b.is_ascii_hexdigit()),
+        "{sha}"
+    );
+    let o = fishprobe(&["inspect", ev.join("trial_000.hdf5").to_str().unwrap()]);
+    assert!(
+        stdout(&o).contains(&format!("(weights sha256 {}…)", &sha[..12])),
+        "{}",
+        stdout(&o)
+    );
     let base = fishprobe(&[
         "evaluate",
         "--policy",

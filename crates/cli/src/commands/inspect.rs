@@ -49,6 +49,7 @@ fn summary(path: &Path, t: &TrialFile, layout: &str) -> Value {
         json!({
             "kind": r.kind.label(),
             "policy": r.policy,
+            "policy_sha256": r.policy_sha256(),
             "fish_model": r.fish_model,
             "seed": r.seed,
             "goal_radius_cm": r.goal_radius_cm,
@@ -99,9 +100,13 @@ fn write_text(out: &mut String, v: &Value) -> std::fmt::Result {
     if let Some(t) = v["task"].as_object() {
         writeln!(
             out,
-            "  task: {} trial, policy {}, fish model {}, seed {}; {} goals reached; {} robot commands; control from frame {}",
+            "  task: {} trial, policy {}{}, fish model {}, seed {}; {} goals reached; {} robot commands; control from frame {}",
             t["kind"].as_str().unwrap_or_default(),
             t["policy"].as_str().unwrap_or_default(),
+            t["policy_sha256"]
+                .as_str()
+                .and_then(|s| s.get(..12))
+                .map_or_else(String::new, |s| format!(" (weights sha256 {s}…)")),
             t["fish_model"].as_str().unwrap_or_default(),
             t["seed"],
             t["goals_reached"],
