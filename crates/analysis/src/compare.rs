@@ -130,6 +130,13 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
             });
             continue;
         }
+        if let Some(why) = mixed_policies(&s) {
+            skipped.push(Skipped {
+                what: format!("{p}__{p}"),
+                reason: why,
+            });
+            continue;
+        }
         sim.insert(p.clone(), s);
         if let Some(a) = arm {
             match study.rollouts.get(&(p.clone(), a.to_string())) {
@@ -139,6 +146,11 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
                         skipped.push(Skipped {
                             what: format!("{p}__{a}"),
                             reason: "no valid trials".into(),
+                        });
+                    } else if let Some(why) = mixed_policies(&r) {
+                        skipped.push(Skipped {
+                            what: format!("{p}__{a}"),
+                            reason: why,
                         });
                     } else {
                         real.insert(p.clone(), r);
@@ -243,6 +255,31 @@ fn fish_counts(trials: &[&TrialData]) -> Vec<usize> {
 /// group metrics are then not compared: a group of four is not a group of two; the pair
 /// metrics, per fish, still are) and where fish were untracked in group trials (those
 /// fish-frames are left out of the metrics).
+/// Why the trials of one condition cannot stand for one policy: they record two or more
+/// different weights (a policy retrained under the same name while its trials were being
+/// recorded; `None` when they record one or none).
+fn mixed_policies(trials: &[&TrialData]) -> Option<String> {
+    let mut by: BTreeMap<&str, usize> = BTreeMap::new();
+    for t in trials {
+        if let Some(s) = t.policy_sha256.as_deref() {
+            *by.entry(s).or_default() += 1;
+        }
+    }
+    (by.len() > 1).then(|| {
+        let each: Vec<String> = by
+            .iter()
+            .map(|(s, n)| format!("{}… in {n}", s.get(..12).unwrap_or(s)))
+            .collect();
+        format!(
+            "trials of {} different policies under one name (weights sha256 {}): a policy \
+             retrained while they were recorded; not counted as one policy's (put each \
+             policy's trials in its own directory)",
+            by.len(),
+            each.join(", ")
+        )
+    })
+}
+
 fn groups_check(
     sim: &BTreeMap<String, Vec<&TrialData>>,
     real: &BTreeMap<String, Vec<&TrialData>>,
@@ -599,6 +636,25 @@ mod tests {
         assert!(arms(vec![four], vec![pair])[0]
             .what
             .contains("group metrics"));
+    }
+
+    #[test]
+    fn trials_of_two_weights_under_one_name_are_not_one_condition() {
+        let with = |sha: Option<&str>| TrialData {
+            policy_sha256: sha.map(str::to_string),
+            ..TrialData::blank("t.hdf5", 1)
+        };
+        let (a, b, none) = (with(Some("aaaa")), with(Some("bbbb")), with(None));
+        // One set of weights, with or without trials that record none: one policy.
+        assert_eq!(mixed_policies(&[&a, &a, &none]), None);
+        assert_eq!(mixed_policies(&[&none]), None);
+        let why = mixed_policies(&[&a, &b, &a, &none]).unwrap();
+        assert!(
+            why.contains("2 different policies")
+                && why.contains("aaaa… in 2")
+                && why.contains("bbbb… in 1"),
+            "{why}"
+        );
     }
 
     #[test]

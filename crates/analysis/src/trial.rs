@@ -71,6 +71,9 @@ pub struct TrialData {
     pub kind: Option<TrialKind>,
     /// Policy recorded in the file, if any.
     pub policy: Option<String>,
+    /// SHA-256 of the weights that drove the robot, if recorded
+    /// (`fishprobe_io::TaskRecord::policy_sha256`).
+    pub policy_sha256: Option<String>,
     /// Goals reached during control.
     pub goals_reached: u32,
     /// Mean time from a goal becoming active to reaching it (s); `None` without goals.
@@ -102,6 +105,7 @@ impl TrialData {
             path: path.into(),
             kind: None,
             policy: None,
+            policy_sha256: None,
             goals_reached: 0,
             time_to_goal_s: None,
             goals_per_minute: Vec::new(),
@@ -256,6 +260,7 @@ pub fn load_trial(
         path: path.to_path_buf(),
         kind: t.task.as_ref().map(|k| k.kind),
         policy: t.task.as_ref().map(|k| k.policy.clone()),
+        policy_sha256: t.task.as_ref().and_then(|k| k.policy_sha256()),
         goals_reached: events.len() as u32,
         time_to_goal_s: (!waits.is_empty()).then(|| waits.iter().sum::<f64>() / waits.len() as f64),
         goals_per_minute,

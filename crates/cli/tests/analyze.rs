@@ -287,3 +287,35 @@ fn a_settings_file_replaces_analysis_settings_by_name() {
         assert!(!s.join("out_bad").join("results.json").exists());
     }
 }
+
+/// Live trials of two sets of weights under one policy name (a policy retrained while its
+/// trials were recorded) are not one condition: the analysis leaves the condition out and
+/// says why, naming both.
+#[test]
+fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
+    let s = small_study("mixed");
+    let real = s.join("rollouts/Zone__Real");
+    for (i, f) in fishprobe_io::trial_files(&real).iter().enumerate() {
+        let mut t = read_trial(f).unwrap();
+        let task = t.task.as_mut().unwrap();
+        let mut c: serde_json::Value = serde_json::from_str(&task.config_json).unwrap();
+        let sha = if i < 2 { "a" } else { "b" }.repeat(64);
+        c[fishprobe_io::POLICY_SHA256_KEY] = sha.into();
+        task.config_json = c.to_string();
+        write_trial(f, &t).unwrap();
+    }
+    let r = analyze(&s, &s.join("out"), "2");
+    let skipped = r["skipped"].to_string();
+    assert!(
+        skipped.contains("Zone__Real")
+            && skipped.contains("2 different policies")
+            && skipped.contains("aaaaaaaaaaaa… in 2"),
+        "{skipped}"
+    );
+    assert!(
+        r["sim_to_real"].get("Zone").is_none(),
+        "{}",
+        r["sim_to_real"]
+    );
+    assert!(r["sim_to_real"]["Follow"]["w"].is_number());
+}
