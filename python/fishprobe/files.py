@@ -108,6 +108,10 @@ class Policy:
         self._policy = _native.Policy(p, stochastic=stochastic, seed=seed)
         self.path = p
         self.name: str = self._policy.name
+        #: SHA-256 of the weights that decide its actions: what every trial it drives records
+        #: as ``trial.fishprobe["config"]["policy_sha256"]``, so that trials of a policy
+        #: retrained under the same name are told apart.
+        self.sha256: str = self._policy.sha256
 
     def act(self, obs) -> np.ndarray:
         o = np.asarray(obs, dtype=np.float32)
@@ -118,7 +122,7 @@ class Policy:
         return self._policy.act(np.ascontiguousarray(o)).reshape(-1, 1)
 
     def __repr__(self) -> str:
-        return f"Policy({self.path!r}, name={self.name!r})"
+        return f"Policy({self.path!r}, name={self.name!r}, sha256={self.sha256[:12]!r})"
 
 
 def support_scores(path: str | os.PathLike, model: Any = None) -> dict[str, np.ndarray]:

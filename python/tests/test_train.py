@@ -122,6 +122,9 @@ def test_evaluate_runs_the_clis_episodes(tmp_path, cli, smoke_policy):
     assert [p.rsplit("/", 1)[-1] for p in r["files"]] == [f"trial_{k:03}.hdf5" for k in range(3)]
     trial = fishprobe.read_trial(r["files"][0])
     assert len(trial.fishprobe["goal_frames"]) == r["goals"][0]
+    # The trial records which weights drove it.
+    sha = fishprobe.Policy(smoke_policy).sha256
+    assert len(sha) == 64 and trial.fishprobe["config"]["policy_sha256"] == sha
 
 
 def test_evaluate_against_a_python_fish(tmp_path):

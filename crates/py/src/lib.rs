@@ -572,6 +572,13 @@ impl Policy {
         self.ctrl.name()
     }
 
+    /// SHA-256 of the weights that decide its actions, as trial files record it
+    /// (`policy_sha256` in their config).
+    #[getter]
+    fn sha256(&self) -> Option<String> {
+        self.ctrl.fingerprint()
+    }
+
     /// Turns (rad) for a batch of observations, shape (n, obs_dim) -> (n,).
     fn act<'py>(
         &mut self,
