@@ -10,16 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-const FIGURES: [&str; 8] = [
-    "goals",
-    "gap_heatmap",
-    "sim_to_sim",
-    "goals_over_time",
-    "approach",
-    "iid_density",
-    "trajectories",
-    "training",
-];
+use fishprobe_report::STUDY_FIGURES as FIGURES;
 
 fn ok(args: &[&str]) -> String {
     let o = fishprobe(args);

@@ -45,11 +45,15 @@ fn short() -> LiveConfig {
     }
 }
 
-fn bridge(
+type Served = Result<Vec<TrialOutcome>, fishprobe_live::LiveError>;
+
+/// A bridge for `trials` trials into `out`, flown by `pilot`'s copies, on its own thread.
+fn bridge_with(
     out: PathBuf,
     trials: usize,
     live: LiveConfig,
-) -> (SocketAddr, JoinHandle<Vec<TrialOutcome>>) {
+    pilot: impl Controller + Clone + 'static,
+) -> (SocketAddr, JoinHandle<Served>) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
     let opts = ServeOptions {
@@ -65,12 +69,20 @@ fn bridge(
         serve(
             &listener,
             &opts,
-            &mut || Ok(Box::new(GoalSeeker) as Box<dyn Controller>),
+            &mut || Ok(Box::new(pilot.clone()) as Box<dyn Controller>),
             |_| {},
         )
-        .unwrap()
     });
     (addr, h)
+}
+
+fn bridge(
+    out: PathBuf,
+    trials: usize,
+    live: LiveConfig,
+) -> (SocketAddr, JoinHandle<Vec<TrialOutcome>>) {
+    let (addr, h) = bridge_with(out, trials, live, GoalSeeker);
+    (addr, std::thread::spawn(move || h.join().unwrap().unwrap()))
 }
 
 #[test]
@@ -326,33 +338,8 @@ impl Controller for Weighted {
     }
 }
 
-fn serve_weighted(
-    out: &std::path::Path,
-    sha: &'static str,
-) -> (
-    SocketAddr,
-    JoinHandle<Result<Vec<TrialOutcome>, fishprobe_live::LiveError>>,
-) {
-    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
-    let addr = listener.local_addr().unwrap();
-    let opts = ServeOptions {
-        live: short(),
-        task: TaskParams::default(),
-        out: out.to_path_buf(),
-        token: None,
-        max_trials: Some(1),
-        fish_label: "live guppy".into(),
-        guard: BridgeGuard::default(),
-    };
-    let h = std::thread::spawn(move || {
-        serve(
-            &listener,
-            &opts,
-            &mut || Ok(Box::new(Weighted(sha)) as Box<dyn Controller>),
-            |_| {},
-        )
-    });
-    (addr, h)
+fn serve_weighted(out: &std::path::Path, sha: &'static str) -> (SocketAddr, JoinHandle<Served>) {
+    bridge_with(out.to_path_buf(), 1, short(), Weighted(sha))
 }
 
 /// A policy retrained under the same name does not add its trials to the old one's: each

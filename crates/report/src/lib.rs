@@ -84,7 +84,7 @@ pub fn write_figure(
 }
 
 /// Every figure a study report can draw (which it draws depends on what the study holds).
-const STUDY_FIGURES: [&str; 8] = [
+pub const STUDY_FIGURES: [&str; 8] = [
     "goals",
     "gap_heatmap",
     "sim_to_sim",
