@@ -202,10 +202,13 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     let task = t.task.as_mut().unwrap();
     task.config_json = "{}".into();
     fishprobe_io::write_trial(&unsaid.join("Zone__Real/trial_001.hdf5"), &t).unwrap();
+    std::fs::write(unsaid.join("Zone__Real/trial_009.hdf5"), b"garbage").unwrap();
     let o = with_real(&unsaid);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
-        stderr(&o).contains("1 of the live trials") && stderr(&o).contains("do not record"),
+        stderr(&o).contains("1 of the live trials")
+            && stderr(&o).contains("do not record")
+            && stderr(&o).contains("trial_009.hdf5 cannot be read"),
         "{}",
         stderr(&o)
     );

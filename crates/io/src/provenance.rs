@@ -5,7 +5,7 @@
 //! weights, an ONNX file: `Controller::fingerprint`), and checks it where trials are added to
 //! a directory (the live bridge) or taken into a study (its reality step).
 
-use crate::{read_trial, trial_files, IoError, TaskRecord};
+use crate::{read_trial, trial_files, TaskRecord};
 use std::path::{Path, PathBuf};
 
 /// The key of `config_json` under which a trial records its policy's fingerprint.
@@ -30,23 +30,25 @@ pub struct Provenance {
     pub unrecorded: Vec<PathBuf>,
     /// Trials of another policy, with the fingerprint they record.
     pub other: Vec<(PathBuf, String)>,
+    /// Files that cannot be read as trial files, with the reason: which policy drove them
+    /// cannot be told.
+    pub unreadable: Vec<(PathBuf, String)>,
 }
 
 impl Provenance {
     /// Sorts the trial files of `dir` (none if it does not exist) by whether they were
-    /// driven by the policy with fingerprint `sha256`. A file that cannot be read is an
-    /// error: which policy drove it cannot be told.
-    pub fn of_dir(dir: &Path, sha256: &str) -> Result<Self, IoError> {
+    /// driven by the policy with fingerprint `sha256`.
+    pub fn of_dir(dir: &Path, sha256: &str) -> Self {
         let mut p = Self::default();
         for f in trial_files(dir) {
-            let recorded = read_trial(&f)?.task.and_then(|t| t.policy_sha256());
-            match recorded {
-                Some(s) if s == sha256 => p.same.push(f),
-                Some(s) => p.other.push((f, s)),
-                None => p.unrecorded.push(f),
+            match read_trial(&f).map(|t| t.task.and_then(|t| t.policy_sha256())) {
+                Ok(Some(s)) if s == sha256 => p.same.push(f),
+                Ok(Some(s)) => p.other.push((f, s)),
+                Ok(None) => p.unrecorded.push(f),
+                Err(e) => p.unreadable.push((f, e.to_string())),
             }
         }
-        Ok(p)
+        p
     }
 
     /// A sentence naming the trials of another policy (at most three by name), or `None`
@@ -125,7 +127,7 @@ mod tests {
         let dir: &Path = &d;
         // A missing directory holds nothing.
         assert_eq!(
-            Provenance::of_dir(&dir.join("none"), "aa").unwrap(),
+            Provenance::of_dir(&dir.join("none"), "aa"),
             Provenance::default()
         );
         let files = [
@@ -141,7 +143,7 @@ mod tests {
         for (name, c) in files {
             crate::write_trial(&dir.join(name), &trial(c)).unwrap();
         }
-        let p = Provenance::of_dir(dir, "aa").unwrap();
+        let p = Provenance::of_dir(dir, "aa");
         assert_eq!(p.same, vec![dir.join("trial_000.hdf5")]);
         assert_eq!(
             p.other,
@@ -157,11 +159,13 @@ mod tests {
             "{msg}"
         );
         assert!(Provenance::of_dir(dir, "bb0123456789abcdef")
-            .unwrap()
             .describe_other(dir, "x")
             .is_some());
-        // An unreadable trial file is an error, not a pass.
+        // An unreadable trial file is listed with its reason, not taken for either.
         std::fs::write(dir.join("trial_005.hdf5"), b"not hdf5").unwrap();
-        assert!(Provenance::of_dir(dir, "aa").is_err());
+        let p = Provenance::of_dir(dir, "aa");
+        assert_eq!(p.unreadable.len(), 1);
+        assert_eq!(p.unreadable[0].0, dir.join("trial_005.hdf5"));
+        assert_eq!((p.same.len(), p.other.len(), p.unrecorded.len()), (1, 1, 3));
     }
 }

@@ -31,14 +31,11 @@ pub enum LiveError {
     /// The pilot (policy) could not be made.
     #[error("pilot: {0}")]
     Pilot(String),
-    /// The output directory holds trials of another policy under the pilot's name.
+    /// The output directory holds trials of another policy under the pilot's name (or a
+    /// file there cannot be read, so this cannot be told).
     #[error(
         "{0}; trials of two policies in one directory would be counted as one policy's: serve \
          into another output directory, or move those trials out"
     )]
     Mixed(String),
-    /// A trial already in the output directory cannot be read, so which policy drove it
-    /// cannot be told.
-    #[error("checking the trials already in the output directory: {0}")]
-    Trials(#[from] fishprobe_io::IoError),
 }

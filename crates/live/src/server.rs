@@ -414,9 +414,16 @@ fn check_provenance(opts: &ServeOptions, pilot: &dyn Controller) -> Result<(), L
     let name = StudyLayout::safe_name(&pilot.name());
     for arm in [Arm::Real, Arm::VirtualLab] {
         let dir = opts.out.join(StudyLayout::arm_dir_name(&name, &arm));
-        let p = fishprobe_io::Provenance::of_dir(&dir, &sha)?;
+        let p = fishprobe_io::Provenance::of_dir(&dir, &sha);
         if let Some(why) = p.describe_other(&dir, &sha) {
             return Err(LiveError::Mixed(why));
+        }
+        // The bridge writes whole files only: one it cannot read was put there by hand.
+        if let Some((f, e)) = p.unreadable.first() {
+            return Err(LiveError::Mixed(format!(
+                "{} cannot be read ({e}), so which policy drove it cannot be told",
+                f.display()
+            )));
         }
     }
     Ok(())

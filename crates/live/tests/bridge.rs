@@ -374,4 +374,12 @@ fn trials_of_a_retrained_policy_are_not_mixed_with_the_old_ones() {
     let t = run_trial(addr, &lab, &GuppyParams::default(), 2).unwrap();
     h.join().unwrap().unwrap();
     assert!(t.file.ends_with("trial_001.hdf5"), "{}", t.file);
+    // A file there that is no trial: which policy drove it cannot be told, so refused too.
+    std::fs::write(out.join("Zone__VirtualLab/trial_009.hdf5"), b"garbage").unwrap();
+    let (_, h) = serve_weighted(&out, "aaaa");
+    let msg = h.join().unwrap().expect_err("refused").to_string();
+    assert!(
+        msg.contains("trial_009.hdf5 cannot be read") && msg.contains("cannot be told"),
+        "{msg}"
+    );
 }

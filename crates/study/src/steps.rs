@@ -289,8 +289,7 @@ fn reality(
         // The live trials must be of the policy this study trained (not of one trained
         // under the same name before a retraining).
         if let Some(sha) = policy_of(study, p, 0)?.fingerprint() {
-            let prov = fishprobe_io::Provenance::of_dir(&src, &sha)
-                .map_err(|e| StepError::Missing(format!("checking the live trials: {e}")))?;
+            let prov = fishprobe_io::Provenance::of_dir(&src, &sha);
             if let Some(why) = prov.describe_other(&src, &sha) {
                 return Err(StepError::Missing(format!(
                     "{why}. The study's {name} policy ({}) did not drive them: record \
@@ -309,6 +308,12 @@ fn reality(
                      are taken as the study's {name} policy's",
                     prov.unrecorded.len(),
                     src.display()
+                ));
+            }
+            for (f, e) in &prov.unreadable {
+                say(&format!(
+                    "{WARNING}{} cannot be read ({e}); the analysis will leave it out",
+                    f.display()
                 ));
             }
         }
