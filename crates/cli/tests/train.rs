@@ -185,6 +185,33 @@ fn evaluate_export_and_simulate_a_trained_policy() {
         "{}",
         stdout(&o)
     );
+    // The virtual lab into a directory with another Follow policy's trials: the bridge's
+    // refusal is what the user reads (not the client's lost connection).
+    let lab = |policy: &Path| {
+        fishprobe(&[
+            "lab",
+            "--policy",
+            policy.to_str().unwrap(),
+            "--trials",
+            "1",
+            "--minutes",
+            "0.1",
+            "--out",
+            d.join("lab").to_str().unwrap(),
+        ])
+    };
+    let o = lab(&run);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let retrained = d.join("run-seed1");
+    train_smoke("Follow", &retrained, &["--seed", "1"]);
+    let o = lab(&retrained);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("the in-process bridge")
+            && stderr(&o).contains("Follow__VirtualLab holds 1 trial(s) of another policy"),
+        "{}",
+        stderr(&o)
+    );
     let base = fishprobe(&[
         "evaluate",
         "--policy",

@@ -13,6 +13,7 @@ use fishprobe_sim::Controller;
 use std::io::{BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use super::emit;
 
@@ -199,8 +200,14 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
     let _lock = super::lock_out(&a.out, "live serve")?;
     let listener =
         TcpListener::bind(a.listen).with_context(|| format!("listening on {}", a.listen))?;
+    let weights = make()
+        .ok()
+        .and_then(|c| c.fingerprint())
+        .map_or_else(String::new, |s| {
+            format!(" (weights sha256 {}…)", s.get(..12).unwrap_or(&s))
+        });
     say!(
-        "bridge for {} listening on {} (trials go to {})",
+        "bridge for {}{weights} listening on {} (trials go to {})",
         a.policy,
         a.listen,
         a.out.display()
@@ -322,10 +329,28 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
         }
     };
     let mut text = String::from("VIRTUAL LAB (virtual guppies, not live fish)\n");
+    let mut bridge = bridge;
     for k in 0..a.trials {
         let seed = fishprobe_sim::derive_seed(a.seed, "lab/trial", k as u64);
-        let t =
-            run_trial(addr, &lab, &guppy, seed).with_context(|| format!("virtual trial {k}"))?;
+        let t = match run_trial(addr, &lab, &guppy, seed) {
+            Ok(t) => t,
+            Err(e) => {
+                // A bridge that stopped (refusing its --out, say) tells why; the client only
+                // saw the connection end.
+                if let Some(h) = bridge.take() {
+                    let stopped = Instant::now();
+                    while !h.is_finished() && stopped.elapsed() < Duration::from_secs(1) {
+                        std::thread::sleep(Duration::from_millis(10));
+                    }
+                    if h.is_finished() {
+                        if let Ok(Err(b)) = h.join() {
+                            return Err(b).context("the in-process bridge");
+                        }
+                    }
+                }
+                return Err(e).with_context(|| format!("virtual trial {k}"));
+            }
+        };
         let lost = if a.fish > 1 {
             format!("{} fish-frames with a fish lost", t.frames_lost)
         } else {
