@@ -131,7 +131,7 @@ pub fn run_trial(
     let rx = reader_thread(conn.try_clone().map_err(net)?);
     let hello = ClientMsg::Hello {
         protocol: PROTOCOL_VERSION,
-        world_size_cm: [100.0, 100.0],
+        world_size_cm: [crate::TANK_CM; 2],
         tracking_hz: cfg.tracking_hz,
         source: "virtual_lab".into(),
         token: None,

@@ -50,3 +50,7 @@ pub mod session;
 
 pub use error::LiveError;
 pub use lines::{read_line_at_most, MAX_BRIDGE_LINE_BYTES};
+
+/// Side (cm) of the square tank of the bridge and the virtual lab: the 1 x 1 m tank every
+/// policy is trained for. A hello with another tank is refused.
+pub const TANK_CM: f32 = 100.0;

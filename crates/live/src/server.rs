@@ -383,9 +383,13 @@ fn check_hello(
             "protocol {protocol} not supported (this bridge speaks {PROTOCOL_VERSION})"
         ));
     }
-    if (world_size_cm[0] - 100.0).abs() > 0.5 || (world_size_cm[1] - 100.0).abs() > 0.5 {
+    if world_size_cm
+        .iter()
+        .any(|s| (s - crate::TANK_CM).abs() > 0.5)
+    {
         return Err(format!(
-            "tank {world_size_cm:?} cm; the policy was trained for 100 x 100"
+            "tank {world_size_cm:?} cm; the policy was trained for {0} x {0}",
+            crate::TANK_CM
         ));
     }
     if !(tracking_hz.is_finite() && tracking_hz > 0.0) {

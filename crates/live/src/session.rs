@@ -24,7 +24,8 @@ fishprobe_sim::documented_params! {
         pub command_hz: f64 = 1.0; "Hz",
         /// Tracking of robot or fish missing for this long: stop the robot (choice).
         pub stale_s: f64 = 0.5; "s",
-        /// Radius of the robot's milling circle during habituation (choice).
+        /// Radius of the robot's milling circle during habituation (choice); at most half
+        /// the tank's side.
         pub mill_radius_cm: f32 = 15.0; "cm",
         /// Rate at which frames are stored in the trial file (the tracking rate, 25 Hz).
         pub file_rate_hz: f32 = 25.0; "Hz",
@@ -84,11 +85,12 @@ impl LiveConfig {
                 &format!("must lie in [1, {}]", fishprobe_sim::MAX_FISH),
             ));
         }
+        // Beyond half the tank's side the robot would mill into the walls.
         check::positive_at_most(
             "live",
             "mill_radius_cm",
             self.mill_radius_cm,
-            check::MAX_LENGTH_CM,
+            crate::TANK_CM / 2.0,
         )?;
         check::positive("live", "file_rate_hz", self.file_rate_hz)?;
         if self.max_message_bytes < 256 {
@@ -556,7 +558,7 @@ impl Session {
             "malformed_messages": self.malformed,
         });
         TrialFile {
-            world_size_cm: [100.0, 100.0],
+            world_size_cm: [crate::TANK_CM; 2],
             frame_rate_hz: self.cfg.file_rate_hz,
             entities: std::iter::once(entity("robot", Category::Robot, "robot", &self.robot))
                 .chain(
@@ -720,6 +722,20 @@ mod tests {
         }
         .validate()
         .is_err());
+        // A milling circle wider than the tank would mill into the walls.
+        let mill = |r: f32| {
+            LiveConfig {
+                mill_radius_cm: r,
+                ..LiveConfig::default()
+            }
+            .validate()
+        };
+        assert!(mill(50.0).is_ok());
+        let e = mill(50.5).unwrap_err().to_string();
+        assert!(
+            e.contains("live.mill_radius_cm") && e.contains("(0, 50]"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -102,7 +102,6 @@ fn policy_of(study: &Study, m: usize, k: usize) -> Result<Box<dyn Controller>, S
     }
 }
 
-/// Runs one step.
 /// Runs one step; its warnings on success.
 pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError> {
     let warnings = std::cell::RefCell::new(Vec::new());
