@@ -268,7 +268,7 @@ fn mixed_policies(trials: &[&TrialData]) -> Option<String> {
     (by.len() > 1).then(|| {
         let each: Vec<String> = by
             .iter()
-            .map(|(s, n)| format!("{}… in {n}", s.get(..12).unwrap_or(s)))
+            .map(|(s, n)| format!("{}… in {n}", fishprobe_io::short_sha(s)))
             .collect();
         format!(
             "trials of {} different policies under one name (weights sha256 {}): a policy \

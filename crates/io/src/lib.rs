@@ -42,7 +42,7 @@ pub use layout::{Arm, StudyLayout};
 pub use legacy::read_legacy;
 pub use limits::{read_small_text, read_text_at_most, ReadLimits};
 pub use lock::{DirLock, LockError};
-pub use provenance::{Provenance, POLICY_SHA256_KEY};
+pub use provenance::{short_sha, Provenance, POLICY_SHA256_KEY};
 pub use robofish::{read_trial, write_atomically, write_trial};
 pub use scratch::ScratchDir;
 pub use trial::{

@@ -74,13 +74,14 @@ impl Provenance {
             dir.display(),
             self.other.len(),
             names.join(", "),
-            short(theirs),
-            short(sha256),
+            short_sha(theirs),
+            short_sha(sha256),
         ))
     }
 }
 
-fn short(sha: &str) -> &str {
+/// A fingerprint's first twelve digits, as messages show it (followed by `…`).
+pub fn short_sha(sha: &str) -> &str {
     sha.get(..12).unwrap_or(sha)
 }
 

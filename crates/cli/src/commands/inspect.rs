@@ -105,8 +105,9 @@ fn write_text(out: &mut String, v: &Value) -> std::fmt::Result {
             t["policy"].as_str().unwrap_or_default(),
             t["policy_sha256"]
                 .as_str()
-                .and_then(|s| s.get(..12))
-                .map_or_else(String::new, |s| format!(" (weights sha256 {s}…)")),
+                .map_or_else(String::new, |s| {
+                    format!(" (weights sha256 {}…)", fishprobe_io::short_sha(s))
+                }),
             t["fish_model"].as_str().unwrap_or_default(),
             t["seed"],
             t["goals_reached"],

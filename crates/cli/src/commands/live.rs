@@ -204,7 +204,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         .ok()
         .and_then(|c| c.fingerprint())
         .map_or_else(String::new, |s| {
-            format!(" (weights sha256 {}…)", s.get(..12).unwrap_or(&s))
+            format!(" (weights sha256 {}…)", fishprobe_io::short_sha(&s))
         });
     say!(
         "bridge for {}{weights} listening on {} (trials go to {})",
