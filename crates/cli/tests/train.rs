@@ -202,6 +202,12 @@ fn evaluate_export_and_simulate_a_trained_policy() {
     };
     let o = lab(&run);
     assert!(o.status.success(), "{}", stderr(&o));
+    // The welcome names the weights the bridge flies, and the lab says which.
+    assert!(
+        stderr(&o).contains(&format!("the bridge flew weights sha256 {}…", &sha[..12])),
+        "{}",
+        stderr(&o)
+    );
     let retrained = d.join("run-seed1");
     train_smoke("Follow", &retrained, &["--seed", "1"]);
     let o = lab(&retrained);

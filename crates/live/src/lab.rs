@@ -84,6 +84,9 @@ pub struct LabTrial {
     pub frames_lost: u64,
     /// Stop commands received.
     pub stops: u64,
+    /// The SHA-256 of the weights the bridge flew, as its welcome named them (none for a
+    /// scripted pilot, or a bridge of an earlier version).
+    pub policy_sha256: Option<String>,
     /// What the bridge reported going wrong (a trial file written elsewhere, or kept in its
     /// memory, because the disk was full).
     pub warnings: Vec<String>,
@@ -139,12 +142,13 @@ pub fn run_trial(
     };
     conn.write_all(to_line(&hello).as_bytes()).map_err(net)?;
     let wait = Duration::from_secs_f32(cfg.command_timeout_s);
-    let (habituation, release, control, n_fish) = match rx.recv_timeout(wait) {
+    let (habituation, release, control, n_fish, policy_sha256) = match rx.recv_timeout(wait) {
         Ok(Ok(ServerMsg::Welcome {
             habituation_s,
             release_s,
             control_s,
             fish_count,
+            policy_sha256,
             ..
         })) => {
             if !(1..=fishprobe_sim::MAX_FISH as u32).contains(&fish_count) {
@@ -153,7 +157,13 @@ pub fn run_trial(
                     fishprobe_sim::MAX_FISH
                 )));
             }
-            (habituation_s, release_s, control_s, fish_count as usize)
+            (
+                habituation_s,
+                release_s,
+                control_s,
+                fish_count as usize,
+                policy_sha256,
+            )
         }
         Ok(Ok(ServerMsg::Error { reason })) => return Err(LiveError::Refused(reason)),
         Ok(Ok(other)) => return Err(LiveError::Net(format!("expected welcome, got {other:?}"))),
@@ -203,6 +213,7 @@ pub fn run_trial(
         frames_sent: 0,
         frames_lost: 0,
         stops: 0,
+        policy_sha256,
         warnings: Vec::new(),
     };
     let apply = |m: ServerMsg,

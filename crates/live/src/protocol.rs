@@ -110,6 +110,11 @@ pub enum ServerMsg {
         /// groups; sent only when more than one).
         #[serde(default = "one_fish", skip_serializing_if = "is_one_fish")]
         fish_count: u32,
+        /// The SHA-256 of the weights in control (the `policy_sha256` its trial files record);
+        /// absent for a scripted pilot, which has no weights. Added within version 1: a client
+        /// that does not know the field ignores it.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        policy_sha256: Option<String>,
     },
     /// A robot command. Scheduled ones (`seq` = the second of the trial) come once per
     /// 1 / command_hz of tracking time; unscheduled ones (`seq` null) stop the robot at once.
@@ -235,5 +240,37 @@ mod tests {
         assert!(line.ends_with('\n') && line.contains("\"type\":\"command\""));
         let back: ServerMsg = serde_json::from_str(&line).expect("parses");
         assert_eq!(back, c);
+    }
+
+    #[test]
+    fn a_welcome_names_weights_only_when_there_are_some() {
+        let w = |policy_sha256: Option<String>| ServerMsg::Welcome {
+            protocol: 1,
+            policy: "Zone".into(),
+            habituation_s: 120.0,
+            release_s: 60.0,
+            control_s: 900.0,
+            command_hz: 1.0,
+            fish_count: 1,
+            policy_sha256,
+        };
+        let with = to_line(&w(Some("ab12".into())));
+        assert!(with.contains(r#""policy_sha256":"ab12""#), "{with}");
+        assert_eq!(
+            serde_json::from_str::<ServerMsg>(&with).ok(),
+            Some(w(Some("ab12".into())))
+        );
+        // A scripted pilot's welcome is the welcome of earlier builds, byte for byte, and an
+        // earlier bridge's welcome (no field) reads as one without weights.
+        let without = to_line(&w(None));
+        assert_eq!(
+            without,
+            "{\"type\":\"welcome\",\"protocol\":1,\"policy\":\"Zone\",\"habituation_s\":120.0,\
+             \"release_s\":60.0,\"control_s\":900.0,\"command_hz\":1.0}\n"
+        );
+        assert_eq!(
+            serde_json::from_str::<ServerMsg>(&without).ok(),
+            Some(w(None))
+        );
     }
 }

@@ -483,6 +483,7 @@ fn run_trial(
         control_s: cfg.control_s,
         command_hz: cfg.command_hz,
         fish_count: cfg.fish_count,
+        policy_sha256: session.fingerprint(),
     };
     let mut alive = send(&mut stream, &welcome).is_ok();
     // The silence stop counts from the last complete, valid frame (or the welcome).

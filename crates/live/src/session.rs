@@ -231,6 +231,11 @@ impl Session {
         self.pilot.name()
     }
 
+    /// The SHA-256 of the pilot's weights (none for a scripted pilot), as its trial records it.
+    pub fn fingerprint(&self) -> Option<String> {
+        self.pilot.fingerprint()
+    }
+
     /// Goals reached so far.
     pub fn goals_reached(&self) -> u32 {
         self.goals_reached
@@ -551,7 +556,7 @@ impl Session {
         };
         attributes.insert("experiment_setup".into(), Attr::Text(setup.into()));
         let config = serde_json::json!({
-            fishprobe_io::POLICY_SHA256_KEY: self.pilot.fingerprint(),
+            fishprobe_io::POLICY_SHA256_KEY: self.fingerprint(),
             "live": self.cfg,
             "stops": self.stops,
             "tracking_gaps_frames": self.gaps,

@@ -112,6 +112,10 @@ fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
         "one command per second of control"
     );
     assert_eq!(task.goal_frames.len() as u32, t.goals_reached);
+    assert_eq!(
+        t.policy_sha256, None,
+        "a scripted pilot has no weights to name"
+    );
     assert!(
         t.goals_reached >= 1,
         "a goal-seeking robot leads a virtual guppy to a goal in a minute"
@@ -357,6 +361,8 @@ fn trials_of_a_retrained_policy_are_not_mixed_with_the_old_ones() {
         .task
         .unwrap();
     assert_eq!(task.policy_sha256().as_deref(), Some("aaaa"));
+    // The welcome named the same weights to the lab side.
+    assert_eq!(t.policy_sha256.as_deref(), Some("aaaa"));
     // Other weights under the same name: refused, naming the directory and the trial.
     let (_, h) = serve_weighted(&out, "bbbb");
     let e = h.join().unwrap().expect_err("refused");

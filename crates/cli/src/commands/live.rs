@@ -351,6 +351,14 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
                 return Err(e).with_context(|| format!("virtual trial {k}"));
             }
         };
+        if k == 0 {
+            if let Some(sha) = &t.policy_sha256 {
+                say!(
+                    "the bridge flew weights sha256 {}…\n",
+                    fishprobe_io::short_sha(sha)
+                );
+            }
+        }
         let lost = if a.fish > 1 {
             format!("{} fish-frames with a fish lost", t.frames_lost)
         } else {
