@@ -137,6 +137,10 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
             });
             continue;
         }
+        let own = weights_of(&s);
+        if let Some(w) = own {
+            res.weights.insert(p.clone(), w.to_string());
+        }
         sim.insert(p.clone(), s);
         if let Some(a) = arm {
             match study.rollouts.get(&(p.clone(), a.to_string())) {
@@ -147,7 +151,7 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
                             what: format!("{p}__{a}"),
                             reason: "no valid trials".into(),
                         });
-                    } else if let Some(why) = mixed_policies(&r) {
+                    } else if let Some(why) = other_weights(own, &r) {
                         skipped.push(Skipped {
                             what: format!("{p}__{a}"),
                             reason: why,
@@ -278,6 +282,31 @@ fn mixed_policies(trials: &[&TrialData]) -> Option<String> {
             each.join(", ")
         )
     })
+}
+
+/// The weights that `trials` record (the first found; [`mixed_policies`] tells whether there are
+/// more), or `None` when none does.
+fn weights_of<'a>(trials: &[&'a TrialData]) -> Option<&'a str> {
+    trials.iter().find_map(|t| t.policy_sha256.as_deref())
+}
+
+/// Why the trials of a further condition of a policy (its reality arm, or another model) cannot
+/// be compared with its own-model trials, driven by the weights `own`: they record two weights,
+/// or weights other than `own` (`None` when they agree, or when either side records none).
+fn other_weights(own: Option<&str>, trials: &[&TrialData]) -> Option<String> {
+    if let Some(why) = mixed_policies(trials) {
+        return Some(why);
+    }
+    match (own, weights_of(trials)) {
+        (Some(a), Some(b)) if a != b => Some(format!(
+            "driven by weights sha256 {}…, the policy's own-model trials by {}…: two policies \
+             under one name are not compared (a policy retrained since; put each policy's \
+             trials in its own directory)",
+            fishprobe_io::short_sha(b),
+            fishprobe_io::short_sha(a)
+        )),
+        _ => None,
+    }
 }
 
 fn groups_check(
@@ -493,19 +522,21 @@ fn sim_to_sim(
             continue;
         }
         let mut samples: Vec<(String, Vec<f64>)> = Vec::new();
+        let own = res.weights.get(p).map(String::as_str);
         for m in models {
-            let g = goals_of(&valid(
-                &study.rollouts[&(p.clone(), m.clone())],
-                loaded,
-                skipped,
-            ));
-            if g.is_empty() {
+            let trials = valid(&study.rollouts[&(p.clone(), m.clone())], loaded, skipped);
+            if trials.is_empty() {
                 skipped.push(Skipped {
                     what: format!("{p}__{m}"),
                     reason: "no valid trials".into(),
                 });
+            } else if let Some(why) = other_weights(own, &trials) {
+                skipped.push(Skipped {
+                    what: format!("{p}__{m}"),
+                    reason: why,
+                });
             } else {
-                samples.push((m.clone(), g));
+                samples.push((m.clone(), goals_of(&trials)));
             }
         }
         let Some(diag) = samples.iter().find(|(m, _)| m == p).map(|(_, g)| g.clone()) else {
@@ -655,6 +686,21 @@ mod tests {
                 && why.contains("bbbb… in 1"),
             "{why}"
         );
+        // A further condition (reality, another model) against the own-model trials' weights.
+        assert_eq!(weights_of(&[&none, &a]), Some("aaaa"));
+        assert_eq!(weights_of(&[&none]), None);
+        assert_eq!(other_weights(Some("aaaa"), &[&a, &none]), None);
+        assert_eq!(other_weights(None, &[&b]), None);
+        assert_eq!(other_weights(Some("aaaa"), &[&none]), None);
+        let why = other_weights(Some("aaaa"), &[&b, &none]).unwrap();
+        assert!(
+            why.contains("driven by weights sha256 bbbb…")
+                && why.contains("own-model trials by aaaa…"),
+            "{why}"
+        );
+        assert!(other_weights(Some("aaaa"), &[&a, &b])
+            .unwrap()
+            .contains("2 different policies"));
     }
 
     #[test]

@@ -338,6 +338,11 @@ pub struct Results {
     /// each, for studies with more than one seed.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub seeds: BTreeMap<String, Vec<SeedProbe>>,
+    /// Policy → the SHA-256 of the weights its own-model trials record (`policy_sha256`;
+    /// absent for a scripted policy or trials that record none). Its other conditions were
+    /// driven by the same weights, or left out (`skipped`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub weights: BTreeMap<String, String>,
     /// Retraining stability.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub stability: Option<StabilityOut>,
@@ -678,6 +683,17 @@ impl Results {
             }
             Some(r) => s += &format!("Reality arm: {r}.\n\n"),
             None => s += "No reality arm (no `<P>__Real` or `<P>__VirtualLab` trials).\n\n",
+        }
+        if !self.weights.is_empty() {
+            let each: Vec<String> = self
+                .weights
+                .iter()
+                .map(|(p, w)| format!("{p} `{}…`", fishprobe_io::short_sha(w)))
+                .collect();
+            s += &format!(
+                "Weights that drove the trials (SHA-256): {}.\n\n",
+                each.join(", ")
+            );
         }
         if !self.sim_to_real.is_empty() {
             s += "## Sim-to-real gap, goals reached\n\n| policy | sim mean | real mean | W | 95 % CI | p | Cliff's δ |\n|---|---|---|---|---|---|---|\n";

@@ -139,6 +139,32 @@ fn bad_input_is_skipped_with_reasons_and_the_rest_analysed() {
     // The valid trials are still analysed: 6 real trials of Zone remain (zz_nan sorts last).
     assert_eq!(r["goals"]["Zone"]["real"].as_array().unwrap().len(), 6);
     assert!(r["sim_to_real"]["Follow"]["w"].is_number());
+
+    // One set of weights in each condition, but live trials of other weights than the
+    // simulated ones (a policy retrained between them): not a sim-to-real gap of one policy.
+    stamp_weights(&s.join("rollouts/Zone__Real"), |_| "b".repeat(64));
+    stamp_weights(&s.join("rollouts/Zone__Zone"), |_| "a".repeat(64));
+    stamp_weights(&s.join("rollouts/Zone__Follow"), |_| "c".repeat(64));
+    let r = analyze(&s, &s.join("out2"), "2");
+    let skipped = r["skipped"].to_string();
+    assert!(
+        skipped.contains("Zone__Real")
+            && skipped.contains("driven by weights sha256 bbbbbbbbbbbb…")
+            && skipped.contains("own-model trials by aaaaaaaaaaaa…")
+            && skipped.contains("Zone__Follow")
+            && skipped.contains("driven by weights sha256 cccccccccccc…"),
+        "{skipped}"
+    );
+    assert!(r["sim_to_real"].get("Zone").is_none());
+    assert!(r["sim_to_sim"]["Zone"].get("Follow").is_none());
+    assert!(r["sim_to_sim"]["Follow"].get("Zone").is_some());
+    assert_eq!(r["weights"]["Zone"], "a".repeat(64));
+    assert!(r["weights"].get("Follow").is_none(), "{}", r["weights"]);
+    let summary = std::fs::read_to_string(s.join("out2/summary.md")).unwrap();
+    assert!(
+        summary.contains("Weights that drove the trials (SHA-256): Zone `aaaaaaaaaaaa…`."),
+        "{summary}"
+    );
 }
 
 /// Entries named `*.hdf5` that are no regular files are listed in `skipped` with the reason,
@@ -291,19 +317,24 @@ fn a_settings_file_replaces_analysis_settings_by_name() {
 /// Live trials of two sets of weights under one policy name (a policy retrained while its
 /// trials were recorded) are not one condition: the analysis leaves the condition out and
 /// says why, naming both.
-#[test]
-fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
-    let s = small_study("mixed");
-    let real = s.join("rollouts/Zone__Real");
-    for (i, f) in fishprobe_io::trial_files(&real).iter().enumerate() {
+/// Stamps the trials in `dir` as driven by the weights `sha(i)` (the i-th file).
+fn stamp_weights(dir: &Path, sha: impl Fn(usize) -> String) {
+    for (i, f) in fishprobe_io::trial_files(dir).iter().enumerate() {
         let mut t = read_trial(f).unwrap();
         let task = t.task.as_mut().unwrap();
         let mut c: serde_json::Value = serde_json::from_str(&task.config_json).unwrap();
-        let sha = if i < 2 { "a" } else { "b" }.repeat(64);
-        c[fishprobe_io::POLICY_SHA256_KEY] = sha.into();
+        c[fishprobe_io::POLICY_SHA256_KEY] = sha(i).into();
         task.config_json = c.to_string();
         write_trial(f, &t).unwrap();
     }
+}
+
+#[test]
+fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
+    let s = small_study("mixed");
+    stamp_weights(&s.join("rollouts/Zone__Real"), |i| {
+        if i < 2 { "a" } else { "b" }.repeat(64)
+    });
     let r = analyze(&s, &s.join("out"), "2");
     let skipped = r["skipped"].to_string();
     assert!(
@@ -318,4 +349,30 @@ fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
         r["sim_to_real"]
     );
     assert!(r["sim_to_real"]["Follow"]["w"].is_number());
+
+    // One set of weights in each condition, but live trials of other weights than the
+    // simulated ones (a policy retrained between them): not a sim-to-real gap of one policy.
+    stamp_weights(&s.join("rollouts/Zone__Real"), |_| "b".repeat(64));
+    stamp_weights(&s.join("rollouts/Zone__Zone"), |_| "a".repeat(64));
+    stamp_weights(&s.join("rollouts/Zone__Follow"), |_| "c".repeat(64));
+    let r = analyze(&s, &s.join("out2"), "2");
+    let skipped = r["skipped"].to_string();
+    assert!(
+        skipped.contains("Zone__Real")
+            && skipped.contains("driven by weights sha256 bbbbbbbbbbbb…")
+            && skipped.contains("own-model trials by aaaaaaaaaaaa…")
+            && skipped.contains("Zone__Follow")
+            && skipped.contains("driven by weights sha256 cccccccccccc…"),
+        "{skipped}"
+    );
+    assert!(r["sim_to_real"].get("Zone").is_none());
+    assert!(r["sim_to_sim"]["Zone"].get("Follow").is_none());
+    assert!(r["sim_to_sim"]["Follow"].get("Zone").is_some());
+    assert_eq!(r["weights"]["Zone"], "a".repeat(64));
+    assert!(r["weights"].get("Follow").is_none(), "{}", r["weights"]);
+    let summary = std::fs::read_to_string(s.join("out2/summary.md")).unwrap();
+    assert!(
+        summary.contains("Weights that drove the trials (SHA-256): Zone `aaaaaaaaaaaa…`."),
+        "{summary}"
+    );
 }

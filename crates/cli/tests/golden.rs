@@ -66,8 +66,10 @@ use std::path::{Path, PathBuf};
 /// the `config_json` dataset once `"ood_score":"support"` is cut from it; results.json and
 /// the report unchanged). Then 30151bb4… until every trial file recorded the SHA-256 of the
 /// policy that drove it (`policy_sha256` in its config JSON; with that key left out of the
-/// text the digest, and the report's, were 30151bb4… and 189f187b… again).
-const GOLDEN: &str = "ddf97a8894a47d4c";
+/// text the digest, and the report's, were 30151bb4… and 189f187b… again). Then ddf97a88…
+/// until results.json named each policy's weights (`weights`; with that key cut from the text
+/// the digest was ddf97a88… again).
+const GOLDEN: &str = "fbbf8f3fb7afd06c";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…
@@ -80,8 +82,10 @@ const GOLDEN: &str = "ddf97a8894a47d4c";
 /// changed); e6019e8e… until the "Every training seed" table joined the report and summary;
 /// ccd1f03b… until M_Zone lost SPEC's wall pull by default (its trials, and so the figures);
 /// dd4c923b… until the competence and seed tables gave the time to reach the fish;
-/// 4d32c1a0… until they gave the competence ratio's standard error.
-const GOLDEN_REPORT: &str = "189f187bed18d3f4";
+/// 4d32c1a0… until they gave the competence ratio's standard error; 189f187b… until "What
+/// was run" and the summary named each policy's weights (with the column and the line cut from
+/// the two documents: 189f187b… again).
+const GOLDEN_REPORT: &str = "d6deac523576f83a";
 
 /// FNV-1a over byte strings.
 fn fnv(parts: &[Vec<u8>]) -> String {

@@ -230,10 +230,15 @@ impl Page<'_> {
                             .last()
                             .map_or("–".into(), |r| format!("{:.0}", r.0)),
                         pv("program_version"),
+                        r.and_then(|r| r.weights.get(m))
+                            .map_or("–".into(), |w| format!("{}…", fishprobe_io::short_sha(w))),
                     ]
                 })
                 .collect();
-            o.push_str("<p>Policies (from <code>policies/&lt;Model&gt;/params.json</code>):</p>");
+            o.push_str(
+                "<p>Policies (from <code>policies/&lt;Model&gt;/params.json</code>; the weights \
+                 as the trials record them, <code>policy_sha256</code>):</p>",
+            );
             table(
                 o,
                 &[
@@ -242,6 +247,7 @@ impl Page<'_> {
                     "preset",
                     "environment steps",
                     "fishprobe",
+                    "weights (SHA-256)",
                 ],
                 &rows,
             );
