@@ -247,6 +247,102 @@ fn bad_pair_files_are_skipped_by_name_and_an_empty_dataset_is_an_error() {
 }
 
 #[test]
+fn an_interrupted_ensemble_fit_resumes_to_the_networks_of_an_uninterrupted_one() {
+    let d = dir("convnet-resume");
+    let (train, val) = (d.join("train"), d.join("val"));
+    for (dir, frames) in [(&train, 600), (&val, 400)] {
+        std::fs::create_dir_all(dir).unwrap();
+        write_pair(&dir.join("pair.hdf5"), 2, frames, 100.0);
+    }
+    let fit = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "fit-convnet",
+            "--data",
+            train.to_str().unwrap(),
+            "--validation",
+            val.to_str().unwrap(),
+            "--max-epochs",
+            "2",
+        ];
+        let out = d.join(out);
+        args.extend(["--out", out.to_str().unwrap()]);
+        args.extend(extra);
+        let o = fishprobe(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        stderr(&o)
+    };
+    let nets = |stem: &str| -> Vec<Vec<u8>> {
+        ["", ".member-2.safetensors", ".member-3.safetensors"]
+            .iter()
+            .map(|m| std::fs::read(d.join(format!("{stem}.safetensors{m}"))).unwrap())
+            .collect()
+    };
+    let baseline = |stem: &str| -> serde_json::Value {
+        let text = std::fs::read_to_string(d.join(format!("{stem}.safetensors.json"))).unwrap();
+        let meta: serde_json::Value = serde_json::from_str(&text).unwrap();
+        meta["baselines"]["no_neighbour_nll"].clone()
+    };
+    // One run of three networks, uninterrupted.
+    fit("a.safetensors", &["--members", "3"]);
+    let whole = nets("a");
+    assert!(baseline("a").is_number());
+    // A run stopped after its second network (as a run of two, without the baseline), then
+    // resumed for three with the baseline: the two finished networks are taken, the rest is
+    // fitted, and every network is the uninterrupted run's, byte for byte.
+    let first = fit("b.safetensors", &["--members", "2", "--no-baselines"]);
+    assert!(!first.contains("kept"), "{first}");
+    assert!(baseline("b").is_null());
+    let e = fit("b.safetensors", &["--members", "3", "--resume"]);
+    assert!(
+        e.contains("ConvNet: kept")
+            && e.contains("ensemble member: kept")
+            && e.contains("b.safetensors.member-2.safetensors, fitted by an earlier run")
+            && e.contains("ensemble member: epoch 1")
+            && e.contains("no-neighbour baseline: epoch 1")
+            && !e.contains("ConvNet: epoch"),
+        "{e}"
+    );
+    assert_eq!(nets("b"), whole);
+    assert_eq!(baseline("b"), baseline("a"));
+    assert!(d.join("b.safetensors.disagreement.json").is_file());
+    // Resumed again with everything finished: nothing is fitted.
+    let e = fit("b.safetensors", &["--members", "3", "--resume"]);
+    assert!(!e.contains("epoch"), "{e}");
+    assert_eq!(nets("b"), whole);
+    // A member whose tensors are not those its sidecar describes (a write cut short between
+    // the two files), and a member of another seed: fitted again, and right again.
+    let m2 = d.join("b.safetensors.member-2.safetensors");
+    std::fs::copy(d.join("b.safetensors.member-3.safetensors"), &m2).unwrap();
+    let m3 = d.join("b.safetensors.member-3.safetensors.json");
+    let text = std::fs::read_to_string(&m3).unwrap();
+    let mut meta: serde_json::Value = serde_json::from_str(&text).unwrap();
+    meta["seed"] = 7.into();
+    std::fs::write(&m3, meta.to_string()).unwrap();
+    let e = fit("b.safetensors", &["--members", "3", "--resume"]);
+    assert!(
+        e.contains(
+            "member-2.safetensors cannot be taken (its weights are not those its sidecar describes"
+        ) && e.contains("member-3.safetensors cannot be taken (it was fitted with another seed)"),
+        "{e}"
+    );
+    assert_eq!(nets("b"), whole);
+    // Other settings (here the learning rate): the network is fitted again, not taken.
+    let settings = d.join("lr.toml");
+    std::fs::write(&settings, "learning_rate = 0.01\n").unwrap();
+    let settings = settings.to_str().unwrap();
+    let e = fit(
+        "b.safetensors",
+        &["--members", "3", "--resume", "--config", settings],
+    );
+    assert!(
+        e.contains("ConvNet: fitted again")
+            && e.contains("it was fitted on other data or with other settings"),
+        "{e}"
+    );
+    assert_ne!(nets("b")[0], whole[0]);
+}
+
+#[test]
 fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest() {
     let Some(p) = pairs() else { return };
     let d = dir("offline");

@@ -133,6 +133,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
                     },
                     c.seed,
                     false,
+                    false,
                     &command,
                     &|_| {},
                 )?;

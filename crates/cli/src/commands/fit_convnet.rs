@@ -44,6 +44,12 @@ pub struct FitConvnetArgs {
     /// Skip the "no neighbour" baseline network (halves the time).
     #[arg(long)]
     no_baselines: bool,
+    /// Take the networks an interrupted (or earlier) run of the same data, settings and seed
+    /// finished beside --out (the weights, the baseline, ensemble members) and fit only the
+    /// rest; the result is what one uninterrupted run writes. A network fitted on other data
+    /// or settings is fitted again.
+    #[arg(long, conflicts_with = "score")]
+    resume: bool,
     /// Threads (default: all cores).
     #[arg(long)]
     jobs: Option<usize>,
@@ -129,6 +135,20 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
             }
             bar.set_message(format!("{label}: batch {done}/{total}"));
         }
+        FitProgress::Resumed { label, file } => {
+            let line = format!(
+                "{label}: kept {}, fitted by an earlier run (--resume)",
+                file.display()
+            );
+            bar.suspend(|| say!("{line}"));
+        }
+        FitProgress::Refit { label, file, why } => {
+            let line = format!(
+                "{label}: fitted again: {} cannot be taken ({why})",
+                file.display()
+            );
+            bar.suspend(|| say!("{line}"));
+        }
         FitProgress::Epoch { label, log: l } => {
             bar.inc(1);
             let line = format!(
@@ -150,6 +170,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
             &cfg,
             a.seed,
             !a.no_baselines,
+            a.resume,
             &command.join(" "),
             &progress,
         )

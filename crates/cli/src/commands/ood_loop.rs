@@ -303,6 +303,7 @@ fn fit(
             &cfg,
             seed,
             false,
+            false,
             "fishprobe ood-loop",
             &quiet,
         )
