@@ -1,0 +1,147 @@
+//! Behavioural cloning of live guppy pairs for M_ConvNet (SPEC §6): the dataset and the
+//! training loop behind `fishprobe fit-convnet`.
+//!
+//! **Dataset.** Every file of two fish (robofish.io or the lab's legacy layout) gives, for each
+//! fish and frame t, its egocentric view at t (with the other fish as the neighbour) and the
+//! grid cell of its next (v, ω): v = |p(t+1) - p(t)| · rate, ω = wrap(θ(t+1) - θ(t)) · rate.
+//! Frames are left out when a position needed (own at t, t+1, t+2; the other's at t) is NaN, or
+//! when the tracker interpolated the fish's own frame t or t+1 (`interp_frames` of legacy files,
+//! counted from the start of `tracking_interval`). The heading θ(t) is the recorded orientation,
+//! except where the fish moves (a step of at least `motion_min_step_cm`) in a direction more
+//! than `heading_disagreement_rad` away from it: there the tracker confused head and tail, and
+//! the direction of motion is used. Headings are then smoothed over `heading_smoothing_frames`
+//! (centred circular mean), which removes the tracker's frame-to-frame jitter from views and
+//! turn targets. Files that are not 100 x 100 cm, do not hold exactly two
+//! fish, are shorter than `min_frames` or all NaN are skipped with the reason.
+//!
+//! **Training.** Softmax cross-entropy (the negative log-likelihood of the recorded cell),
+//! Adam, minibatches split over two threads, early stopping on the validation NLL (the best
+//! epoch's weights are kept), all seeded.
+
+use fishprobe_sim::params::{check, ConfigError};
+
+mod data;
+mod fit;
+mod run;
+
+pub use data::*;
+pub use fit::*;
+pub use run::*;
+
+fishprobe_sim::documented_params! {
+    /// How pair recordings become training examples, and how the network is fitted.
+    pub struct CloneConfig {
+        /// A step at least this long (cm per frame) shows the direction of motion (choice:
+        /// 0.1 cm per frame = 2.5 cm/s).
+        pub motion_min_step_cm: f32 = 0.1; "cm",
+        /// Recorded orientation and direction of motion further apart than this: use the
+        /// direction of motion (choice: 90°).
+        pub heading_disagreement_rad: f32 = std::f32::consts::FRAC_PI_2; "rad",
+        /// Headings are smoothed over this many frames, centred (circular mean; odd; 1: none),
+        /// before views and turn targets are taken from them. **Choice: 5 (0.2 s at 25 Hz).**
+        /// The recorded orientation jitters from frame to frame (median |Δθ| 0.053 rad in the
+        /// training pairs) without the jitter adding up (0.072 over 5 frames): tracking noise.
+        /// A fish that samples each frame's turn independently (SPEC §6) adds it up as real
+        /// turning, and unsmoothed its course wandered twice as fast as a guppy's over 0.2-1 s
+        /// and into the walls (issue 20, item 4). Five frames remove the jitter (0.014 per
+        /// frame) and leave the course over 1 s and 3 s as recorded (median 0.235 and 0.605
+        /// rad, against 0.243 and 0.612). The measurements: docs/validation.md, "M_ConvNet
+        /// at the walls".
+        pub heading_smoothing_frames: usize = 5; "frames",
+        /// Files with fewer frames are skipped (choice: 10 s at 25 Hz).
+        pub min_frames: usize = 250; "frames",
+        /// Minibatch size (choice).
+        pub batch_size: usize = 512; "examples",
+        /// Adam learning rate (choice).
+        pub learning_rate: f32 = 0.001; "1",
+        /// Most epochs (choice).
+        pub max_epochs: usize = 30; "epochs",
+        /// Stop after this many epochs without a better validation NLL (choice).
+        pub patience: usize = 3; "epochs",
+        /// Also learn from files of one fish with the robot (`lab`, `evaluate`, live trials):
+        /// the fish's frames, with the robot as its neighbour (the robot's own motion is not a
+        /// fish's). Choice: off, the paper fits fish pairs only; the OOD loop (issue 23) turns
+        /// it on to add what the fish did under a policy.
+        pub robot_as_partner: bool = false; "-",
+        /// The partner range of the support written beside the weights
+        /// (`support.partner_range_cm`; choice: 0, every partner counts).
+        pub support_partner_range_cm: f32 = 0.0; "cm",
+        /// Networks of the ensemble fitted on the same data, the weights included, in
+        /// [1, 16] (choice: 1, no ensemble). With K > 1 the K - 1 further members (each from its
+        /// own initialisation and shuffle, seeds derived by label) are written beside the
+        /// weights with the ensemble's disagreement file, which the OOD score `disagreement`
+        /// needs (issue 23). Each member costs a fit.
+        pub ensemble_members: usize = 1; "networks",
+        /// Training views the disagreement is calibrated on (choice: 2048, as the support).
+        pub ensemble_calibration_views: usize = 2048; "views",
+    }
+}
+
+impl CloneConfig {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        check::positive("clone", "motion_min_step_cm", self.motion_min_step_cm)?;
+        check::positive(
+            "clone",
+            "heading_disagreement_rad",
+            self.heading_disagreement_rad,
+        )?;
+        check::positive("clone", "learning_rate", self.learning_rate)?;
+        check::non_negative(
+            "clone",
+            "support_partner_range_cm",
+            self.support_partner_range_cm,
+        )?;
+        if self.heading_smoothing_frames.is_multiple_of(2) || self.heading_smoothing_frames > 251 {
+            return Err(ConfigError::new(
+                "clone",
+                "heading_smoothing_frames",
+                self.heading_smoothing_frames,
+                "must be odd and at most 251 (1: no smoothing)",
+            ));
+        }
+        for (f, v) in [
+            ("batch_size", self.batch_size),
+            ("max_epochs", self.max_epochs),
+            ("patience", self.patience),
+            ("min_frames", self.min_frames),
+        ] {
+            if v == 0 {
+                return Err(ConfigError::new("clone", f, 0, "must be at least 1"));
+            }
+        }
+        if !(1..=fishprobe_models::disagreement::MAX_MEMBERS).contains(&self.ensemble_members) {
+            return Err(ConfigError::new(
+                "clone",
+                "ensemble_members",
+                self.ensemble_members,
+                &format!(
+                    "must lie in [1, {}]",
+                    fishprobe_models::disagreement::MAX_MEMBERS
+                ),
+            ));
+        }
+        if !(20..=1 << 20).contains(&self.ensemble_calibration_views) {
+            return Err(ConfigError::new(
+                "clone",
+                "ensemble_calibration_views",
+                self.ensemble_calibration_views,
+                "must lie in [20, 1048576]",
+            ));
+        }
+        // Upper bounds, checked before anything is allocated: a batch is held in memory, and
+        // the paper's fit takes well under 1,000 epochs.
+        if self.batch_size > 1 << 20 || self.max_epochs > 1_000_000 {
+            return Err(ConfigError::new(
+                "clone",
+                "max_epochs",
+                self.max_epochs,
+                &format!(
+                    "at most 1,000,000 epochs of batches of at most 1,048,576 (batch_size = {})",
+                    self.batch_size
+                ),
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,559 @@
+//! `fishprobe fit-convnet` as a whole: the weights, the no-neighbour baseline, the support,
+//! the ensemble and its disagreement file, each network saved when fitted and taken again by a
+//! resumed run.
+
+use super::{blind, fit, load_pairs, marginal_nll, nll, CloneConfig, EpochLog, PairDataset};
+use crate::error::LearnError;
+use fishprobe_models::convnet::{ConvNet, ConvNetArch};
+use fishprobe_models::support::{SupportConfig, SupportModel};
+use std::path::{Path, PathBuf};
+
+/// What [`fit_convnet`] reports while it works.
+#[derive(Debug, Clone)]
+pub enum FitProgress<'a> {
+    /// The datasets are loaded.
+    Loaded {
+        /// Training examples.
+        train: &'a PairDataset,
+        /// Validation examples.
+        validation: &'a PairDataset,
+    },
+    /// Within an epoch of the network `label`: minibatch `done` of `total`.
+    Batch {
+        /// "ConvNet" or "no-neighbour baseline".
+        label: &'static str,
+        /// Minibatches done.
+        done: usize,
+        /// Minibatches per epoch.
+        total: usize,
+    },
+    /// An epoch of the network `label` ended.
+    Epoch {
+        /// See `Batch`.
+        label: &'static str,
+        /// Its log line.
+        log: EpochLog,
+    },
+    /// Resuming: the network `label` is taken from `file`, which an earlier run of the same
+    /// data, settings and seed finished.
+    Resumed {
+        /// See `Batch`.
+        label: &'static str,
+        /// The weights file.
+        file: &'a Path,
+    },
+    /// Resuming: `file` is there but cannot be taken (`why`), so the network `label` is fitted
+    /// again and the file replaced.
+    Refit {
+        /// See `Batch`.
+        label: &'static str,
+        /// The weights file.
+        file: &'a Path,
+        /// Why it cannot be taken.
+        why: &'a str,
+    },
+}
+
+/// Sidecar key: the digest of what a fit saw ([`fit_inputs_sha256`]).
+const FIT_INPUTS_KEY: &str = "fit_inputs_sha256";
+/// Sidecar key: the digest of the fitted tensors ([`tensors_sha256`]).
+const TENSORS_KEY: &str = "tensors_sha256";
+/// Sidecar key: the fit's epoch log.
+const LOG_KEY: &str = "log";
+
+/// What a fit sees, digested: the training and validation examples as loaded (so the data and
+/// every setting that shapes the examples), the architecture and the fit's own settings. The
+/// ensemble's size, its calibration and the support's settings do not change a fit and are left
+/// out, so a resumed run may ask for more members or another support.
+fn fit_inputs_sha256(
+    arch: &ConvNetArch,
+    cfg: &CloneConfig,
+    train: &PairDataset,
+    val: &PairDataset,
+) -> String {
+    use sha2::Digest;
+    let mut h = sha2::Sha256::new();
+    h.update(b"fishprobe fit-convnet inputs, version 1\n");
+    h.update(serde_json::to_vec(arch).unwrap_or_default());
+    for n in [cfg.batch_size, cfg.max_epochs, cfg.patience] {
+        h.update((n as u64).to_le_bytes());
+    }
+    h.update(cfg.learning_rate.to_le_bytes());
+    let mut buf = Vec::with_capacity(8 * 4096);
+    for d in [train, val] {
+        h.update((d.len() as u64).to_le_bytes());
+        for c in d.x.chunks(4096) {
+            buf.clear();
+            c.iter()
+                .for_each(|v| buf.extend_from_slice(&v.to_le_bytes()));
+            h.update(&buf);
+        }
+        for c in d.y.chunks(4096) {
+            buf.clear();
+            c.iter()
+                .for_each(|&v| buf.extend_from_slice(&(v as u64).to_le_bytes()));
+            h.update(&buf);
+        }
+    }
+    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The SHA-256 of a network's tensors as a weights file stores them.
+fn tensors_sha256(net: &ConvNet) -> Result<String, LearnError> {
+    let bytes = fishprobe_nn::store::to_bytes(&net.to_tensors())?;
+    Ok(fishprobe_models::sha256_hex(&bytes))
+}
+
+/// A fit an earlier run left in `file`, if a resumed run may take it: `None` when there is no
+/// file; otherwise the network and its sidecar, or why not (another fit's inputs or seed, a
+/// fishprobe that did not record them, or tensors other than the sidecar describes: a write
+/// cut short).
+fn earlier_fit(
+    file: &Path,
+    inputs: &str,
+    seed: u64,
+) -> Option<Result<(ConvNet, serde_json::Value), String>> {
+    if !file.exists() {
+        return None;
+    }
+    let found = || -> Result<(ConvNet, serde_json::Value), String> {
+        let (t, meta) = fishprobe_nn::store::load(file).map_err(|e| e.to_string())?;
+        let text = |k: &str| meta.get(k).and_then(serde_json::Value::as_str);
+        if text(FIT_INPUTS_KEY) != Some(inputs) {
+            return Err(match text(FIT_INPUTS_KEY) {
+                Some(_) => "it was fitted on other data or with other settings".into(),
+                None => "its sidecar does not record what it was fitted on".into(),
+            });
+        }
+        if meta.get("seed").and_then(serde_json::Value::as_u64) != Some(seed) {
+            return Err("it was fitted with another seed".into());
+        }
+        let net = ConvNet::from_parts(&t, &meta, &file.display().to_string())
+            .map_err(|e| e.to_string())?;
+        if text(TENSORS_KEY) != Some(tensors_sha256(&net).map_err(|e| e.to_string())?.as_str()) {
+            return Err(
+                "its weights are not those its sidecar describes (a write cut short)".into(),
+            );
+        }
+        Ok((net, meta))
+    };
+    Some(found())
+}
+
+/// The validation NLL a sidecar records (of the validation examples its inputs digest covers).
+fn recorded_nll(meta: &serde_json::Value) -> Option<f64> {
+    meta.get("validation_nll")
+        .and_then(serde_json::Value::as_f64)
+}
+
+/// The epoch log a sidecar records (empty when it records none).
+fn logs_of(meta: &serde_json::Value) -> Vec<EpochLog> {
+    meta.get(LOG_KEY)
+        .and_then(|l| serde_json::from_value(l.clone()).ok())
+        .unwrap_or_default()
+}
+
+/// The validation NLL (nats per frame) of existing weights on the pair files under
+/// `validation`, their examples made with `cfg` (so two networks can be compared on the same
+/// targets, e.g. with and without `heading_smoothing_frames`), and the number of examples.
+pub fn score_weights(
+    weights: &Path,
+    validation: &[PathBuf],
+    cfg: &CloneConfig,
+) -> Result<(f64, usize), LearnError> {
+    cfg.validate()?;
+    let net = ConvNet::load(weights).map_err(|e| LearnError::Run(e.to_string()))?;
+    let val = load_pairs(validation, &net.arch, cfg)?;
+    Ok((nll(&net, &val), val.len()))
+}
+
+/// What [`fit_convnet`] produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitReport {
+    /// Validation NLL of the fitted network.
+    pub val_nll: f64,
+    /// Validation NLL of the training data's marginal histogram.
+    pub marginal_nll: f64,
+    /// Validation NLL of the network without neighbour channels, when fitted.
+    pub no_neighbour_nll: Option<f64>,
+    /// Epoch logs of the fitted network.
+    pub logs: Vec<EpochLog>,
+    /// Files skipped, with the reason.
+    pub skipped: Vec<(PathBuf, String)>,
+    /// The weights file.
+    pub weights: PathBuf,
+    /// The support file of the training views beside it (issue 23).
+    pub support: PathBuf,
+    /// The training log (CSV).
+    pub log_file: PathBuf,
+    /// The further members of the ensemble (`ensemble_members` > 1), with their validation
+    /// NLLs.
+    pub members: Vec<(PathBuf, f64)>,
+    /// The ensemble's disagreement file, when it has further members.
+    pub disagreement: Option<PathBuf>,
+}
+
+/// Fits M_ConvNet on the pair files under `data`, stopping early on `validation`, and writes
+/// the weights (`out`), their sidecar (architecture, settings, data, NLLs, `command`) and the
+/// training log (`out` with extension `training.csv`). Training and validation files must not
+/// overlap. With `baselines`, also fits the same network without neighbour channels. With
+/// `resume`, each network (the weights, the ensemble's members) that an earlier run of the same
+/// data, settings and seed finished beside `out` is taken as it is, and so is the baseline's
+/// NLL the weights' sidecar records; the rest is fitted. A resumed run writes what an
+/// uninterrupted one writes (the fits are deterministic for their seed).
+#[allow(clippy::too_many_arguments)]
+pub fn fit_convnet(
+    data: &[PathBuf],
+    validation: &[PathBuf],
+    out: &Path,
+    cfg: &CloneConfig,
+    seed: u64,
+    baselines: bool,
+    resume: bool,
+    command: &str,
+    progress: &(dyn Fn(FitProgress<'_>) + Sync),
+) -> Result<FitReport, LearnError> {
+    cfg.validate()?;
+    let canon = |v: &[PathBuf]| -> Vec<PathBuf> {
+        v.iter()
+            .map(|p| p.canonicalize().unwrap_or_else(|_| p.clone()))
+            .collect()
+    };
+    let (ct, cv) = (canon(data), canon(validation));
+    let mix = |p: &Path| {
+        LearnError::Run(format!(
+            "{} is both training and validation data; they must not mix",
+            p.display()
+        ))
+    };
+    if let Some(p) = ct.iter().find(|p| cv.contains(p)) {
+        return Err(mix(p));
+    }
+    let arch = ConvNetArch::default();
+    let train = load_pairs(data, &arch, cfg)?;
+    let val = load_pairs(validation, &arch, cfg)?;
+    if let Some(f) = train.files.iter().find(|f| val.files.contains(f)) {
+        return Err(mix(f));
+    }
+    progress(FitProgress::Loaded {
+        train: &train,
+        validation: &val,
+    });
+    let run =
+        |label: &'static str, seed: u64, net: &mut ConvNet, t: &PairDataset, v: &PairDataset| {
+            let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
+            let on_batch =
+                |done: usize, total: usize| progress(FitProgress::Batch { label, done, total });
+            fit(
+                net,
+                t,
+                v,
+                cfg,
+                &mut rng,
+                |log| progress(FitProgress::Epoch { label, log: *log }),
+                &on_batch,
+            )
+        };
+    let inputs = fit_inputs_sha256(&arch, cfg, &train, &val);
+    let names = |v: &[PathBuf]| -> Vec<String> {
+        v.iter()
+            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect()
+    };
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .map_err(|e| LearnError::Run(format!("creating {}: {e}", parent.display())))?;
+    }
+    // A fit an earlier run of the same inputs and seed finished, when resuming.
+    let earlier = |label: &'static str, file: &Path, seed: u64| {
+        if !resume {
+            return None;
+        }
+        match earlier_fit(file, &inputs, seed)? {
+            Ok(found) => {
+                progress(FitProgress::Resumed { label, file });
+                Some(found)
+            }
+            Err(why) => {
+                progress(FitProgress::Refit {
+                    label,
+                    file,
+                    why: &why,
+                });
+                None
+            }
+        }
+    };
+    let (net, logs, mut meta) = match earlier("ConvNet", out, seed) {
+        Some((net, meta)) => {
+            let logs = logs_of(&meta);
+            (net, logs, meta)
+        }
+        None => {
+            let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
+            let mut net = ConvNet::new(arch.clone(), &mut init);
+            let logs = run("ConvNet", seed, &mut net, &train, &val)?;
+            let meta = serde_json::json!({
+                "arch": arch,
+                "clone_config": cfg,
+                "seed": seed,
+                "command": command,
+                "training_files": names(&train.files),
+                "validation_files": names(&val.files),
+                "training_examples": train.len(),
+                "validation_examples": val.len(),
+                "validation_nll": nll(&net, &val),
+                "baselines": {"no_neighbour_nll": null},
+                "epochs": logs.len(),
+                "program_version": env!("CARGO_PKG_VERSION"),
+                FIT_INPUTS_KEY: inputs,
+                TENSORS_KEY: tensors_sha256(&net)?,
+                LOG_KEY: logs,
+            });
+            // Saved before the baseline and the members: a resumed run starts after it.
+            fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
+            (net, logs, meta)
+        }
+    };
+    let val_nll = recorded_nll(&meta).unwrap_or_else(|| nll(&net, &val));
+    let marginal = marginal_nll(&train, &val, arch.cells());
+    let recorded_baseline = meta
+        .pointer("/baselines/no_neighbour_nll")
+        .and_then(serde_json::Value::as_f64);
+    let no_neighbour = match recorded_baseline {
+        Some(b) => Some(b),
+        None if baselines => {
+            let (mut tb, mut vb) = (train.clone(), val.clone());
+            blind(&mut tb.x, &arch);
+            blind(&mut vb.x, &arch);
+            let mut init = fishprobe_sim::stream(seed, "fit-convnet/init-no-neighbour", 0);
+            let mut net_b = ConvNet::new(arch.clone(), &mut init);
+            run("no-neighbour baseline", seed, &mut net_b, &tb, &vb)?;
+            Some(nll(&net_b, &vb))
+        }
+        None => None,
+    };
+    meta["baselines"] = serde_json::json!({
+        "marginal_histogram_nll": marginal,
+        "no_neighbour_nll": no_neighbour,
+    });
+    // This run's command, settings and data names (a resumed run's differ from the first
+    // only in what does not change a fit: flags, the ensemble's size, the support's settings).
+    meta["command"] = command.into();
+    meta["clone_config"] = serde_json::json!(cfg);
+    meta["training_files"] = names(&train.files).into();
+    meta["validation_files"] = names(&val.files).into();
+    fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
+    remove_stale_ensemble(out, cfg.ensemble_members)?;
+    let support = support_beside(out);
+    let bytes = std::fs::read(out)
+        .map_err(|e| LearnError::Run(format!("reading back {}: {e}", out.display())))?;
+    let provenance = serde_json::json!({
+        "command": command,
+        "training_files": names(&train.files),
+    });
+    let s = build_support(
+        &train,
+        &arch,
+        &SupportConfig {
+            partner_range_cm: cfg.support_partner_range_cm,
+            ..SupportConfig::default()
+        },
+        &out.display().to_string(),
+        &fishprobe_models::sha256_hex(&bytes),
+        seed,
+        provenance,
+    )?;
+    s.save(&support)
+        .map_err(fishprobe_models::ModelError::from)?;
+    // The ensemble: each further member from its own seed (initialisation and shuffle).
+    let mut members = Vec::new();
+    let mut nets = vec![net];
+    for i in 2..=cfg.ensemble_members {
+        let member_seed = fishprobe_sim::derive_seed(seed, "fit-convnet/ensemble-member", i as u64);
+        let file = fishprobe_models::disagreement::member_beside(out, i);
+        let (m, m_nll) = match earlier("ensemble member", &file, member_seed) {
+            Some((m, meta)) => {
+                let m_nll = recorded_nll(&meta).unwrap_or_else(|| nll(&m, &val));
+                (m, m_nll)
+            }
+            None => {
+                let mut init = fishprobe_sim::stream(member_seed, "fit-convnet/init", 0);
+                let mut m = ConvNet::new(arch.clone(), &mut init);
+                let m_logs = run("ensemble member", member_seed, &mut m, &train, &val)?;
+                let m_nll = nll(&m, &val);
+                let m_meta = serde_json::json!({
+                    "arch": arch,
+                    "ensemble_member_of": out.file_name().map(|n| n.to_string_lossy().into_owned()),
+                    "member": i,
+                    "seed": member_seed,
+                    "command": command,
+                    "validation_nll": m_nll,
+                    "epochs": m_logs.len(),
+                    "program_version": env!("CARGO_PKG_VERSION"),
+                    FIT_INPUTS_KEY: inputs,
+                    TENSORS_KEY: tensors_sha256(&m)?,
+                    LOG_KEY: m_logs,
+                });
+                fishprobe_nn::store::save(&file, &m.to_tensors(), &m_meta)?;
+                (m, m_nll)
+            }
+        };
+        members.push((file, m_nll));
+        nets.push(m);
+    }
+    let disagreement = if members.is_empty() {
+        None
+    } else {
+        let refs = members
+            .iter()
+            .map(|(f, _)| {
+                let bytes = std::fs::read(f)
+                    .map_err(|e| LearnError::Run(format!("reading back {}: {e}", f.display())))?;
+                Ok(fishprobe_models::disagreement::MemberRef {
+                    file: f
+                        .file_name()
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default(),
+                    sha256: fishprobe_models::sha256_hex(&bytes),
+                })
+            })
+            .collect::<Result<Vec<_>, LearnError>>()?;
+        let file = fishprobe_models::disagreement::DisagreementFile::new(
+            out.display().to_string(),
+            fishprobe_models::sha256_hex(&bytes),
+            refs,
+            serde_json::json!({
+                "command": command,
+                "training_files": names(&train.files),
+            }),
+        );
+        let mut rng = fishprobe_sim::stream(seed, "disagreement", 0);
+        let d = fishprobe_models::disagreement::Disagreement::fit(
+            nets,
+            file,
+            &train.x,
+            cfg.ensemble_calibration_views,
+            &mut rng,
+        )
+        .map_err(fishprobe_models::ModelError::from)?;
+        let path = fishprobe_models::disagreement::file_beside(out);
+        d.save(&path).map_err(fishprobe_models::ModelError::from)?;
+        Some(path)
+    };
+    let log_file = out.with_extension("training.csv");
+    let mut csv = String::from("epoch,train_nll,val_nll,seconds\n");
+    for l in &logs {
+        csv += &format!(
+            "{},{},{},{:.1}\n",
+            l.epoch, l.train_nll, l.val_nll, l.seconds
+        );
+    }
+    fishprobe_io::write_atomically(&log_file, csv.as_bytes())?;
+    let mut skipped = train.skipped.clone();
+    skipped.extend(val.skipped.iter().cloned());
+    Ok(FitReport {
+        val_nll,
+        marginal_nll: marginal,
+        no_neighbour_nll: no_neighbour,
+        logs,
+        skipped,
+        weights: out.to_path_buf(),
+        support,
+        log_file,
+        members,
+        disagreement,
+    })
+}
+
+/// Removes what an earlier fit into `out` left of its ensemble that this fit, of `members`
+/// members, will not write again: further members beyond `members` (with their sidecars) and
+/// the disagreement file (rewritten when `members` > 1). They belonged to the old weights.
+fn remove_stale_ensemble(out: &Path, members: usize) -> Result<(), LearnError> {
+    use fishprobe_models::disagreement::{file_beside, member_beside, MAX_MEMBERS};
+    let stale = (members.max(1) + 1..=MAX_MEMBERS)
+        .map(|i| member_beside(out, i))
+        .flat_map(|m| [fishprobe_nn::store::sidecar_path(&m), m])
+        .chain(std::iter::once(file_beside(out)));
+    for f in stale {
+        match std::fs::remove_file(&f) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(LearnError::Run(format!(
+                    "removing {} (of the ensemble an earlier fit left beside {}): {e}",
+                    f.display(),
+                    out.display()
+                )))
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The support file of a weights (or ONNX) file: `FILE.support.json` beside it.
+pub fn support_beside(weights: &Path) -> PathBuf {
+    let mut s = weights.as_os_str().to_owned();
+    s.push(".support.json");
+    PathBuf::from(s)
+}
+
+/// The support model of a training dataset's views (issue 23), for the model `model` whose
+/// weights have SHA-256 `sha256`; seeded by `seed`.
+pub fn build_support(
+    train: &PairDataset,
+    arch: &ConvNetArch,
+    cfg: &SupportConfig,
+    model: &str,
+    sha256: &str,
+    seed: u64,
+    provenance: serde_json::Value,
+) -> Result<SupportModel, LearnError> {
+    let mut rng = fishprobe_sim::stream(seed, "support", 0);
+    let mut s = SupportModel::fit(arch, &train.x, cfg, model, sha256, &mut rng)
+        .map_err(fishprobe_models::ModelError::from)?;
+    s.provenance = provenance;
+    Ok(s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_fit_is_resumed_only_from_the_same_examples_and_fit_settings() {
+        let arch = ConvNetArch::default();
+        let set = |n: usize, v: f32| PairDataset {
+            x: vec![v; n * arch.view_len()],
+            y: vec![3; n],
+            files: Vec::new(),
+            skipped: Vec::new(),
+            frames_left_out: 0,
+            headings_from_motion: 0,
+        };
+        let cfg = CloneConfig::default();
+        let (t, v) = (set(5, 0.5), set(3, 0.25));
+        let base = fit_inputs_sha256(&arch, &cfg, &t, &v);
+        assert_eq!(base.len(), 64);
+        // What does not change a fit: the ensemble's size and calibration, the support.
+        let same = CloneConfig {
+            ensemble_members: 4,
+            ensemble_calibration_views: 100,
+            support_partner_range_cm: 15.0,
+            ..cfg.clone()
+        };
+        assert_eq!(fit_inputs_sha256(&arch, &same, &t, &v), base);
+        // What does: the fit's settings, a single example, the split.
+        let lr = CloneConfig {
+            learning_rate: 0.002,
+            ..cfg.clone()
+        };
+        assert_ne!(fit_inputs_sha256(&arch, &lr, &t, &v), base);
+        let mut t2 = t.clone();
+        t2.x[7] = 0.5000001;
+        assert_ne!(fit_inputs_sha256(&arch, &cfg, &t2, &v), base);
+        let mut t3 = t.clone();
+        t3.y[4] = 2;
+        assert_ne!(fit_inputs_sha256(&arch, &cfg, &t3, &v), base);
+        assert_ne!(fit_inputs_sha256(&arch, &cfg, &v, &t), base);
+    }
+}
