@@ -10,8 +10,9 @@ use fishprobe_io::read_trial;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-/// One approach episode: the policy it names, and per frame (robot-fish, robot-goal) distance.
-type Episode = (Option<String>, Vec<(f64, f64)>);
+/// One approach episode: the policy it names, the weights it records (`policy_sha256`), and
+/// per frame (robot-fish, robot-goal) distance.
+type Episode = (Option<String>, Option<String>, Vec<(f64, f64)>);
 
 /// Reads one approach episode.
 fn episode(path: &Path, cfg: &AnalysisConfig) -> Result<Episode, String> {
@@ -37,7 +38,12 @@ fn episode(path: &Path, cfg: &AnalysisConfig) -> Result<Episode, String> {
     if d.is_empty() {
         return Err("no frame with both robot and fish tracked".into());
     }
-    Ok((t.task.as_ref().map(|k| k.policy.clone()), d))
+    let task = t.task.as_ref();
+    Ok((
+        task.map(|k| k.policy.clone()),
+        task.and_then(|k| k.policy_sha256()),
+        d,
+    ))
 }
 
 /// Fills `res.approach` from `STUDY/approach_test`.
@@ -51,7 +57,7 @@ pub fn approach(
     for (dir_policy, files) in &study.approach {
         for f in files {
             match episode(f, cfg) {
-                Ok((file_policy, d)) => {
+                Ok((file_policy, sha, d)) => {
                     let policy = if dir_policy.is_empty() {
                         file_policy.unwrap_or_default()
                     } else {
@@ -63,6 +69,22 @@ pub fn approach(
                             reason: "approach file names no policy".into(),
                         });
                         continue;
+                    }
+                    // Another policy's weights under this name (a policy retrained since its
+                    // trials were recorded): not this policy's assay.
+                    if let (Some(own), Some(sha)) = (res.weights.get(&policy), &sha) {
+                        if own != sha {
+                            skipped.push(Skipped {
+                                what: f.display().to_string(),
+                                reason: format!(
+                                    "driven by weights sha256 {}…, the policy's own-model trials \
+                                     by {}…: not counted in {policy}'s approach assay",
+                                    fishprobe_io::short_sha(sha),
+                                    fishprobe_io::short_sha(own)
+                                ),
+                            });
+                            continue;
+                        }
                     }
                     let e = per.entry(policy).or_default();
                     e.0.extend(d);
@@ -97,7 +119,7 @@ fn summary(d: &[(f64, f64)], episodes: usize) -> Approach {
 pub fn assay_files(files: &[std::path::PathBuf], cfg: &AnalysisConfig) -> Result<Approach, String> {
     let mut d = Vec::new();
     for f in files {
-        let (_, e) = episode(f, cfg).map_err(|why| format!("{}: {why}", f.display()))?;
+        let (_, _, e) = episode(f, cfg).map_err(|why| format!("{}: {why}", f.display()))?;
         d.extend(e);
     }
     if d.is_empty() {

@@ -139,32 +139,6 @@ fn bad_input_is_skipped_with_reasons_and_the_rest_analysed() {
     // The valid trials are still analysed: 6 real trials of Zone remain (zz_nan sorts last).
     assert_eq!(r["goals"]["Zone"]["real"].as_array().unwrap().len(), 6);
     assert!(r["sim_to_real"]["Follow"]["w"].is_number());
-
-    // One set of weights in each condition, but live trials of other weights than the
-    // simulated ones (a policy retrained between them): not a sim-to-real gap of one policy.
-    stamp_weights(&s.join("rollouts/Zone__Real"), |_| "b".repeat(64));
-    stamp_weights(&s.join("rollouts/Zone__Zone"), |_| "a".repeat(64));
-    stamp_weights(&s.join("rollouts/Zone__Follow"), |_| "c".repeat(64));
-    let r = analyze(&s, &s.join("out2"), "2");
-    let skipped = r["skipped"].to_string();
-    assert!(
-        skipped.contains("Zone__Real")
-            && skipped.contains("driven by weights sha256 bbbbbbbbbbbb…")
-            && skipped.contains("own-model trials by aaaaaaaaaaaa…")
-            && skipped.contains("Zone__Follow")
-            && skipped.contains("driven by weights sha256 cccccccccccc…"),
-        "{skipped}"
-    );
-    assert!(r["sim_to_real"].get("Zone").is_none());
-    assert!(r["sim_to_sim"]["Zone"].get("Follow").is_none());
-    assert!(r["sim_to_sim"]["Follow"].get("Zone").is_some());
-    assert_eq!(r["weights"]["Zone"], "a".repeat(64));
-    assert!(r["weights"].get("Follow").is_none(), "{}", r["weights"]);
-    let summary = std::fs::read_to_string(s.join("out2/summary.md")).unwrap();
-    assert!(
-        summary.contains("Weights that drove the trials (SHA-256): Zone `aaaaaaaaaaaa…`."),
-        "{summary}"
-    );
 }
 
 /// Entries named `*.hdf5` that are no regular files are listed in `skipped` with the reason,
@@ -355,6 +329,11 @@ fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
     stamp_weights(&s.join("rollouts/Zone__Real"), |_| "b".repeat(64));
     stamp_weights(&s.join("rollouts/Zone__Zone"), |_| "a".repeat(64));
     stamp_weights(&s.join("rollouts/Zone__Follow"), |_| "c".repeat(64));
+    stamp_weights(&s.join("approach_test/Zone"), |i| {
+        if i == 0 { "a" } else { "d" }.repeat(64)
+    });
+    let episodes = fishprobe_io::trial_files(&s.join("approach_test/Zone")).len();
+    assert!(episodes >= 2);
     let r = analyze(&s, &s.join("out2"), "2");
     let skipped = r["skipped"].to_string();
     assert!(
@@ -367,6 +346,13 @@ fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
     );
     assert!(r["sim_to_real"].get("Zone").is_none());
     assert!(r["sim_to_sim"]["Zone"].get("Follow").is_none());
+    // The approach assay counts only the episodes of the policy's own weights.
+    assert_eq!(r["approach"]["Zone"]["episodes"], 1);
+    assert!(
+        skipped.contains("not counted in Zone's approach assay")
+            && skipped.contains("driven by weights sha256 dddddddddddd…"),
+        "{skipped}"
+    );
     assert!(r["sim_to_sim"]["Follow"].get("Zone").is_some());
     assert_eq!(r["weights"]["Zone"], "a".repeat(64));
     assert!(r["weights"].get("Follow").is_none(), "{}", r["weights"]);
