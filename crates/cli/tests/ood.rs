@@ -207,6 +207,38 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let j3: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out3.join("loop.json")).unwrap()).unwrap();
     assert_eq!(j3["seeds"][0]["narrow"], seed["narrow"]);
+    // A loop stopped inside an ensemble's fit (its disagreement file not yet written) fits it
+    // again keeping the finished networks: the same bytes, the same tables.
+    let member = out3.join("seed-5/model-narrow/convnet.safetensors.member-2.safetensors");
+    let nets = || {
+        (
+            std::fs::read(&narrow3).unwrap(),
+            std::fs::read(&member).unwrap(),
+        )
+    };
+    let before = nets();
+    let written = || std::fs::metadata(&member).unwrap().modified().unwrap();
+    let member_written = written();
+    let dis = out3.join("seed-5/model-narrow/convnet.safetensors.disagreement.json");
+    std::fs::remove_file(&dis).unwrap();
+    let again = fishprobe(&[
+        "ood-loop",
+        "--out",
+        s(&out3),
+        "--seeds",
+        "5",
+        "--config",
+        s(&cfg3),
+    ]);
+    assert!(again.status.success(), "{}", stderr(&again));
+    assert!(dis.is_file());
+    assert!(nets() == before);
+    assert_eq!(
+        written(),
+        member_written,
+        "the finished member was fitted again"
+    );
+    assert_eq!(stdout(&again), stdout(&o));
     // The lead-to-goal chain's model is no ensemble.
     assert!(!out3
         .join("seed-5/model-goal/convnet.safetensors.disagreement.json")

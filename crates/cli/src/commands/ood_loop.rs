@@ -303,7 +303,9 @@ fn fit(
             &cfg,
             seed,
             false,
-            false,
+            // A stage stopped inside its fit keeps the networks it finished (an ensemble is
+            // several fits); the loop's resume is the stage's, this is the fit's.
+            true,
             "fishprobe ood-loop",
             &quiet,
         )
