@@ -179,7 +179,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     )
     .unwrap();
     let out3 = dir.join("loop3");
-    let o = fishprobe(&[
+    let loop3 = [
         "ood-loop",
         "--out",
         s(&out3),
@@ -187,7 +187,8 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         "5",
         "--config",
         s(&cfg3),
-    ]);
+    ];
+    let o = fishprobe(&loop3);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("disagreement of an ensemble of 2"));
     let narrow3 = out3.join("seed-5/model-narrow/convnet.safetensors");
@@ -221,15 +222,7 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let member_written = written();
     let dis = out3.join("seed-5/model-narrow/convnet.safetensors.disagreement.json");
     std::fs::remove_file(&dis).unwrap();
-    let again = fishprobe(&[
-        "ood-loop",
-        "--out",
-        s(&out3),
-        "--seeds",
-        "5",
-        "--config",
-        s(&cfg3),
-    ]);
+    let again = fishprobe(&loop3);
     assert!(again.status.success(), "{}", stderr(&again));
     assert!(dis.is_file());
     assert!(nets() == before);

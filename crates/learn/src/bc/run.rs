@@ -284,37 +284,46 @@ pub fn fit_convnet(
             }
         }
     };
-    let (net, logs, mut meta) = match earlier("ConvNet", out, seed) {
-        Some((net, meta)) => {
-            let logs = logs_of(&meta);
-            (net, logs, meta)
+    // A new network from `seed`, fitted and saved to `file` at once (a resumed run starts
+    // after it), its sidecar the common record and `extra`'s fields.
+    let fit_new = |label: &'static str, seed: u64, file: &Path, extra: serde_json::Value| {
+        let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
+        let mut net = ConvNet::new(arch.clone(), &mut init);
+        let logs = run(label, seed, &mut net, &train, &val)?;
+        let mut meta = serde_json::json!({
+            "arch": arch,
+            "seed": seed,
+            "command": command,
+            "validation_nll": nll(&net, &val),
+            "epochs": logs.len(),
+            "program_version": env!("CARGO_PKG_VERSION"),
+            FIT_INPUTS_KEY: inputs,
+            TENSORS_KEY: tensors_sha256(&net)?,
+            LOG_KEY: logs,
+        });
+        if let (Some(m), serde_json::Value::Object(extra)) = (meta.as_object_mut(), extra) {
+            m.extend(extra);
         }
-        None => {
-            let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
-            let mut net = ConvNet::new(arch.clone(), &mut init);
-            let logs = run("ConvNet", seed, &mut net, &train, &val)?;
-            let meta = serde_json::json!({
-                "arch": arch,
+        fishprobe_nn::store::save(file, &net.to_tensors(), &meta)?;
+        Ok::<_, LearnError>((net, meta))
+    };
+    let (net, mut meta) = match earlier("ConvNet", out, seed) {
+        Some(found) => found,
+        None => fit_new(
+            "ConvNet",
+            seed,
+            out,
+            serde_json::json!({
                 "clone_config": cfg,
-                "seed": seed,
-                "command": command,
                 "training_files": names(&train.files),
                 "validation_files": names(&val.files),
                 "training_examples": train.len(),
                 "validation_examples": val.len(),
-                "validation_nll": nll(&net, &val),
                 "baselines": {"no_neighbour_nll": null},
-                "epochs": logs.len(),
-                "program_version": env!("CARGO_PKG_VERSION"),
-                FIT_INPUTS_KEY: inputs,
-                TENSORS_KEY: tensors_sha256(&net)?,
-                LOG_KEY: logs,
-            });
-            // Saved before the baseline and the members: a resumed run starts after it.
-            fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
-            (net, logs, meta)
-        }
+            }),
+        )?,
     };
+    let logs = logs_of(&meta);
     let val_nll = recorded_nll(&meta).unwrap_or_else(|| nll(&net, &val));
     let marginal = marginal_nll(&train, &val, arch.cells());
     let recorded_baseline = meta
@@ -372,33 +381,19 @@ pub fn fit_convnet(
     for i in 2..=cfg.ensemble_members {
         let member_seed = fishprobe_sim::derive_seed(seed, "fit-convnet/ensemble-member", i as u64);
         let file = fishprobe_models::disagreement::member_beside(out, i);
-        let (m, m_nll) = match earlier("ensemble member", &file, member_seed) {
-            Some((m, meta)) => {
-                let m_nll = recorded_nll(&meta).unwrap_or_else(|| nll(&m, &val));
-                (m, m_nll)
-            }
-            None => {
-                let mut init = fishprobe_sim::stream(member_seed, "fit-convnet/init", 0);
-                let mut m = ConvNet::new(arch.clone(), &mut init);
-                let m_logs = run("ensemble member", member_seed, &mut m, &train, &val)?;
-                let m_nll = nll(&m, &val);
-                let m_meta = serde_json::json!({
-                    "arch": arch,
+        let (m, m_meta) = match earlier("ensemble member", &file, member_seed) {
+            Some(found) => found,
+            None => fit_new(
+                "ensemble member",
+                member_seed,
+                &file,
+                serde_json::json!({
                     "ensemble_member_of": out.file_name().map(|n| n.to_string_lossy().into_owned()),
                     "member": i,
-                    "seed": member_seed,
-                    "command": command,
-                    "validation_nll": m_nll,
-                    "epochs": m_logs.len(),
-                    "program_version": env!("CARGO_PKG_VERSION"),
-                    FIT_INPUTS_KEY: inputs,
-                    TENSORS_KEY: tensors_sha256(&m)?,
-                    LOG_KEY: m_logs,
-                });
-                fishprobe_nn::store::save(&file, &m.to_tensors(), &m_meta)?;
-                (m, m_nll)
-            }
+                }),
+            )?,
         };
+        let m_nll = recorded_nll(&m_meta).unwrap_or_else(|| nll(&m, &val));
         members.push((file, m_nll));
         nets.push(m);
     }
