@@ -77,10 +77,8 @@ pub fn approach(
                             skipped.push(Skipped {
                                 what: f.display().to_string(),
                                 reason: format!(
-                                    "driven by weights sha256 {}…, the policy's own-model trials \
-                                     by {}…: not counted in {policy}'s approach assay",
-                                    fishprobe_io::short_sha(sha),
-                                    fishprobe_io::short_sha(own)
+                                    "{}: not counted in {policy}'s approach assay",
+                                    crate::compare::driven_by_other(own, sha)
                                 ),
                             });
                             continue;

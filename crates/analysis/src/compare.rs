@@ -299,14 +299,22 @@ fn other_weights(own: Option<&str>, trials: &[&TrialData]) -> Option<String> {
     }
     match (own, weights_of(trials)) {
         (Some(a), Some(b)) if a != b => Some(format!(
-            "driven by weights sha256 {}…, the policy's own-model trials by {}…: two policies \
-             under one name are not compared (a policy retrained since; put each policy's \
-             trials in its own directory)",
-            fishprobe_io::short_sha(b),
-            fishprobe_io::short_sha(a)
+            "{}: two policies under one name are not compared (a policy retrained since; put \
+             each policy's trials in its own directory)",
+            driven_by_other(a, b)
         )),
         _ => None,
     }
+}
+
+/// Says that trials were driven by the weights `theirs`, not by `own`, those of the policy's
+/// own-model trials (both shortened).
+pub(crate) fn driven_by_other(own: &str, theirs: &str) -> String {
+    format!(
+        "driven by weights sha256 {}…, the policy's own-model trials by {}…",
+        fishprobe_io::short_sha(theirs),
+        fishprobe_io::short_sha(own)
+    )
 }
 
 fn groups_check(
