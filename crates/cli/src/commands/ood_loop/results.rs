@@ -1,0 +1,175 @@
+//! What one seed of the loop found, and the Markdown tables of `loop.md`.
+
+use fishprobe_sim::OodScore;
+
+use super::OodLoopConfig;
+
+/// One model's gap to the virtual guppy.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub(super) struct Gap {
+    /// Mean over the nine metrics of W1(model, guppy) / s.d.(guppy).
+    pub(super) metrics: f64,
+    /// |goals(model) - goals(guppy)| / goals(guppy), goals per episode of the probe.
+    pub(super) goals: f64,
+    /// Goals per episode of the probe against the model.
+    pub(super) goals_per_episode: f64,
+}
+
+/// The gaps one further probe measured (`more_gap_probes`).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub(super) struct ProbeGaps {
+    pub(super) probe: String,
+    pub(super) guppy_goals_per_episode: f64,
+    pub(super) narrow: Gap,
+    pub(super) after_goal_data: Gap,
+    pub(super) after_ood_data: Gap,
+}
+
+/// One seed's outcome.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub(super) struct SeedResult {
+    pub(super) seed: u64,
+    pub(super) guppy_goals_per_episode: f64,
+    pub(super) narrow: Gap,
+    pub(super) after_goal_data: Gap,
+    pub(super) after_ood_data: Gap,
+    /// Share of the guppy's views under the OOD policy at or beyond the lead-to-goal
+    /// policy's 95th-percentile support score (narrow model's support).
+    pub(super) ood_share_beyond_goal_p95: f64,
+    /// From the second round on (`rounds` > 1): the same share, each round's policies scored
+    /// under the support of the model the OOD policy was trained against.
+    #[serde(default)]
+    pub(super) later_rounds_ood_share: Vec<f64>,
+    /// Goals per episode of each policy with the guppy.
+    pub(super) ood_policy_goals: f64,
+    pub(super) goal_policy_goals: f64,
+    /// The further probes' gaps (absent in loops recorded before them).
+    #[serde(default)]
+    pub(super) more_probes: Vec<ProbeGaps>,
+}
+
+pub(super) fn markdown(cfg: &OodLoopConfig, r: &[SeedResult]) -> String {
+    let mut t = String::from(
+        "| seed | metric gap: narrow model | + lead-to-goal data | + OOD data | goal gap: narrow | + lead-to-goal data | + OOD data | OOD views beyond lead-to-goal p95 |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for s in r {
+        t += &format!(
+            "| {} | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {:.2} | {:.1} % |\n",
+            s.seed,
+            s.narrow.metrics,
+            s.after_goal_data.metrics,
+            s.after_ood_data.metrics,
+            s.narrow.goals,
+            s.after_goal_data.goals,
+            s.after_ood_data.goals,
+            100.0 * s.ood_share_beyond_goal_p95
+        );
+    }
+    let n = r.len().max(1) as f64;
+    let mean = |f: fn(&SeedResult) -> f64| r.iter().map(f).sum::<f64>() / n;
+    let better = r
+        .iter()
+        .filter(|s| s.after_ood_data.metrics < s.after_goal_data.metrics)
+        .count();
+    t += &format!(
+        "| mean | {:.3} | {:.3} | {:.3} | {:.2} | {:.2} | {:.2} | {:.1} % |\n\n\
+         Metric gap: the nine metrics' Wasserstein distances between the model's and the \
+         virtual guppy's trials with the gap probe, each in units of the guppy's s.d., \
+         averaged. Goal gap: |goals(model) - goals(guppy)| / goals(guppy). The OOD data left \
+         a smaller metric gap than the lead-to-goal data in {better} of {} seeds.\n",
+        mean(|s| s.narrow.metrics),
+        mean(|s| s.after_goal_data.metrics),
+        mean(|s| s.after_ood_data.metrics),
+        mean(|s| s.narrow.goals),
+        mean(|s| s.after_goal_data.goals),
+        mean(|s| s.after_ood_data.goals),
+        100.0 * mean(|s| s.ood_share_beyond_goal_p95),
+        r.len()
+    );
+    if cfg.ood_score == OodScore::Disagreement {
+        t += &format!(
+            "\nThe OOD policy was rewarded by the disagreement of an ensemble of {} fits of its \
+             model (`ood_score = \"disagreement\"`); the last column still measures support \
+             scores.\n",
+            cfg.ensemble_members
+        );
+    }
+    if cfg.rounds > 1 {
+        t += &format!(
+            "\n{} rounds: the gaps are those of each chain's model after its last round; the \
+             last column is the first round's. OOD views beyond the lead-to-goal p95 by round: {}.\n",
+            cfg.rounds,
+            r.iter()
+                .map(|s| {
+                    let by_round: Vec<String> = std::iter::once(s.ood_share_beyond_goal_p95)
+                        .chain(s.later_rounds_ood_share.iter().copied())
+                        .map(|x| format!("{:.1} %", 100.0 * x))
+                        .collect();
+                    format!("seed {}: {}", s.seed, by_round.join(", "))
+                })
+                .collect::<Vec<_>>()
+                .join("; ")
+        );
+    }
+    t + "\n" + &probe_table(&cfg.gap_probe, r)
+}
+
+/// Per probe, the mean metric gaps over the seeds and in how many seeds the OOD data left the
+/// smaller one; then the same for each seed's mean over all probes.
+fn probe_table(first_probe: &str, r: &[SeedResult]) -> String {
+    let Some(s0) = r.first() else {
+        return String::new();
+    };
+    if s0.more_probes.is_empty() {
+        return String::new();
+    }
+    // Per seed, per probe: (narrow, after lead-to-goal data, after OOD data).
+    let per_seed: Vec<Vec<[f64; 3]>> = r
+        .iter()
+        .map(|s| {
+            std::iter::once([
+                s.narrow.metrics,
+                s.after_goal_data.metrics,
+                s.after_ood_data.metrics,
+            ])
+            .chain(s.more_probes.iter().map(|p| {
+                [
+                    p.narrow.metrics,
+                    p.after_goal_data.metrics,
+                    p.after_ood_data.metrics,
+                ]
+            }))
+            .collect()
+        })
+        .collect();
+    let names: Vec<&str> = std::iter::once(first_probe)
+        .chain(s0.more_probes.iter().map(|p| p.probe.as_str()))
+        .collect();
+    let n = r.len() as f64;
+    let mut t = String::from(
+        "| gap probe | metric gap: narrow model | + lead-to-goal data | + OOD data | seeds where the OOD data left the smaller gap |\n|---|---|---|---|---|\n",
+    );
+    let mut row = |name: &str, gaps: Vec<[f64; 3]>| {
+        let m = |k: usize| gaps.iter().map(|g| g[k]).sum::<f64>() / n;
+        let better = gaps.iter().filter(|g| g[2] < g[1]).count();
+        t += &format!(
+            "| {name} | {:.3} | {:.3} | {:.3} | {better} of {} |\n",
+            m(0),
+            m(1),
+            m(2),
+            gaps.len()
+        );
+    };
+    for (k, name) in names.iter().enumerate() {
+        row(name, per_seed.iter().map(|s| s[k]).collect());
+    }
+    let over_all = per_seed
+        .iter()
+        .map(|s| {
+            let p = s.len() as f64;
+            [0, 1, 2].map(|k| s.iter().map(|g| g[k]).sum::<f64>() / p)
+        })
+        .collect();
+    row("mean over the probes", over_all);
+    t + "\nEach probe's metric gap averaged over the seeds (the first probe's is the table above).\n"
+}
