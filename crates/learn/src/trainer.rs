@@ -10,15 +10,22 @@ use crate::error::LearnError;
 use crate::policy::GaussianPolicy;
 use crate::ppo::{adapt_kl, collect, update, Rollout, Scratch, UpdateStats};
 use fishprobe_models::ModelSpec;
-use fishprobe_nn::store::{load, save, write_atomic, Tensors};
+use fishprobe_nn::store::write_atomic;
 use fishprobe_nn::Adam;
 use fishprobe_sim::{
-    derive_seed, stream, EnvConfig, EnvSnapshot, FishModel, Objective, SimRng, TaskMode, VecEnv,
+    derive_seed, stream, EnvConfig, FishModel, Objective, SimRng, TaskMode, VecEnv,
 };
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
+
+mod checkpoint;
+mod log;
+use checkpoint::latest_checkpoint;
+pub use checkpoint::MAX_STATE_BYTES;
+use log::CSV_HEADER;
+pub use log::{IterationStats, MAX_LOG_LINE_BYTES};
 
 /// What a run is: everything `params.json` records.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -53,99 +60,6 @@ impl RunSpec {
     }
 }
 
-/// One iteration's log line.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct IterationStats {
-    /// Iteration (1-based).
-    pub iteration: u64,
-    /// Environment steps so far.
-    pub timesteps: u64,
-    /// Episodes finished so far.
-    pub episodes_total: u64,
-    /// Episodes finished in this iteration.
-    pub episodes: u64,
-    /// Mean return of those episodes (NaN when none).
-    pub episode_return_mean: f32,
-    /// Their minimum return.
-    pub episode_return_min: f32,
-    /// Their maximum return.
-    pub episode_return_max: f32,
-    /// Mean goals reached per episode.
-    pub goals_per_episode: f32,
-    /// Mean surrogate loss.
-    pub policy_loss: f32,
-    /// Mean clamped value loss.
-    pub value_loss: f32,
-    /// Mean KL of the last epoch.
-    pub kl: f32,
-    /// KL coefficient after this iteration's adaptation.
-    pub kl_coeff: f32,
-    /// Mean policy entropy.
-    pub entropy: f32,
-    /// Fraction of probability ratios outside the clip range in the last epoch.
-    #[serde(default)]
-    pub clip_frac: f32,
-    /// Fraction of sampled (normalised) actions outside [-1, 1], i.e. turns clipped to ±π.
-    #[serde(default)]
-    pub action_clip_frac: f32,
-    /// Explained variance of the value targets by the sampled value predictions.
-    #[serde(default)]
-    pub vf_explained_var: f32,
-    /// The same on the training batch during the last epoch (in-sample fit).
-    #[serde(default)]
-    pub vf_explained_var_fit: f32,
-    /// Wall time of the iteration (s).
-    pub time_s: f64,
-    /// Environment steps per second in this iteration.
-    pub steps_per_s: f64,
-}
-
-const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,clip_frac,action_clip_frac,vf_explained_var,vf_explained_var_fit,time_s,steps_per_s";
-
-impl IterationStats {
-    fn csv_row(&self) -> String {
-        format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.1}",
-            self.iteration,
-            self.timesteps,
-            self.episodes_total,
-            self.episodes,
-            self.episode_return_mean,
-            self.episode_return_min,
-            self.episode_return_max,
-            self.goals_per_episode,
-            self.policy_loss,
-            self.value_loss,
-            self.kl,
-            self.kl_coeff,
-            self.entropy,
-            self.clip_frac,
-            self.action_clip_frac,
-            self.vf_explained_var,
-            self.vf_explained_var_fit,
-            self.time_s,
-            self.steps_per_s
-        )
-    }
-}
-
-/// Largest `state.json` a resumed run reads. It holds every environment's state and
-/// observation: at the limits (4,096 environments of 16 fish) some tens of megabytes.
-pub const MAX_STATE_BYTES: u64 = 1 << 30;
-
-/// Trainer state that is not networks: `state.json` of a checkpoint.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct State {
-    iteration: u64,
-    timesteps: u64,
-    episodes: u64,
-    kl_coeff: f32,
-    adam_t: (u64, u64),
-    rng: SimRng,
-    envs: Vec<EnvSnapshot>,
-    obs: Vec<f32>,
-}
-
 /// A PPO run in progress.
 pub struct Trainer {
     dir: PathBuf,
@@ -161,82 +75,6 @@ pub struct Trainer {
     episodes: u64,
     roll: Rollout,
     scratch: Scratch,
-}
-
-/// Longest line a run's log may have (1 MiB): fishprobe writes lines of some hundred bytes
-/// (`progress.csv`) to a few kilobytes (`result.json`), so a longer one means the file is not
-/// the run's log, and reading on would fill memory with it.
-pub const MAX_LOG_LINE_BYTES: u64 = 1 << 20;
-
-/// Rewrites a run's log `path`, keeping the lines `keep` accepts (blank lines go), through a
-/// temporary file and a rename. The log is streamed, so memory stays at one line however long
-/// the run. A log that cannot be read is an error, never an empty log: rewriting it from
-/// nothing would erase the finished iterations. Lines are kept as bytes, so a damaged line
-/// (not UTF-8, say) stays as it was. A missing log becomes empty (`progress.csv`: its header).
-fn filter_log(path: &Path, is_csv: bool, keep: impl Fn(&str) -> bool) -> Result<(), LearnError> {
-    use std::io::{BufRead, Read, Write};
-    let refuse = |what: String| run_err(path, format!("cannot rewrite the run's log: {what}"));
-    let reader = match std::fs::File::open(path) {
-        Ok(f) => {
-            match f.metadata() {
-                Ok(m) if m.is_file() => {}
-                Ok(_) => return Err(refuse("not a regular file".into())),
-                Err(e) => return Err(refuse(e.to_string())),
-            }
-            Some(std::io::BufReader::new(f))
-        }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-        Err(e) => return Err(refuse(e.to_string())),
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.{}.partial", std::process::id()));
-    let result = (|| -> Result<(), LearnError> {
-        let file = std::fs::File::create(&tmp).map_err(|e| refuse(e.to_string()))?;
-        let mut out = std::io::BufWriter::new(file);
-        let mut wrote = false;
-        if let Some(mut reader) = reader {
-            let mut line = Vec::new();
-            loop {
-                line.clear();
-                let n = (&mut reader)
-                    .take(MAX_LOG_LINE_BYTES + 1)
-                    .read_until(b'\n', &mut line)
-                    .map_err(|e| refuse(e.to_string()))?;
-                if n == 0 {
-                    break;
-                }
-                if line.last() == Some(&b'\n') {
-                    line.pop();
-                } else if n as u64 > MAX_LOG_LINE_BYTES {
-                    return Err(refuse(format!(
-                        "a line longer than {MAX_LOG_LINE_BYTES} bytes, so not a log fishprobe \
-                         wrote (fishprobe_learn::trainer::MAX_LOG_LINE_BYTES)"
-                    )));
-                }
-                let text = String::from_utf8_lossy(&line);
-                if !text.trim().is_empty() && keep(&text) {
-                    out.write_all(&line).map_err(|e| refuse(e.to_string()))?;
-                    out.write_all(b"\n").map_err(|e| refuse(e.to_string()))?;
-                    wrote = true;
-                }
-            }
-        }
-        if is_csv && !wrote {
-            writeln!(out, "{CSV_HEADER}").map_err(|e| refuse(e.to_string()))?;
-        }
-        let file = out
-            .into_inner()
-            .map_err(|e| refuse(e.error().to_string()))?;
-        file.sync_all().map_err(|e| refuse(e.to_string()))?;
-        std::fs::rename(&tmp, path).map_err(|e| refuse(e.to_string()))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 fn run_err(path: &Path, what: impl std::fmt::Display) -> LearnError {
@@ -468,209 +306,6 @@ impl Trainer {
     pub fn finish(&self) -> Result<PathBuf, LearnError> {
         self.policy.save(&self.dir, self.about())
     }
-
-    fn about(&self) -> serde_json::Value {
-        serde_json::json!({
-            "model": self.spec.model.label(),
-            "seed": self.spec.seed,
-            "preset": self.spec.preset,
-            "iteration": self.iteration,
-            "timesteps": self.timesteps,
-            "program_version": env!("CARGO_PKG_VERSION"),
-        })
-    }
-
-    fn append_logs(&self, s: &IterationStats) -> Result<(), LearnError> {
-        use std::io::Write;
-        let append = |name: &str, line: String| -> Result<(), LearnError> {
-            let p = self.dir.join(name);
-            let mut f = std::fs::OpenOptions::new()
-                .append(true)
-                .create(true)
-                .open(&p)
-                .map_err(|e| run_err(&p, e))?;
-            f.write_all(line.as_bytes()).map_err(|e| run_err(&p, e))
-        };
-        append("progress.csv", s.csv_row() + "\n")?;
-        let json = serde_json::to_string(s).map_err(|e| run_err(&self.dir, e))?;
-        append("result.json", json + "\n")
-    }
-
-    /// Drops log lines of iterations after the checkpoint (they will be redone).
-    fn truncate_logs(&self) -> Result<(), LearnError> {
-        let keep = |line: &str, first_field: &dyn Fn(&str) -> Option<u64>| {
-            first_field(line).is_none_or(|it| it <= self.iteration)
-        };
-        for (name, field) in [
-            (
-                "progress.csv",
-                &(|l: &str| l.split(',').next().and_then(|v| v.parse::<u64>().ok()))
-                    as &dyn Fn(&str) -> Option<u64>,
-            ),
-            ("result.json", &|l: &str| {
-                serde_json::from_str::<serde_json::Value>(l)
-                    .ok()
-                    .and_then(|v| v["iteration"].as_u64())
-            }),
-        ] {
-            let p = self.dir.join(name);
-            filter_log(&p, name == "progress.csv", |line| keep(line, field))?;
-        }
-        Ok(())
-    }
-
-    fn save_checkpoint(&self) -> Result<(), LearnError> {
-        let name = format!("ckpt_{:06}", self.iteration);
-        let dir = self.dir.join("checkpoints").join(&name);
-        self.policy.save(&dir, self.about())?;
-        let mut optim = Tensors::new();
-        for (k, adam) in [("pi", &self.adam_pi), ("vf", &self.adam_vf)] {
-            optim.insert(format!("{k}.m"), (vec![adam.m.len()], adam.m.clone()));
-            optim.insert(format!("{k}.v"), (vec![adam.v.len()], adam.v.clone()));
-        }
-        save(
-            &dir.join("optim.safetensors"),
-            &optim,
-            &serde_json::json!({"format": "fishprobe-adam", "version": 1}),
-        )?;
-        let (envs, obs) = self.venv.snapshot();
-        let state = State {
-            iteration: self.iteration,
-            timesteps: self.timesteps,
-            episodes: self.episodes,
-            kl_coeff: self.kl_coeff,
-            adam_t: (self.adam_pi.t, self.adam_vf.t),
-            rng: self.rng.clone(),
-            envs,
-            obs,
-        };
-        let text = serde_json::to_string(&state).map_err(|e| run_err(&dir, e))?;
-        write_atomic(&dir.join("state.json"), text.as_bytes())?;
-        // The pointer moves last: a crash before this line leaves the previous checkpoint.
-        write_atomic(&self.dir.join("checkpoints/latest"), name.as_bytes())?;
-        // Keep the two newest checkpoints.
-        let mut all: Vec<PathBuf> = std::fs::read_dir(self.dir.join("checkpoints"))
-            .map_err(|e| run_err(&self.dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.is_dir())
-            .collect();
-        all.sort();
-        for old in all.iter().rev().skip(2) {
-            let _ = std::fs::remove_dir_all(old);
-        }
-        Ok(())
-    }
-
-    fn load_checkpoint(&mut self, dir: &Path) -> Result<(), LearnError> {
-        let (policy, _) = GaussianPolicy::load(dir)?;
-        if policy.pi.spec() != self.policy.pi.spec() || policy.vf.spec() != self.policy.vf.spec() {
-            return Err(run_err(dir, "checkpoint networks do not match params.json"));
-        }
-        // A checkpoint written before the bound existed holds an unbounded policy; continuing it
-        // under params.json's (default) bound would change the run half-way.
-        if policy.log_std_max != self.policy.log_std_max {
-            let show = |b: Option<f32>| b.map_or_else(|| "none".to_string(), |m| m.to_string());
-            return Err(run_err(
-                dir,
-                format!(
-                    "the checkpoint's log-s.d. bound ({}) is not params.json's ({}): the run \
-                     was started by another fishprobe version; finish it with that version or \
-                     start it again",
-                    show(policy.log_std_max),
-                    show(self.policy.log_std_max)
-                ),
-            ));
-        }
-        self.policy = policy;
-        let (optim, _) = load(&dir.join("optim.safetensors"))?;
-        for (k, adam) in [("pi", &mut self.adam_pi), ("vf", &mut self.adam_vf)] {
-            for (part, buf) in [("m", &mut adam.m), ("v", &mut adam.v)] {
-                match optim.get(&format!("{k}.{part}")) {
-                    Some((_, d)) if d.len() == buf.len() => buf.copy_from_slice(d),
-                    _ => {
-                        return Err(run_err(
-                            dir,
-                            format!("optimiser state {k}.{part} missing or of the wrong size"),
-                        ))
-                    }
-                }
-            }
-        }
-        let p = dir.join("state.json");
-        let text = fishprobe_io::read_text_at_most(
-            &p,
-            MAX_STATE_BYTES,
-            "not a checkpoint's state",
-            "fishprobe_learn::trainer::MAX_STATE_BYTES",
-        )
-        .map_err(|e| run_err(&p, e))?;
-        let s: State = serde_json::from_str(&text).map_err(|e| run_err(&p, e))?;
-        self.venv.restore(&s.envs, &s.obs)?;
-        self.iteration = s.iteration;
-        self.timesteps = s.timesteps;
-        self.episodes = s.episodes;
-        self.kl_coeff = s.kl_coeff;
-        self.adam_pi.t = s.adam_t.0;
-        self.adam_vf.t = s.adam_t.1;
-        self.rng = s.rng;
-        Ok(())
-    }
-}
-
-/// The checkpoint a resumed run continues from: the one `checkpoints/latest` names, or `None`
-/// when the run was stopped before its first checkpoint was complete. `latest` is written after
-/// each checkpoint and only ever replaced, so it is missing beside at most one (the first, cut
-/// short); beside two or more it was lost, and a `latest` that cannot be read is refused too,
-/// since starting the run over would overwrite its checkpoints and erase its logs.
-fn latest_checkpoint(dir: &Path) -> Result<Option<PathBuf>, LearnError> {
-    let checkpoints = dir.join("checkpoints");
-    let latest = checkpoints.join("latest");
-    let name = match fishprobe_io::read_small_text(&latest) {
-        Ok(name) => name,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            let mut held: Vec<String> = std::fs::read_dir(&checkpoints)
-                .map(|entries| {
-                    entries
-                        .filter_map(|e| e.ok())
-                        .map(|e| e.file_name().to_string_lossy().into_owned())
-                        .filter(|n| is_checkpoint_name(n))
-                        .collect()
-                })
-                .unwrap_or_default();
-            held.sort();
-            return match held.last() {
-                Some(newest) if held.len() >= 2 => Err(run_err(
-                    &latest,
-                    format!(
-                        "missing, but checkpoints/ holds {} checkpoint(s), the newest {newest}: \
-                         write the name of the one to resume from into this file (the newest \
-                         may be incomplete if the run was stopped while writing it), or start \
-                         the run over in another directory",
-                        held.len()
-                    ),
-                )),
-                _ => Ok(None),
-            };
-        }
-        Err(e) => return Err(run_err(&latest, format!("cannot read: {e}"))),
-    };
-    let name = name.trim();
-    if !is_checkpoint_name(name) {
-        return Err(run_err(
-            &latest,
-            format!(
-                "names {name:?}, not a checkpoint of this run (ckpt_ and the iteration, as \
-                 ckpt_000012)"
-            ),
-        ));
-    }
-    Ok(Some(checkpoints.join(name)))
-}
-
-/// `ckpt_` and digits: the names [`Trainer`] gives its checkpoints.
-fn is_checkpoint_name(name: &str) -> bool {
-    name.strip_prefix("ckpt_")
-        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Observation length of an environment configuration (for checking policies).
@@ -700,24 +335,6 @@ mod tests {
             t.iterate().unwrap();
         }
         t
-    }
-
-    #[test]
-    fn checkpoint_names_are_the_trainers_own() {
-        for good in ["ckpt_000001", "ckpt_1", "ckpt_123456789"] {
-            assert!(is_checkpoint_name(good), "{good}");
-        }
-        for bad in [
-            "",
-            "ckpt_",
-            "ckpt_-1",
-            "ckpt_1/../..",
-            "/etc",
-            "../ckpt_1",
-            "latest",
-        ] {
-            assert!(!is_checkpoint_name(bad), "{bad}");
-        }
     }
 
     #[test]
