@@ -67,6 +67,9 @@ pub struct Study {
     /// The environment of the study's trainings and trials ([`StudyConfig::env`], resolved
     /// and checked once).
     pub env: fishprobe_sim::EnvConfig,
+    /// The fishprobe build running the study, recorded with what it fits (the CLI sets its
+    /// `--version`; default: the version alone).
+    pub program_build: String,
 }
 
 impl Study {
@@ -157,6 +160,7 @@ impl Study {
             real,
             convnet_data,
             env,
+            program_build: env!("CARGO_PKG_VERSION").into(),
         })
     }
 

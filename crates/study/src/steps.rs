@@ -135,6 +135,7 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
                     false,
                     false,
                     &command,
+                    &study.program_build,
                     &|_| {},
                 )?;
                 say(&format!(

@@ -172,6 +172,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
             !a.no_baselines,
             a.resume,
             &command.join(" "),
+            super::BUILD,
             &progress,
         )
     })?;

@@ -39,10 +39,19 @@ use clap::{Parser, Subcommand};
 ///
 /// Simulates the 1 x 1 m RoboFish tank with a robot fish and a fish driven by a candidate
 /// behaviour model.
+/// This build of fishprobe: its version and the git commit it was built from (`--version`;
+/// recorded where a result must name the code that made it, e.g. each fitted network).
+pub(crate) const BUILD: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (",
+    env!("FISHPROBE_COMMIT"),
+    ")"
+);
+
 #[derive(Debug, Parser)]
 #[command(
     name = "fishprobe",
-    version = concat!(env!("CARGO_PKG_VERSION"), " (", env!("FISHPROBE_COMMIT"), ")"),
+    version = BUILD,
     about,
     long_about = None
 )]

@@ -126,6 +126,7 @@ fn fit(
             // several fits); the loop's resume is the stage's, this is the fit's.
             true,
             "fishprobe ood-loop",
+            super::BUILD,
             &quiet,
         )
         .with_context(|| format!("fitting {}", weights.display()))?;

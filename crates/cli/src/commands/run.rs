@@ -75,8 +75,9 @@ pub fn run(a: RunArgs) -> Result<()> {
     }
     let jobs = super::resolve_jobs(a.jobs)?
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let study =
+    let mut study =
         Study::with_convnet_data(a.out.clone(), cfg, a.real.clone(), a.convnet_data.clone())?;
+    study.program_build = super::BUILD.into();
     if let Some(id) = &a.step {
         // A SLURM array task: steps run concurrently in one study, so each locks only itself
         // (the submitting `run` holds the study's lock meanwhile).

@@ -60,6 +60,9 @@ const FIT_INPUTS_KEY: &str = "fit_inputs_sha256";
 const TENSORS_KEY: &str = "tensors_sha256";
 /// Sidecar key: the fit's epoch log.
 const LOG_KEY: &str = "log";
+/// Sidecar key: the fishprobe build that fitted the network (`fishprobe --version`: the
+/// version and the git commit), so that a resumed run takes only networks its own code made.
+const BUILD_KEY: &str = "program_build";
 
 /// What a fit sees, digested: the training and validation examples as loaded (so the data and
 /// every setting that shapes the examples), the architecture and the fit's own settings. The
@@ -105,13 +108,14 @@ fn tensors_sha256(net: &ConvNet) -> Result<String, LearnError> {
 }
 
 /// A fit an earlier run left in `file`, if a resumed run may take it: `None` when there is no
-/// file; otherwise the network and its sidecar, or why not (another fit's inputs or seed, a
-/// fishprobe that did not record them, or tensors other than the sidecar describes: a write
-/// cut short).
+/// file; otherwise the network and its sidecar, or why not (another fit's inputs or seed,
+/// another fishprobe build than `build`, a fishprobe that did not record them, or tensors
+/// other than the sidecar describes: a write cut short).
 fn earlier_fit(
     file: &Path,
     inputs: &str,
     seed: u64,
+    build: &str,
 ) -> Option<Result<(ConvNet, serde_json::Value), String>> {
     if !file.exists() {
         return None;
@@ -127,6 +131,17 @@ fn earlier_fit(
         }
         if meta.get("seed").and_then(serde_json::Value::as_u64) != Some(seed) {
             return Err("it was fitted with another seed".into());
+        }
+        match text(BUILD_KEY) {
+            Some(b) if b == build => {}
+            Some(b) => {
+                return Err(format!(
+                    "it was fitted by fishprobe {b}; this is {build}, whose fitting code may differ"
+                ))
+            }
+            None => {
+                return Err("its sidecar does not record the fishprobe build that fitted it".into())
+            }
         }
         let net = ConvNet::from_parts(&t, &meta, &file.display().to_string())
             .map_err(|e| e.to_string())?;
@@ -199,8 +214,10 @@ pub struct FitReport {
 /// overlap. With `baselines`, also fits the same network without neighbour channels. With
 /// `resume`, each network (the weights, the ensemble's members) that an earlier run of the same
 /// data, settings and seed finished beside `out` is taken as it is, and so is the baseline's
-/// NLL the weights' sidecar records; the rest is fitted. A resumed run writes what an
-/// uninterrupted one writes (the fits are deterministic for their seed).
+/// NLL the weights' sidecar records; the rest is fitted. Only networks that `build` (the
+/// fishprobe build running, as `fishprobe --version` names it; recorded in each sidecar)
+/// fitted are taken. A resumed run writes what an uninterrupted one writes (the fits are
+/// deterministic for their seed).
 #[allow(clippy::too_many_arguments)]
 pub fn fit_convnet(
     data: &[PathBuf],
@@ -211,6 +228,7 @@ pub fn fit_convnet(
     baselines: bool,
     resume: bool,
     command: &str,
+    build: &str,
     progress: &(dyn Fn(FitProgress<'_>) + Sync),
 ) -> Result<FitReport, LearnError> {
     cfg.validate()?;
@@ -269,7 +287,7 @@ pub fn fit_convnet(
         if !resume {
             return None;
         }
-        match earlier_fit(file, &inputs, seed)? {
+        match earlier_fit(file, &inputs, seed, build)? {
             Ok(found) => {
                 progress(FitProgress::Resumed { label, file });
                 Some(found)
@@ -297,6 +315,7 @@ pub fn fit_convnet(
             "validation_nll": nll(&net, &val),
             "epochs": logs.len(),
             "program_version": env!("CARGO_PKG_VERSION"),
+            BUILD_KEY: build,
             FIT_INPUTS_KEY: inputs,
             TENSORS_KEY: tensors_sha256(&net)?,
             LOG_KEY: logs,
@@ -550,5 +569,55 @@ mod tests {
         t3.y[4] = 2;
         assert_ne!(fit_inputs_sha256(&arch, &cfg, &t3, &v), base);
         assert_ne!(fit_inputs_sha256(&arch, &cfg, &v, &t), base);
+    }
+
+    #[test]
+    fn a_network_is_taken_only_from_the_same_inputs_seed_and_build_with_its_own_tensors() {
+        let dir =
+            std::env::temp_dir().join(format!("fishprobe-earlier-fit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("cn.safetensors");
+        let arch = ConvNetArch::default();
+        let net = ConvNet::new(arch.clone(), &mut fishprobe_sim::stream(1, "t", 0));
+        let (inputs, build) = ("ab".repeat(32), "0.1.0 (commit 0123456789ab)");
+        let save = |meta: serde_json::Value| {
+            fishprobe_nn::store::save(&file, &net.to_tensors(), &meta).unwrap();
+        };
+        let meta = serde_json::json!({
+            "arch": arch,
+            "seed": 7,
+            BUILD_KEY: build,
+            FIT_INPUTS_KEY: inputs,
+            TENSORS_KEY: tensors_sha256(&net).unwrap(),
+        });
+        assert!(earlier_fit(&dir.join("none.safetensors"), &inputs, 7, build).is_none());
+        save(meta.clone());
+        let why = |inputs: &str, seed: u64, build: &str| {
+            earlier_fit(&file, inputs, seed, build).unwrap().err()
+        };
+        assert_eq!(why(&inputs, 7, build), None, "the same fit is taken");
+        assert!(why(&"cd".repeat(32), 7, build)
+            .unwrap()
+            .contains("other data"));
+        assert!(why(&inputs, 8, build).unwrap().contains("another seed"));
+        let other = why(&inputs, 7, "0.1.0 (commit ba9876543210)").unwrap();
+        assert!(
+            other.contains("fitted by fishprobe 0.1.0 (commit 0123456789ab)")
+                && other.contains("this is 0.1.0 (commit ba9876543210), whose fitting code"),
+            "{other}"
+        );
+        let mut unrecorded = meta.clone();
+        unrecorded.as_object_mut().unwrap().remove(BUILD_KEY);
+        save(unrecorded);
+        assert!(why(&inputs, 7, build)
+            .unwrap()
+            .contains("does not record the fishprobe build"));
+        let mut cut = meta;
+        cut[TENSORS_KEY] = serde_json::json!("00".repeat(32));
+        save(cut);
+        assert!(why(&inputs, 7, build)
+            .unwrap()
+            .contains("a write cut short"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
