@@ -48,7 +48,7 @@ pub struct Situation {
 }
 
 impl Situation {
-    /// The situation a view (`3 x bins`, channel-major, as [`encode_view`] writes it) shows.
+    /// The situation a view (`3 x bins`, channel-major, as [`encode_view`](crate::convnet::encode_view) writes it) shows.
     pub fn of_view(arch: &ConvNetArch, view: &[f32]) -> Self {
         let n = arch.bins;
         let width = std::f32::consts::TAU / n as f32;
