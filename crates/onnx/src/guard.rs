@@ -33,7 +33,7 @@ thread_local! {
 }
 
 /// The system allocator, refusing (returning null) any single allocation larger than the
-/// cap of the thread asking, inside [`capped`]; everywhere else exactly [`System`].
+/// cap of the thread asking, inside `capped`; everywhere else exactly [`System`].
 pub struct CappedAlloc;
 
 fn over_cap(size: usize) -> bool {
