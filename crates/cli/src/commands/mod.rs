@@ -35,10 +35,6 @@ mod train;
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 
-/// fishprobe: test models of fish behaviour by the robots they teach (Hocke et al. 2026).
-///
-/// Simulates the 1 x 1 m RoboFish tank with a robot fish and a fish driven by a candidate
-/// behaviour model.
 /// This build of fishprobe: its version and the git commit it was built from (`--version`;
 /// recorded where a result must name the code that made it, e.g. each fitted network).
 pub(crate) const BUILD: &str = concat!(
@@ -48,6 +44,10 @@ pub(crate) const BUILD: &str = concat!(
     ")"
 );
 
+/// fishprobe: test models of fish behaviour by the robots they teach (Hocke et al. 2026).
+///
+/// Simulates the 1 x 1 m RoboFish tank with a robot fish and a fish driven by a candidate
+/// behaviour model.
 #[derive(Debug, Parser)]
 #[command(
     name = "fishprobe",
