@@ -162,8 +162,31 @@ pub fn run(a: RunArgs) -> Result<()> {
     let summary =
         fishprobe_io::read_small_text(&a.out.join("analysis/summary.md")).unwrap_or_default();
     emit(&format!(
-        "{summary}\nStudy complete in {:.1} min: {}/report/index.html\n",
-        started.elapsed().as_secs_f64() / 60.0,
+        "{summary}\nStudy complete in {}: {}/report/index.html\n",
+        took(started.elapsed().as_secs_f64()),
         a.out.display()
     ))
+}
+
+/// A run's duration for people: seconds under a minute (a smoke study said "0.0 min"), else
+/// minutes to a tenth.
+fn took(seconds: f64) -> String {
+    if seconds < 59.95 {
+        format!("{seconds:.1} s")
+    } else {
+        format!("{:.1} min", seconds / 60.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::took;
+
+    #[test]
+    fn durations_read_in_seconds_under_a_minute_and_minutes_above() {
+        assert_eq!(took(2.94), "2.9 s");
+        assert_eq!(took(59.9), "59.9 s");
+        assert_eq!(took(59.97), "1.0 min");
+        assert_eq!(took(1786.0), "29.8 min");
+    }
 }
