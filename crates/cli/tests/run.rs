@@ -153,6 +153,24 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(results(&a) == before, "the kept run changed the results");
 
+    // A run that another trainer revision started (its marker gone, as when a raised revision
+    // changes the step's hash) is stale: trained again from the start, not continued.
+    let mut old: serde_json::Value = serde_json::from_slice(&spec).unwrap();
+    assert_eq!(old["trainer_revision"], fishprobe_learn::TRAINER_REVISION);
+    old["trainer_revision"] = 1.into();
+    std::fs::write(&params, old.to_string()).unwrap();
+    std::fs::remove_file(a.join(".fishprobe/done/train-Zone-0.json")).unwrap();
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let log = std::fs::read_to_string(a.join("logs/train-Zone-0.log")).unwrap();
+    let last = &log[log.rfind("step train-Zone-0").unwrap()..];
+    assert!(!last.contains("resuming"), "{last}");
+    assert_eq!(std::fs::read(&params).unwrap(), spec, "not trained again");
+    assert!(
+        results(&a) == before,
+        "the retrained run changed the results"
+    );
+
     // Live trials as the reality arm (here the virtual lab's, which record the weights that
     // drove them): taken when they are the study's policies'; refused, naming the trial, when
     // one was driven by other weights under the same name; taken with a warning when one

@@ -112,6 +112,67 @@ fn a_killed_run_resumes_to_the_same_result() {
         stderr(&o)
     );
     assert!(!stderr(&fishprobe(&resume)).contains("run's own seed"));
+
+    // The run records the build and the trainer revision that started it. Another build of the
+    // same revision continues it and says so; a run of another revision, or one that does not
+    // record its revision (started before fishprobe recorded it), is refused, naming both.
+    let version = stdout(&fishprobe(&["--version"]));
+    let build = version.trim().trim_start_matches("fishprobe ");
+    assert_eq!(params["program_build"], build, "{version}");
+    assert_eq!(
+        params["trainer_revision"],
+        fishprobe_learn::TRAINER_REVISION
+    );
+    let mut resume_a = args(&a);
+    resume_a.push("--resume");
+    assert!(!stderr(&fishprobe(&resume_a)).contains("started by fishprobe"));
+    let params_file = a.join("params.json");
+    let original = std::fs::read_to_string(&params_file).unwrap();
+    let policy = std::fs::read(a.join("policy.safetensors")).unwrap();
+    let with = |key: &str, value: serde_json::Value| {
+        let mut p = params.clone();
+        match value {
+            serde_json::Value::Null => p.as_object_mut().unwrap().remove(key),
+            v => p.as_object_mut().unwrap().insert(key.into(), v),
+        };
+        std::fs::write(&params_file, p.to_string()).unwrap();
+    };
+    with("program_build", "0.1.0 (commit 0123456789ab)".into());
+    let o = fishprobe(&resume_a);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains(
+            "the run was started by fishprobe 0.1.0 (commit 0123456789ab); continuing it with"
+        ),
+        "{}",
+        stderr(&o)
+    );
+    with("trainer_revision", 1.into());
+    let o = fishprobe(&resume_a);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains(&format!(
+            "params.json: the run was started by trainer revision 1 (fishprobe {build}); this \
+             fishprobe's trainer is revision {}",
+            fishprobe_learn::TRAINER_REVISION
+        )) && stderr(&o).contains("train it again"),
+        "{}",
+        stderr(&o)
+    );
+    with("trainer_revision", serde_json::Value::Null);
+    let o = fishprobe(&resume_a);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("a fishprobe that did not record its trainer's revision"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read(a.join("policy.safetensors")).unwrap(),
+        policy,
+        "a refused resume changed the policy"
+    );
+    std::fs::write(&params_file, original).unwrap();
 }
 
 #[test]

@@ -14,6 +14,8 @@
 //!     seed: 1,
 //!     preset: "quick".into(),
 //!     program_version: env!("CARGO_PKG_VERSION").into(),
+//!     program_build: env!("CARGO_PKG_VERSION").into(),
+//!     trainer_revision: fishprobe_learn::TRAINER_REVISION,
 //! };
 //! let mut run = Trainer::create("runs/zone".as_ref(), spec)?;
 //! while !run.done() {
@@ -50,7 +52,9 @@ pub use trainer::{IterationStats, RunSpec, Trainer};
 
 /// The trainer's revision: raised when a fix makes runs of earlier revisions wrong with the
 /// same settings, so that a study retrains the policies it made before (its training steps
-/// hash this number with their settings). 2: above the log-s.d. bound a gradient that lowers
+/// hash this number with their settings, and a partly trained run of another revision starts
+/// over), and `train --resume` refuses to continue a run another revision started
+/// ([`RunSpec::trainer_revision`]). 2: above the log-s.d. bound a gradient that lowers
 /// the log-s.d. passes (`ppo`); under revision 1 a run could stay at the widest Gaussian for
 /// good (docs/validation.md, "The log-s.d. bound was a trap").
 pub const TRAINER_REVISION: u32 = 2;

@@ -43,6 +43,16 @@ pub struct RunSpec {
     pub preset: String,
     /// fishprobe version that started the run.
     pub program_version: String,
+    /// The build that started the run, as `fishprobe --version` prints it (the version and the
+    /// git commit); empty in runs started before it was recorded. Provenance only: a resumed
+    /// run continues under the trainer's revision, not the build.
+    #[serde(default)]
+    pub program_build: String,
+    /// The trainer's revision ([`crate::TRAINER_REVISION`]) that started the run; 0 in runs
+    /// started before it was recorded (revisions 1 and 2). A run of another revision is not
+    /// resumed: its updates so far were made by a trainer whose fixes the current one has.
+    #[serde(default)]
+    pub trainer_revision: u32,
 }
 
 impl RunSpec {
@@ -57,6 +67,43 @@ impl RunSpec {
             self.model.ood_scorer(self.env.task.ood_score)?;
         }
         Ok(())
+    }
+
+    /// Whether `self` and `other` describe the same run: equal in everything but the program
+    /// version and build that started them (a run started by one build and finished by another
+    /// of the same trainer revision is one run; the revision is compared).
+    pub fn same_run(&self, other: &RunSpec) -> bool {
+        RunSpec {
+            program_version: other.program_version.clone(),
+            program_build: other.program_build.clone(),
+            ..self.clone()
+        } == *other
+    }
+
+    /// An error when the run was started by another trainer revision than this fishprobe's:
+    /// continuing it would mix two trainers' updates in one policy.
+    pub fn check_revision(&self, dir: &Path) -> Result<(), LearnError> {
+        if self.trainer_revision == crate::TRAINER_REVISION {
+            return Ok(());
+        }
+        let started = match self.trainer_revision {
+            0 => "a fishprobe that did not record its trainer's revision (1 or 2)".to_string(),
+            r => format!("trainer revision {r}"),
+        };
+        let build = match self.program_build.as_str() {
+            "" => String::new(),
+            b => format!(" (fishprobe {b})"),
+        };
+        Err(run_err(
+            &dir.join("params.json"),
+            format!(
+                "the run was started by {started}{build}; this fishprobe's trainer is revision \
+                 {}, whose fixes make the earlier updates wrong, so it does not continue them: \
+                 finish the run with the fishprobe that started it, or train it again (another \
+                 --out, or delete the directory)",
+                crate::TRAINER_REVISION
+            ),
+        ))
     }
 }
 
@@ -97,6 +144,8 @@ impl Trainer {
         model: Arc<dyn FishModel>,
     ) -> Result<Self, LearnError> {
         spec.ppo.validate()?;
+        // A new run is always this trainer's.
+        spec.trainer_revision = crate::TRAINER_REVISION;
         spec.env.mode = TaskMode::Training;
         spec.env.validate()?;
         Self::ensure_new(dir)?;
@@ -181,6 +230,7 @@ impl Trainer {
         spec: RunSpec,
         model: Arc<dyn FishModel>,
     ) -> Result<Self, LearnError> {
+        spec.check_revision(dir)?;
         spec.ppo.validate()?;
         let mut t = Self::build(dir, spec, model)?;
         match latest_checkpoint(dir)? {
@@ -329,12 +379,50 @@ mod tests {
             seed: 0,
             preset: "smoke".into(),
             program_version: "test".into(),
+            program_build: "test".into(),
+            trainer_revision: crate::TRAINER_REVISION,
         };
         let mut t = Trainer::create(dir, spec).unwrap();
         for _ in 0..iterations {
             t.iterate().unwrap();
         }
         t
+    }
+
+    #[test]
+    fn one_run_across_builds_but_not_across_trainer_revisions() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-revision-{}", std::process::id()));
+        let spec = smoke_run(&dir, 0).spec().clone();
+        assert_eq!(spec.trainer_revision, crate::TRAINER_REVISION);
+        let other_build = RunSpec {
+            program_version: "9.9.9".into(),
+            program_build: "9.9.9 (commit abc)".into(),
+            ..spec.clone()
+        };
+        assert!(spec.same_run(&other_build) && other_build.same_run(&spec));
+        assert!(other_build.check_revision(&dir).is_ok());
+        let other_revision = RunSpec {
+            trainer_revision: 1,
+            ..spec.clone()
+        };
+        assert!(!spec.same_run(&other_revision));
+        let e = other_revision.check_revision(&dir).unwrap_err().to_string();
+        assert!(
+            e.contains("started by trainer revision 1 (fishprobe test)"),
+            "{e}"
+        );
+        let mut seed = spec.clone();
+        seed.seed += 1;
+        assert!(!spec.same_run(&seed));
+        // params.json of a run started before the revision was recorded reads as revision 0.
+        let mut json = serde_json::to_value(&spec).unwrap();
+        json.as_object_mut().unwrap().remove("trainer_revision");
+        json.as_object_mut().unwrap().remove("program_build");
+        let old: RunSpec = serde_json::from_value(json).unwrap();
+        assert_eq!((old.trainer_revision, old.program_build.as_str()), (0, ""));
+        let e = old.check_revision(&dir).unwrap_err().to_string();
+        assert!(e.contains("did not record its trainer's revision"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

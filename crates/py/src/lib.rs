@@ -298,6 +298,8 @@ fn fresh_run(
         seed,
         preset: preset.to_string(),
         program_version: env!("CARGO_PKG_VERSION").into(),
+        program_build: concat!(env!("CARGO_PKG_VERSION"), ", Python package").into(),
+        trainer_revision: fishprobe_learn::TRAINER_REVISION,
     };
     // The OOD reward needs the model's support: a missing or foreign file is refused here.
     spec.check().map_err(learn_err)?;

@@ -156,16 +156,14 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
                 seed: derive_seed(c.seed, &format!("train/{}", c.models[*m].name), *k as u64),
                 preset: c.ppo_preset.clone(),
                 program_version: env!("CARGO_PKG_VERSION").into(),
+                program_build: study.program_build.clone(),
+                trainer_revision: fishprobe_learn::TRAINER_REVISION,
             };
-            // Resume a run of the same spec; a run of another spec is stale and starts over.
+            // Resume a run of the same spec; a run of another spec, or one another trainer
+            // revision started, is stale and starts over.
             let params = out.join("params.json");
             let same = match fishprobe_io::read_small_text(&params) {
-                Ok(t) => serde_json::from_str::<RunSpec>(&t).is_ok_and(|old| {
-                    RunSpec {
-                        program_version: spec.program_version.clone(),
-                        ..old
-                    } == spec
-                }),
+                Ok(t) => serde_json::from_str::<RunSpec>(&t).is_ok_and(|old| old.same_run(&spec)),
                 // No run yet, or one stopped before it wrote its spec: nothing to keep.
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
                 // A spec that cannot be read now (a read error, bytes that are not text):

@@ -110,19 +110,18 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         seed,
         preset: a.preset.clone(),
         program_version: env!("CARGO_PKG_VERSION").into(),
+        program_build: super::BUILD.into(),
+        trainer_revision: fishprobe_learn::TRAINER_REVISION,
     };
     let mut t = if train_dir.join("params.json").exists() {
         // A cell stopped before it finished resumes its training only if that training is
         // this cell's: resumed with other settings, it would be scored as this reading.
         let old = Trainer::recorded_spec(&train_dir)?;
-        let same = RunSpec {
-            program_version: run_spec.program_version.clone(),
-            ..old
-        } == run_spec;
-        if !same {
+        if !old.same_run(&run_spec) {
             bail!(
                 "{} holds a partly trained policy made with other settings (another --preset or \
-                 --seed, or fishprobe's defaults changed since): use another --out or remove it",
+                 --seed, or fishprobe's defaults or trainer changed since): use another --out or \
+                 remove it",
                 train_dir.display()
             );
         }

@@ -164,6 +164,8 @@ fn train(
                     seed,
                     preset: cfg.ppo_preset.clone(),
                     program_version: env!("CARGO_PKG_VERSION").into(),
+                    program_build: super::BUILD.into(),
+                    trainer_revision: fishprobe_learn::TRAINER_REVISION,
                 },
             )?
         };

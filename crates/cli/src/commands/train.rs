@@ -163,6 +163,8 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
         seed: a.seed,
         preset: a.preset.clone(),
         program_version: env!("CARGO_PKG_VERSION").into(),
+        program_build: super::BUILD.into(),
+        trainer_revision: fishprobe_learn::TRAINER_REVISION,
     };
     // The OOD reward needs the model's support: a missing or foreign file is refused here.
     spec.check()
@@ -246,6 +248,22 @@ pub fn run(a: TrainArgs) -> Result<()> {
                  not --seed {} --preset {}",
                 a.seed,
                 a.preset
+            );
+        }
+        // Another build of the same trainer revision continues the run (the revision is what
+        // decides whether earlier updates are still right); say so, for the record.
+        let build = &t.spec().program_build;
+        if build != super::BUILD {
+            say!(
+                "note: the run was started by fishprobe {}; continuing it with {} (same trainer \
+                 revision, {})",
+                if build.is_empty() {
+                    "(build not recorded)"
+                } else {
+                    build
+                },
+                super::BUILD,
+                fishprobe_learn::TRAINER_REVISION
             );
         }
         t

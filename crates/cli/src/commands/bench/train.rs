@@ -97,6 +97,8 @@ pub(super) fn bench_train(json: bool, iterations: u64, model_name: &str) -> Resu
             seed: 0,
             preset: preset.into(),
             program_version: env!("CARGO_PKG_VERSION").into(),
+            program_build: crate::commands::BUILD.into(),
+            trainer_revision: fishprobe_learn::TRAINER_REVISION,
         };
         let (total, epochs) = (spec.ppo.total_timesteps, spec.ppo.num_sgd_iter);
         let mut t = Trainer::create(&dir, spec)?;
