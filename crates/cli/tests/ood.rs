@@ -129,6 +129,21 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     let o3 = fishprobe(&loop_args);
     assert!(o3.status.success(), "{}", stderr(&o3));
     assert_eq!(stdout(&o3), text);
+    // A policy that another trainer revision trained is not compared with this one's.
+    let params = seed_dir.join("policy-ood/params.json");
+    let kept = std::fs::read(&params).unwrap();
+    let mut p: serde_json::Value = serde_json::from_slice(&kept).unwrap();
+    p["trainer_revision"] = 1.into();
+    std::fs::write(&params, p.to_string()).unwrap();
+    let o = fishprobe(&loop_args);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("the loop was begun by another fishprobe; use another --out")
+            && stderr(&o).contains("started by trainer revision 1"),
+        "{}",
+        stderr(&o)
+    );
+    std::fs::write(&params, kept).unwrap();
     // Two rounds: each chain trains again against its own refitted model, records as much
     // again and refits on the narrow data plus both rounds' recordings.
     let cfg2 = dir.join("rounds.toml");

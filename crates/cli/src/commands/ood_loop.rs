@@ -137,7 +137,9 @@ fn fit(
     ))?)
 }
 
-/// Trains a policy against `model` in `dir` (resumed or skipped when done).
+/// Trains a policy against `model` in `dir` (resumed or skipped when done; a policy that
+/// another trainer revision trained or began is refused, so a loop never compares policies of
+/// two trainers).
 fn train(
     model: &ModelSpec,
     objective: Objective,
@@ -146,7 +148,11 @@ fn train(
     dir: &Path,
 ) -> Result<String> {
     let policy = dir.join("policy.safetensors");
-    if !policy.exists() {
+    if policy.exists() {
+        Trainer::recorded_spec(dir)?
+            .check_revision(dir)
+            .context("the loop was begun by another fishprobe; use another --out")?;
+    } else {
         let mut t = if dir.join("params.json").exists() {
             Trainer::resume(dir)?
         } else {
