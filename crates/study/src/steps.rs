@@ -124,18 +124,20 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
             );
             staged(&out, |tmp| {
                 let r = fishprobe_learn::bc::fit_convnet(
-                    &[data.join("train")],
-                    &[data.join("validation")],
-                    &tmp.join("convnet.safetensors"),
-                    &fishprobe_learn::bc::CloneConfig {
-                        max_epochs: c.convnet_max_epochs,
-                        ..fishprobe_learn::bc::CloneConfig::default()
+                    &fishprobe_learn::bc::FitRequest {
+                        data: &[data.join("train")],
+                        validation: &[data.join("validation")],
+                        out: &tmp.join("convnet.safetensors"),
+                        cfg: &fishprobe_learn::bc::CloneConfig {
+                            max_epochs: c.convnet_max_epochs,
+                            ..fishprobe_learn::bc::CloneConfig::default()
+                        },
+                        seed: c.seed,
+                        baselines: false,
+                        resume: false,
+                        command: &command,
+                        build: &study.program_build,
                     },
-                    c.seed,
-                    false,
-                    false,
-                    &command,
-                    &study.program_build,
                     &|_| {},
                 )?;
                 say(&format!(

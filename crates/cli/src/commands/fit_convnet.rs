@@ -2,7 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::Args;
-use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress};
+use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress, FitRequest};
 use fishprobe_models::ConvNetArch;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
@@ -164,15 +164,17 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
     };
     let r = super::with_jobs(a.jobs, || {
         fit_convnet(
-            &data,
-            &validation,
-            &out,
-            &cfg,
-            a.seed,
-            !a.no_baselines,
-            a.resume,
-            &command.join(" "),
-            super::BUILD,
+            &FitRequest {
+                data: &data,
+                validation: &validation,
+                out: &out,
+                cfg: &cfg,
+                seed: a.seed,
+                baselines: !a.no_baselines,
+                resume: a.resume,
+                command: &command.join(" "),
+                build: super::BUILD,
+            },
             &progress,
         )
     })?;

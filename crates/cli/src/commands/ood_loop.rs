@@ -19,7 +19,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_analysis::ood::{metric_gap, pooled_metrics, quantile, score_trials, share_at_least};
 use fishprobe_analysis::{load_trial, AnalysisConfig};
-use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress};
+use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress, FitRequest};
 use fishprobe_learn::{Evaluation, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{EnvConfig, Objective, OodScore};
@@ -116,17 +116,19 @@ fn fit(
         };
         let quiet = |_: FitProgress<'_>| {};
         fit_convnet(
-            data,
-            &[validation.to_path_buf()],
-            &weights,
-            &cfg,
-            seed,
-            false,
-            // A stage stopped inside its fit keeps the networks it finished (an ensemble is
-            // several fits); the loop's resume is the stage's, this is the fit's.
-            true,
-            "fishprobe ood-loop",
-            super::BUILD,
+            &FitRequest {
+                data,
+                validation: &[validation.to_path_buf()],
+                out: &weights,
+                cfg: &cfg,
+                seed,
+                baselines: false,
+                // A stage stopped inside its fit keeps the networks it finished (an ensemble
+                // is several fits); the loop's resume is the stage's, this is the fit's.
+                resume: true,
+                command: "fishprobe ood-loop",
+                build: super::BUILD,
+            },
             &quiet,
         )
         .with_context(|| format!("fitting {}", weights.display()))?;

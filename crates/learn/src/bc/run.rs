@@ -208,92 +208,206 @@ pub struct FitReport {
     pub disagreement: Option<PathBuf>,
 }
 
-/// Fits M_ConvNet on the pair files under `data`, stopping early on `validation`, and writes
-/// the weights (`out`), their sidecar (architecture, settings, data, NLLs, `command`) and the
-/// training log (`out` with extension `training.csv`). Training and validation files must not
-/// overlap. With `baselines`, also fits the same network without neighbour channels. With
-/// `resume`, each network (the weights, the ensemble's members) that an earlier run of the same
-/// data, settings and seed finished beside `out` is taken as it is, and so is the baseline's
-/// NLL the weights' sidecar records; the rest is fitted. Only networks that `build` (the
-/// fishprobe build running, as `fishprobe --version` names it; recorded in each sidecar)
-/// fitted are taken. A resumed run writes what an uninterrupted one writes (the fits are
-/// deterministic for their seed).
-#[allow(clippy::too_many_arguments)]
+/// What [`fit_convnet`] is asked to do: one fit of M_ConvNet, with the names a sidecar records.
+#[derive(Debug, Clone, Copy)]
+pub struct FitRequest<'a> {
+    /// The pair files (or directories of them) to fit on.
+    pub data: &'a [PathBuf],
+    /// The pair files to stop early on; no file may be in both.
+    pub validation: &'a [PathBuf],
+    /// The weights file to write (its sidecar, training log, support file and the ensemble's
+    /// further members beside it).
+    pub out: &'a Path,
+    /// The fit's settings.
+    pub cfg: &'a CloneConfig,
+    /// The fit's seed (initialisation and shuffling; each further member derives its own).
+    pub seed: u64,
+    /// Also fit the same network without neighbour channels, for its NLL.
+    pub baselines: bool,
+    /// Take each network (the weights, the ensemble's members) that an earlier run of the same
+    /// data, settings, seed and build finished beside `out`, and the baseline's NLL the
+    /// weights' sidecar records; fit the rest.
+    pub resume: bool,
+    /// The command recorded in every sidecar.
+    pub command: &'a str,
+    /// The fishprobe build running, as `fishprobe --version` names it (recorded in each
+    /// sidecar; a resumed run takes only networks this build fitted).
+    pub build: &'a str,
+}
+
+/// Fits M_ConvNet as `req` says and writes the weights (`req.out`), their sidecar
+/// (architecture, settings, data, NLLs, command, build) and the training log (`req.out` with
+/// extension `training.csv`), the support file of the training views, and, with
+/// `ensemble_members` > 1, the further members and their disagreement file. Each network is
+/// saved as soon as it is fitted, so a resumed run (`req.resume`) writes what an uninterrupted
+/// one writes (the fits are deterministic for their seed).
 pub fn fit_convnet(
-    data: &[PathBuf],
-    validation: &[PathBuf],
-    out: &Path,
-    cfg: &CloneConfig,
-    seed: u64,
-    baselines: bool,
-    resume: bool,
-    command: &str,
-    build: &str,
+    req: &FitRequest<'_>,
     progress: &(dyn Fn(FitProgress<'_>) + Sync),
 ) -> Result<FitReport, LearnError> {
-    cfg.validate()?;
+    req.cfg.validate()?;
+    let arch = ConvNetArch::default();
+    let (train, val) = load_disjoint(req, &arch)?;
+    progress(FitProgress::Loaded {
+        train: &train,
+        validation: &val,
+    });
+    let f = Fitting {
+        inputs: fit_inputs_sha256(&arch, req.cfg, &train, &val),
+        req,
+        arch,
+        train,
+        val,
+        progress,
+    };
+    if let Some(parent) = req.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .map_err(|e| LearnError::Run(format!("creating {}: {e}", parent.display())))?;
+    }
+    let main = f.main_network()?;
+    remove_stale_ensemble(req.out, req.cfg.ensemble_members)?;
+    let weights_sha = sha256_of_file(req.out)?;
+    let support = f.write_support(&weights_sha)?;
+    let mut nets = vec![main.net];
+    let members = f.ensemble(&mut nets)?;
+    let disagreement = f.write_disagreement(&weights_sha, &members, nets)?;
+    let log_file = write_training_log(req.out, &main.logs)?;
+    let mut skipped = f.train.skipped.clone();
+    skipped.extend(f.val.skipped.iter().cloned());
+    Ok(FitReport {
+        val_nll: main.val_nll,
+        marginal_nll: main.marginal_nll,
+        no_neighbour_nll: main.no_neighbour_nll,
+        logs: main.logs,
+        skipped,
+        weights: req.out.to_path_buf(),
+        support,
+        log_file,
+        members,
+        disagreement,
+    })
+}
+
+/// The training and validation examples of `req`, refused when a file is in both (by path
+/// before loading, by the files each found after).
+fn load_disjoint(
+    req: &FitRequest<'_>,
+    arch: &ConvNetArch,
+) -> Result<(PairDataset, PairDataset), LearnError> {
     let canon = |v: &[PathBuf]| -> Vec<PathBuf> {
         v.iter()
             .map(|p| p.canonicalize().unwrap_or_else(|_| p.clone()))
             .collect()
     };
-    let (ct, cv) = (canon(data), canon(validation));
     let mix = |p: &Path| {
         LearnError::Run(format!(
             "{} is both training and validation data; they must not mix",
             p.display()
         ))
     };
+    let (ct, cv) = (canon(req.data), canon(req.validation));
     if let Some(p) = ct.iter().find(|p| cv.contains(p)) {
         return Err(mix(p));
     }
-    let arch = ConvNetArch::default();
-    let train = load_pairs(data, &arch, cfg)?;
-    let val = load_pairs(validation, &arch, cfg)?;
+    let train = load_pairs(req.data, arch, req.cfg)?;
+    let val = load_pairs(req.validation, arch, req.cfg)?;
     if let Some(f) = train.files.iter().find(|f| val.files.contains(f)) {
         return Err(mix(f));
     }
-    progress(FitProgress::Loaded {
-        train: &train,
-        validation: &val,
-    });
-    let run =
-        |label: &'static str, seed: u64, net: &mut ConvNet, t: &PairDataset, v: &PairDataset| {
-            let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
-            let on_batch =
-                |done: usize, total: usize| progress(FitProgress::Batch { label, done, total });
-            fit(
-                net,
-                t,
-                v,
-                cfg,
-                &mut rng,
-                |log| progress(FitProgress::Epoch { label, log: *log }),
-                &on_batch,
-            )
-        };
-    let inputs = fit_inputs_sha256(&arch, cfg, &train, &val);
-    let names = |v: &[PathBuf]| -> Vec<String> {
-        v.iter()
-            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
-            .collect()
-    };
-    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .map_err(|e| LearnError::Run(format!("creating {}: {e}", parent.display())))?;
+    Ok((train, val))
+}
+
+/// The file names (without directories) of `files`, as sidecars record them.
+fn file_names(files: &[PathBuf]) -> Vec<String> {
+    files
+        .iter()
+        .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect()
+}
+
+/// The SHA-256 of a file just written, read back.
+fn sha256_of_file(file: &Path) -> Result<String, LearnError> {
+    let bytes = std::fs::read(file)
+        .map_err(|e| LearnError::Run(format!("reading back {}: {e}", file.display())))?;
+    Ok(fishprobe_models::sha256_hex(&bytes))
+}
+
+/// The epoch log as CSV beside the weights (`training.csv`).
+fn write_training_log(out: &Path, logs: &[EpochLog]) -> Result<PathBuf, LearnError> {
+    let log_file = out.with_extension("training.csv");
+    let mut csv = String::from("epoch,train_nll,val_nll,seconds\n");
+    for l in logs {
+        csv += &format!(
+            "{},{},{},{:.1}\n",
+            l.epoch, l.train_nll, l.val_nll, l.seconds
+        );
     }
-    // A fit an earlier run of the same inputs and seed finished, when resuming.
-    let earlier = |label: &'static str, file: &Path, seed: u64| {
-        if !resume {
+    fishprobe_io::write_atomically(&log_file, csv.as_bytes())?;
+    Ok(log_file)
+}
+
+/// The fitted (or taken) weights with what the report says of them.
+struct MainFit {
+    net: ConvNet,
+    logs: Vec<EpochLog>,
+    val_nll: f64,
+    marginal_nll: f64,
+    no_neighbour_nll: Option<f64>,
+}
+
+/// A fit under way: the request, its examples and the digest of what the fits see.
+struct Fitting<'a> {
+    req: &'a FitRequest<'a>,
+    arch: ConvNetArch,
+    train: PairDataset,
+    val: PairDataset,
+    inputs: String,
+    progress: &'a (dyn Fn(FitProgress<'_>) + Sync),
+}
+
+impl Fitting<'_> {
+    /// Fits `net` on `t`, stopping early on `v`, shuffled by `seed`, reporting as `label`.
+    fn train_net(
+        &self,
+        label: &'static str,
+        seed: u64,
+        net: &mut ConvNet,
+        t: &PairDataset,
+        v: &PairDataset,
+    ) -> Result<Vec<EpochLog>, LearnError> {
+        let progress = self.progress;
+        let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
+        let on_batch =
+            |done: usize, total: usize| progress(FitProgress::Batch { label, done, total });
+        fit(
+            net,
+            t,
+            v,
+            self.req.cfg,
+            &mut rng,
+            |log| progress(FitProgress::Epoch { label, log: *log }),
+            &on_batch,
+        )
+    }
+
+    /// The network an earlier run of the same inputs, seed and build finished in `file`, when
+    /// resuming; saying either way why.
+    fn earlier(
+        &self,
+        label: &'static str,
+        file: &Path,
+        seed: u64,
+    ) -> Option<(ConvNet, serde_json::Value)> {
+        if !self.req.resume {
             return None;
         }
-        match earlier_fit(file, &inputs, seed, build)? {
+        match earlier_fit(file, &self.inputs, seed, self.req.build)? {
             Ok(found) => {
-                progress(FitProgress::Resumed { label, file });
+                (self.progress)(FitProgress::Resumed { label, file });
                 Some(found)
             }
             Err(why) => {
-                progress(FitProgress::Refit {
+                (self.progress)(FitProgress::Refit {
                     label,
                     file,
                     why: &why,
@@ -301,22 +415,29 @@ pub fn fit_convnet(
                 None
             }
         }
-    };
-    // A new network from `seed`, fitted and saved to `file` at once (a resumed run starts
-    // after it), its sidecar the common record and `extra`'s fields.
-    let fit_new = |label: &'static str, seed: u64, file: &Path, extra: serde_json::Value| {
+    }
+
+    /// A new network from `seed`, fitted and saved to `file` at once (a resumed run starts
+    /// after it), its sidecar the common record and `extra`'s fields.
+    fn fit_new(
+        &self,
+        label: &'static str,
+        seed: u64,
+        file: &Path,
+        extra: serde_json::Value,
+    ) -> Result<(ConvNet, serde_json::Value), LearnError> {
         let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
-        let mut net = ConvNet::new(arch.clone(), &mut init);
-        let logs = run(label, seed, &mut net, &train, &val)?;
+        let mut net = ConvNet::new(self.arch.clone(), &mut init);
+        let logs = self.train_net(label, seed, &mut net, &self.train, &self.val)?;
         let mut meta = serde_json::json!({
-            "arch": arch,
+            "arch": self.arch,
             "seed": seed,
-            "command": command,
-            "validation_nll": nll(&net, &val),
+            "command": self.req.command,
+            "validation_nll": nll(&net, &self.val),
             "epochs": logs.len(),
             "program_version": env!("CARGO_PKG_VERSION"),
-            BUILD_KEY: build,
-            FIT_INPUTS_KEY: inputs,
+            BUILD_KEY: self.req.build,
+            FIT_INPUTS_KEY: self.inputs,
             TENSORS_KEY: tensors_sha256(&net)?,
             LOG_KEY: logs,
         });
@@ -324,160 +445,173 @@ pub fn fit_convnet(
             m.extend(extra);
         }
         fishprobe_nn::store::save(file, &net.to_tensors(), &meta)?;
-        Ok::<_, LearnError>((net, meta))
-    };
-    let (net, mut meta) = match earlier("ConvNet", out, seed) {
-        Some(found) => found,
-        None => fit_new(
-            "ConvNet",
-            seed,
-            out,
-            serde_json::json!({
-                "clone_config": cfg,
-                "training_files": names(&train.files),
-                "validation_files": names(&val.files),
-                "training_examples": train.len(),
-                "validation_examples": val.len(),
-                "baselines": {"no_neighbour_nll": null},
-            }),
-        )?,
-    };
-    let logs = logs_of(&meta);
-    let val_nll = recorded_nll(&meta).unwrap_or_else(|| nll(&net, &val));
-    let marginal = marginal_nll(&train, &val, arch.cells());
-    let recorded_baseline = meta
-        .pointer("/baselines/no_neighbour_nll")
-        .and_then(serde_json::Value::as_f64);
-    let no_neighbour = match recorded_baseline {
-        Some(b) => Some(b),
-        None if baselines => {
-            let (mut tb, mut vb) = (train.clone(), val.clone());
-            blind(&mut tb.x, &arch);
-            blind(&mut vb.x, &arch);
-            let mut init = fishprobe_sim::stream(seed, "fit-convnet/init-no-neighbour", 0);
-            let mut net_b = ConvNet::new(arch.clone(), &mut init);
-            run("no-neighbour baseline", seed, &mut net_b, &tb, &vb)?;
-            Some(nll(&net_b, &vb))
-        }
-        None => None,
-    };
-    meta["baselines"] = serde_json::json!({
-        "marginal_histogram_nll": marginal,
-        "no_neighbour_nll": no_neighbour,
-    });
-    // This run's command, settings and data names (a resumed run's differ from the first
-    // only in what does not change a fit: flags, the ensemble's size, the support's settings).
-    meta["command"] = command.into();
-    meta["clone_config"] = serde_json::json!(cfg);
-    meta["training_files"] = names(&train.files).into();
-    meta["validation_files"] = names(&val.files).into();
-    fishprobe_nn::store::save(out, &net.to_tensors(), &meta)?;
-    remove_stale_ensemble(out, cfg.ensemble_members)?;
-    let support = support_beside(out);
-    let bytes = std::fs::read(out)
-        .map_err(|e| LearnError::Run(format!("reading back {}: {e}", out.display())))?;
-    let provenance = serde_json::json!({
-        "command": command,
-        "training_files": names(&train.files),
-    });
-    let s = build_support(
-        &train,
-        &arch,
-        &SupportConfig {
-            partner_range_cm: cfg.support_partner_range_cm,
-            ..SupportConfig::default()
-        },
-        &out.display().to_string(),
-        &fishprobe_models::sha256_hex(&bytes),
-        seed,
-        provenance,
-    )?;
-    s.save(&support)
-        .map_err(fishprobe_models::ModelError::from)?;
-    // The ensemble: each further member from its own seed (initialisation and shuffle).
-    let mut members = Vec::new();
-    let mut nets = vec![net];
-    for i in 2..=cfg.ensemble_members {
-        let member_seed = fishprobe_sim::derive_seed(seed, "fit-convnet/ensemble-member", i as u64);
-        let file = fishprobe_models::disagreement::member_beside(out, i);
-        let (m, m_meta) = match earlier("ensemble member", &file, member_seed) {
+        Ok((net, meta))
+    }
+
+    /// The weights: taken or fitted, with the baselines' NLLs, saved again with this run's
+    /// record (a resumed run's differs from the first only in what does not change a fit:
+    /// flags, the ensemble's size, the support's settings).
+    fn main_network(&self) -> Result<MainFit, LearnError> {
+        let (req, train, val) = (self.req, &self.train, &self.val);
+        let (net, mut meta) = match self.earlier("ConvNet", req.out, req.seed) {
             Some(found) => found,
-            None => fit_new(
-                "ensemble member",
-                member_seed,
-                &file,
+            None => self.fit_new(
+                "ConvNet",
+                req.seed,
+                req.out,
                 serde_json::json!({
-                    "ensemble_member_of": out.file_name().map(|n| n.to_string_lossy().into_owned()),
-                    "member": i,
+                    "clone_config": req.cfg,
+                    "training_files": file_names(&train.files),
+                    "validation_files": file_names(&val.files),
+                    "training_examples": train.len(),
+                    "validation_examples": val.len(),
+                    "baselines": {"no_neighbour_nll": null},
                 }),
             )?,
         };
-        let m_nll = recorded_nll(&m_meta).unwrap_or_else(|| nll(&m, &val));
-        members.push((file, m_nll));
-        nets.push(m);
+        let logs = logs_of(&meta);
+        let val_nll = recorded_nll(&meta).unwrap_or_else(|| nll(&net, val));
+        let marginal_nll = marginal_nll(train, val, self.arch.cells());
+        let recorded_baseline = meta
+            .pointer("/baselines/no_neighbour_nll")
+            .and_then(serde_json::Value::as_f64);
+        let no_neighbour_nll = match recorded_baseline {
+            Some(b) => Some(b),
+            None if req.baselines => Some(self.no_neighbour_nll()?),
+            None => None,
+        };
+        meta["baselines"] = serde_json::json!({
+            "marginal_histogram_nll": marginal_nll,
+            "no_neighbour_nll": no_neighbour_nll,
+        });
+        meta["command"] = req.command.into();
+        meta["clone_config"] = serde_json::json!(req.cfg);
+        meta["training_files"] = file_names(&train.files).into();
+        meta["validation_files"] = file_names(&val.files).into();
+        fishprobe_nn::store::save(req.out, &net.to_tensors(), &meta)?;
+        Ok(MainFit {
+            net,
+            logs,
+            val_nll,
+            marginal_nll,
+            no_neighbour_nll,
+        })
     }
-    let disagreement = if members.is_empty() {
-        None
-    } else {
+
+    /// The validation NLL of the same network fitted without its neighbour channels.
+    fn no_neighbour_nll(&self) -> Result<f64, LearnError> {
+        let (mut tb, mut vb) = (self.train.clone(), self.val.clone());
+        blind(&mut tb.x, &self.arch);
+        blind(&mut vb.x, &self.arch);
+        let mut init = fishprobe_sim::stream(self.req.seed, "fit-convnet/init-no-neighbour", 0);
+        let mut net_b = ConvNet::new(self.arch.clone(), &mut init);
+        self.train_net("no-neighbour baseline", self.req.seed, &mut net_b, &tb, &vb)?;
+        Ok(nll(&net_b, &vb))
+    }
+
+    /// The support file of the training views beside the weights (whose SHA-256 it records).
+    fn write_support(&self, weights_sha: &str) -> Result<PathBuf, LearnError> {
+        let req = self.req;
+        let support = support_beside(req.out);
+        let provenance = serde_json::json!({
+            "command": req.command,
+            "training_files": file_names(&self.train.files),
+        });
+        let s = build_support(
+            &self.train,
+            &self.arch,
+            &SupportConfig {
+                partner_range_cm: req.cfg.support_partner_range_cm,
+                ..SupportConfig::default()
+            },
+            &req.out.display().to_string(),
+            weights_sha,
+            req.seed,
+            provenance,
+        )?;
+        s.save(&support)
+            .map_err(fishprobe_models::ModelError::from)?;
+        Ok(support)
+    }
+
+    /// The ensemble's further members, each from its own seed (initialisation and shuffle),
+    /// taken or fitted: their files with their validation NLLs, the networks appended to
+    /// `nets`.
+    fn ensemble(&self, nets: &mut Vec<ConvNet>) -> Result<Vec<(PathBuf, f64)>, LearnError> {
+        let req = self.req;
+        let mut members = Vec::new();
+        for i in 2..=req.cfg.ensemble_members {
+            let member_seed =
+                fishprobe_sim::derive_seed(req.seed, "fit-convnet/ensemble-member", i as u64);
+            let file = fishprobe_models::disagreement::member_beside(req.out, i);
+            let (m, m_meta) = match self.earlier("ensemble member", &file, member_seed) {
+                Some(found) => found,
+                None => self.fit_new(
+                    "ensemble member",
+                    member_seed,
+                    &file,
+                    serde_json::json!({
+                        "ensemble_member_of": req.out.file_name().map(|n| n.to_string_lossy().into_owned()),
+                        "member": i,
+                    }),
+                )?,
+            };
+            let m_nll = recorded_nll(&m_meta).unwrap_or_else(|| nll(&m, &self.val));
+            members.push((file, m_nll));
+            nets.push(m);
+        }
+        Ok(members)
+    }
+
+    /// The ensemble's disagreement file beside the weights, when it has further `members`;
+    /// calibrated on the training views.
+    fn write_disagreement(
+        &self,
+        weights_sha: &str,
+        members: &[(PathBuf, f64)],
+        nets: Vec<ConvNet>,
+    ) -> Result<Option<PathBuf>, LearnError> {
+        use fishprobe_models::disagreement::{
+            file_beside, Disagreement, DisagreementFile, MemberRef,
+        };
+        if members.is_empty() {
+            return Ok(None);
+        }
+        let req = self.req;
         let refs = members
             .iter()
             .map(|(f, _)| {
-                let bytes = std::fs::read(f)
-                    .map_err(|e| LearnError::Run(format!("reading back {}: {e}", f.display())))?;
-                Ok(fishprobe_models::disagreement::MemberRef {
+                Ok(MemberRef {
                     file: f
                         .file_name()
                         .map(|n| n.to_string_lossy().into_owned())
                         .unwrap_or_default(),
-                    sha256: fishprobe_models::sha256_hex(&bytes),
+                    sha256: sha256_of_file(f)?,
                 })
             })
             .collect::<Result<Vec<_>, LearnError>>()?;
-        let file = fishprobe_models::disagreement::DisagreementFile::new(
-            out.display().to_string(),
-            fishprobe_models::sha256_hex(&bytes),
+        let file = DisagreementFile::new(
+            req.out.display().to_string(),
+            weights_sha.to_string(),
             refs,
             serde_json::json!({
-                "command": command,
-                "training_files": names(&train.files),
+                "command": req.command,
+                "training_files": file_names(&self.train.files),
             }),
         );
-        let mut rng = fishprobe_sim::stream(seed, "disagreement", 0);
-        let d = fishprobe_models::disagreement::Disagreement::fit(
+        let mut rng = fishprobe_sim::stream(req.seed, "disagreement", 0);
+        let d = Disagreement::fit(
             nets,
             file,
-            &train.x,
-            cfg.ensemble_calibration_views,
+            &self.train.x,
+            req.cfg.ensemble_calibration_views,
             &mut rng,
         )
         .map_err(fishprobe_models::ModelError::from)?;
-        let path = fishprobe_models::disagreement::file_beside(out);
+        let path = file_beside(req.out);
         d.save(&path).map_err(fishprobe_models::ModelError::from)?;
-        Some(path)
-    };
-    let log_file = out.with_extension("training.csv");
-    let mut csv = String::from("epoch,train_nll,val_nll,seconds\n");
-    for l in &logs {
-        csv += &format!(
-            "{},{},{},{:.1}\n",
-            l.epoch, l.train_nll, l.val_nll, l.seconds
-        );
+        Ok(Some(path))
     }
-    fishprobe_io::write_atomically(&log_file, csv.as_bytes())?;
-    let mut skipped = train.skipped.clone();
-    skipped.extend(val.skipped.iter().cloned());
-    Ok(FitReport {
-        val_nll,
-        marginal_nll: marginal,
-        no_neighbour_nll: no_neighbour,
-        logs,
-        skipped,
-        weights: out.to_path_buf(),
-        support,
-        log_file,
-        members,
-        disagreement,
-    })
 }
 
 /// Removes what an earlier fit into `out` left of its ensemble that this fit, of `members`
