@@ -111,95 +111,8 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
     let seed = |label: &str| derive_seed(c.seed, label, 0);
     let out = study.output(&s.kind);
     let r = match &s.kind {
-        StepKind::FitConvnet => {
-            let data = study
-                .convnet_data
-                .as_ref()
-                .ok_or_else(|| StepError::Missing("no --convnet-data".into()))?;
-            let command = format!(
-                "fishprobe fit-convnet --data {} --validation {} --seed {}",
-                data.join("train").display(),
-                data.join("validation").display(),
-                c.seed
-            );
-            staged(&out, |tmp| {
-                let r = fishprobe_learn::bc::fit_convnet(
-                    &fishprobe_learn::bc::FitRequest {
-                        data: &[data.join("train")],
-                        validation: &[data.join("validation")],
-                        out: &tmp.join("convnet.safetensors"),
-                        cfg: &fishprobe_learn::bc::CloneConfig {
-                            max_epochs: c.convnet_max_epochs,
-                            ..fishprobe_learn::bc::CloneConfig::default()
-                        },
-                        seed: c.seed,
-                        baselines: false,
-                        resume: false,
-                        command: &command,
-                        build: &study.program_build,
-                    },
-                    &|_| {},
-                )?;
-                say(&format!(
-                    "refitted M_ConvNet: validation NLL {:.4} (marginal {:.4})",
-                    r.val_nll, r.marginal_nll
-                ));
-                Ok(())
-            })
-        }
-        StepKind::Train { m, k } => {
-            let ppo = c.ppo(&c.models[*m].spec).ok_or_else(|| {
-                StepError::Missing(format!("unknown PPO preset `{}`", c.ppo_preset))
-            })?;
-            let spec = RunSpec {
-                ppo,
-                env: study.env.clone(),
-                model: c.models[*m].spec.clone(),
-                seed: derive_seed(c.seed, &format!("train/{}", c.models[*m].name), *k as u64),
-                preset: c.ppo_preset.clone(),
-                program_version: env!("CARGO_PKG_VERSION").into(),
-                program_build: study.program_build.clone(),
-                trainer_revision: fishprobe_learn::TRAINER_REVISION,
-            };
-            // Resume a run of the same spec; a run of another spec, or one another trainer
-            // revision started, is stale and starts over.
-            let params = out.join("params.json");
-            let same = match fishprobe_io::read_small_text(&params) {
-                Ok(t) => serde_json::from_str::<RunSpec>(&t).is_ok_and(|old| old.same_run(&spec)),
-                // No run yet, or one stopped before it wrote its spec: nothing to keep.
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
-                // A spec that cannot be read now (a read error, bytes that are not text):
-                // whether the run is stale is unknown, so it is kept, not deleted with its
-                // finished iterations.
-                Err(e) => {
-                    return Err(StepError::io(
-                        "cannot tell whether the partly trained run is stale (it is kept; \
-                         delete its directory to train it anew): reading",
-                        &params,
-                        e,
-                    ))
-                }
-            };
-            let mut t = if same {
-                say("resuming from the last checkpoint");
-                Trainer::resume(&out)?
-            } else {
-                if out.exists() {
-                    std::fs::remove_dir_all(&out)
-                        .map_err(|e| StepError::io("removing", &out, e))?;
-                }
-                Trainer::create(&out, spec)?
-            };
-            while !t.done() {
-                let i = t.iterate()?;
-                say(&format!(
-                    "iteration {} steps {} return {:.3} goals/episode {:.3}",
-                    i.iteration, i.timesteps, i.episode_return_mean, i.goals_per_episode
-                ));
-            }
-            t.finish()?;
-            Ok(())
-        }
+        StepKind::FitConvnet => fit_convnet_step(study, &out, &mut say),
+        StepKind::Train { m, k } => train_step(study, *m, *k, &out, &mut say),
         StepKind::Eval { p, m } => staged(&out, |tmp| {
             let e = eval_episodes(study, *p, *m, tmp.to_path_buf());
             fishprobe_learn::evaluate(policy_of(study, *p, 0)?.as_ref(), &e)?;
@@ -273,6 +186,111 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
     .as_str());
     drop(say);
     r.map(|()| warnings.into_inner())
+}
+
+/// Refits M_ConvNet on the study's `--convnet-data` into `out`.
+fn fit_convnet_step(
+    study: &Study,
+    out: &Path,
+    say: &mut impl FnMut(&str),
+) -> Result<(), StepError> {
+    let c = &study.cfg;
+    let data = study
+        .convnet_data
+        .as_ref()
+        .ok_or_else(|| StepError::Missing("no --convnet-data".into()))?;
+    let command = format!(
+        "fishprobe fit-convnet --data {} --validation {} --seed {}",
+        data.join("train").display(),
+        data.join("validation").display(),
+        c.seed
+    );
+    staged(out, |tmp| {
+        let r = fishprobe_learn::bc::fit_convnet(
+            &fishprobe_learn::bc::FitRequest {
+                data: &[data.join("train")],
+                validation: &[data.join("validation")],
+                out: &tmp.join("convnet.safetensors"),
+                cfg: &fishprobe_learn::bc::CloneConfig {
+                    max_epochs: c.convnet_max_epochs,
+                    ..fishprobe_learn::bc::CloneConfig::default()
+                },
+                seed: c.seed,
+                baselines: false,
+                resume: false,
+                command: &command,
+                build: &study.program_build,
+            },
+            &|_| {},
+        )?;
+        say(&format!(
+            "refitted M_ConvNet: validation NLL {:.4} (marginal {:.4})",
+            r.val_nll, r.marginal_nll
+        ));
+        Ok(())
+    })
+}
+
+/// Trains policy `k` of model `m` into `out`: resumes a run of the same spec, starts a run of
+/// another spec (or another trainer revision's) over.
+fn train_step(
+    study: &Study,
+    m: usize,
+    k: usize,
+    out: &Path,
+    say: &mut impl FnMut(&str),
+) -> Result<(), StepError> {
+    let c = &study.cfg;
+    let ppo = c
+        .ppo(&c.models[m].spec)
+        .ok_or_else(|| StepError::Missing(format!("unknown PPO preset `{}`", c.ppo_preset)))?;
+    let spec = RunSpec {
+        ppo,
+        env: study.env.clone(),
+        model: c.models[m].spec.clone(),
+        seed: derive_seed(c.seed, &format!("train/{}", c.models[m].name), k as u64),
+        preset: c.ppo_preset.clone(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+        program_build: study.program_build.clone(),
+        trainer_revision: fishprobe_learn::TRAINER_REVISION,
+    };
+    // Resume a run of the same spec; a run of another spec, or one another trainer
+    // revision started, is stale and starts over.
+    let params = out.join("params.json");
+    let same = match fishprobe_io::read_small_text(&params) {
+        Ok(t) => serde_json::from_str::<RunSpec>(&t).is_ok_and(|old| old.same_run(&spec)),
+        // No run yet, or one stopped before it wrote its spec: nothing to keep.
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
+        // A spec that cannot be read now (a read error, bytes that are not text):
+        // whether the run is stale is unknown, so it is kept, not deleted with its
+        // finished iterations.
+        Err(e) => {
+            return Err(StepError::io(
+                "cannot tell whether the partly trained run is stale (it is kept; \
+                 delete its directory to train it anew): reading",
+                &params,
+                e,
+            ))
+        }
+    };
+    let mut t = if same {
+        say("resuming from the last checkpoint");
+        Trainer::resume(out)?
+    } else {
+        if out.exists() {
+            std::fs::remove_dir_all(out).map_err(|e| StepError::io("removing", out, e))?;
+        }
+        Trainer::create(out, spec)?
+    };
+    while !t.done() {
+        let i = t.iterate()?;
+        say(&format!(
+            "iteration {} steps {} return {:.3} goals/episode {:.3}",
+            i.iteration, i.timesteps, i.episode_return_mean, i.goals_per_episode
+        ));
+    }
+    t.finish()?;
+    Ok(())
 }
 
 fn reality(
