@@ -120,18 +120,22 @@ fn reader_thread(stream: TcpStream) -> mpsc::Receiver<Result<ServerMsg, String>>
     rx
 }
 
-/// Runs one virtual trial against the bridge at `addr`.
-pub fn run_trial(
-    addr: SocketAddr,
+/// What the bridge's welcome sets for a trial.
+struct Terms {
+    habituation_s: f64,
+    release_s: f64,
+    control_s: f64,
+    fish_count: usize,
+    policy_sha256: Option<String>,
+}
+
+/// Says hello to the bridge and reads its welcome.
+fn handshake(
+    conn: &mut TcpStream,
+    rx: &mpsc::Receiver<Result<ServerMsg, String>>,
     cfg: &LabConfig,
-    guppy: &GuppyParams,
-    seed: u64,
-) -> Result<LabTrial, LiveError> {
-    cfg.validate()?;
-    let net = |e: std::io::Error| LiveError::Net(format!("{addr}: {e}"));
-    let mut conn = TcpStream::connect(addr).map_err(net)?;
-    let _ = conn.set_nodelay(true);
-    let rx = reader_thread(conn.try_clone().map_err(net)?);
+    net: impl Fn(std::io::Error) -> LiveError,
+) -> Result<Terms, LiveError> {
     let hello = ClientMsg::Hello {
         protocol: PROTOCOL_VERSION,
         world_size_cm: [crate::TANK_CM; 2],
@@ -141,8 +145,7 @@ pub fn run_trial(
         sync: true,
     };
     conn.write_all(to_line(&hello).as_bytes()).map_err(net)?;
-    let wait = Duration::from_secs_f32(cfg.command_timeout_s);
-    let (habituation, release, control, n_fish, policy_sha256) = match rx.recv_timeout(wait) {
+    match rx.recv_timeout(Duration::from_secs_f32(cfg.command_timeout_s)) {
         Ok(Ok(ServerMsg::Welcome {
             habituation_s,
             release_s,
@@ -157,130 +160,132 @@ pub fn run_trial(
                     fishprobe_sim::MAX_FISH
                 )));
             }
-            (
+            Ok(Terms {
                 habituation_s,
                 release_s,
                 control_s,
-                fish_count as usize,
+                fish_count: fish_count as usize,
                 policy_sha256,
-            )
+            })
         }
-        Ok(Ok(ServerMsg::Error { reason })) => return Err(LiveError::Refused(reason)),
-        Ok(Ok(other)) => return Err(LiveError::Net(format!("expected welcome, got {other:?}"))),
-        Ok(Err(e)) => return Err(LiveError::Net(e)),
-        Err(_) => return Err(LiveError::Net("no welcome from the bridge".into())),
-    };
-    let tank = Tank::new(&TankParams::default());
-    let rp = RobotParams::default();
-    let dt = 1.0 / cfg.tracking_hz;
-    // One stream per fish: fish 0 draws what the one fish of a pair trial drew.
-    let mut rng_fish: Vec<SimRng> = (0..n_fish as u64)
-        .map(|i| stream(seed, "lab/fish", i))
-        .collect();
-    let mut rng_track = stream(seed, "lab/tracking", 0);
-    let mut robot = Robot::at(
-        0.0,
-        0.0,
-        rng_track.random_range(-std::f32::consts::PI..std::f32::consts::PI),
-    );
-    // The fish wait in the container, a group in a small cluster (choice: 2 cm apart along the
-    // corner's diagonal and across it), each its own individual.
-    let mut fish: Vec<AgentState> = (0..n_fish)
-        .map(|i| {
-            let (along, across) = ((i / 2) as f32 * 2.0, (i % 2) as f32 * 2.0);
-            let dir = [
-                -cfg.container[0].signum() * std::f32::consts::FRAC_1_SQRT_2,
-                -cfg.container[1].signum() * std::f32::consts::FRAC_1_SQRT_2,
-            ];
-            AgentState::at(
-                cfg.container[0] + along * dir[0] - across * dir[1],
-                cfg.container[1] + along * dir[1] + across * dir[0],
-                std::f32::consts::FRAC_PI_4,
-            )
-        })
-        .collect();
-    let model = Guppy::new(guppy.clone())?;
-    let mut minds = vec![FishMind::default(); n_fish];
-    for ((f, m), r) in fish.iter().zip(&mut minds).zip(&mut rng_fish) {
-        model.begin_episode(f, m, r);
+        Ok(Ok(ServerMsg::Error { reason })) => Err(LiveError::Refused(reason)),
+        Ok(Ok(other)) => Err(LiveError::Net(format!("expected welcome, got {other:?}"))),
+        Ok(Err(e)) => Err(LiveError::Net(e)),
+        Err(_) => Err(LiveError::Net("no welcome from the bridge".into())),
     }
-    let mut motions = vec![fishprobe_sim::FishMotion::default(); n_fish];
-    let mut dropout_left = vec![0.0f32; n_fish];
-    let mut stopped = false;
-    let mut out = LabTrial {
-        file: String::new(),
-        goals_reached: 0,
-        frames_sent: 0,
-        frames_lost: 0,
-        stops: 0,
-        policy_sha256,
-        warnings: Vec::new(),
-    };
-    let apply = |m: ServerMsg,
-                 robot: &mut Robot,
-                 stopped: &mut bool,
-                 out: &mut LabTrial|
-     -> Option<(Option<u64>, bool)> {
-        match m {
-            ServerMsg::Command {
-                seq, turn, stop, ..
-            } => {
-                if stop {
-                    if !*stopped {
-                        out.stops += 1;
-                    }
-                    *stopped = true;
-                    robot.speed = 0.0;
-                    robot.turn_rate = 0.0;
-                } else {
-                    *stopped = false;
-                    if seq.is_some() {
-                        robot.begin_action(turn);
-                    }
-                }
-                Some((seq, false))
-            }
-            ServerMsg::Done {
-                file,
-                goals_reached,
-            } => {
-                out.file = file;
-                out.goals_reached = goals_reached;
-                Some((None, true))
-            }
-            ServerMsg::Error { reason } => {
-                out.warnings.push(reason);
-                None
-            }
-            _ => None,
+}
+
+/// The tank's contents as the lab simulates them: the robot under the bridge's commands, the
+/// virtual guppies, and the tracker's noise and dropouts, each with its random stream.
+struct VirtualTank<'a> {
+    cfg: &'a LabConfig,
+    tank: Tank,
+    robot_params: RobotParams,
+    dt: f32,
+    model: Guppy,
+    robot: Robot,
+    stopped: bool,
+    fish: Vec<AgentState>,
+    minds: Vec<FishMind>,
+    motions: Vec<fishprobe_sim::FishMotion>,
+    rng_fish: Vec<SimRng>,
+    rng_track: SimRng,
+    dropout_left: Vec<f32>,
+}
+
+impl<'a> VirtualTank<'a> {
+    /// The robot in the centre, the fish waiting in their container.
+    fn new(
+        cfg: &'a LabConfig,
+        guppy: &GuppyParams,
+        seed: u64,
+        n_fish: usize,
+    ) -> Result<Self, LiveError> {
+        // One stream per fish: fish 0 draws what the one fish of a pair trial drew.
+        let mut rng_fish: Vec<SimRng> = (0..n_fish as u64)
+            .map(|i| stream(seed, "lab/fish", i))
+            .collect();
+        let mut rng_track = stream(seed, "lab/tracking", 0);
+        let robot = Robot::at(
+            0.0,
+            0.0,
+            rng_track.random_range(-std::f32::consts::PI..std::f32::consts::PI),
+        );
+        // The fish wait in the container, a group in a small cluster (choice: 2 cm apart along
+        // the corner's diagonal and across it), each its own individual.
+        let fish: Vec<AgentState> = (0..n_fish)
+            .map(|i| {
+                let (along, across) = ((i / 2) as f32 * 2.0, (i % 2) as f32 * 2.0);
+                let dir = [
+                    -cfg.container[0].signum() * std::f32::consts::FRAC_1_SQRT_2,
+                    -cfg.container[1].signum() * std::f32::consts::FRAC_1_SQRT_2,
+                ];
+                AgentState::at(
+                    cfg.container[0] + along * dir[0] - across * dir[1],
+                    cfg.container[1] + along * dir[1] + across * dir[0],
+                    std::f32::consts::FRAC_PI_4,
+                )
+            })
+            .collect();
+        let model = Guppy::new(guppy.clone())?;
+        let mut minds = vec![FishMind::default(); n_fish];
+        for ((f, m), r) in fish.iter().zip(&mut minds).zip(&mut rng_fish) {
+            model.begin_episode(f, m, r);
         }
-    };
-    let total = ((habituation + control) * f64::from(cfg.tracking_hz)).ceil() as u64 + 2;
-    for k in 0..total + 50 {
-        let t = k as f64 / f64::from(cfg.tracking_hz);
-        if k > 0 {
-            if !stopped {
-                robot.advance(&rp, &tank, dt);
+        Ok(Self {
+            cfg,
+            tank: Tank::new(&TankParams::default()),
+            robot_params: RobotParams::default(),
+            dt: 1.0 / cfg.tracking_hz,
+            model,
+            robot,
+            stopped: false,
+            fish,
+            minds,
+            motions: vec![fishprobe_sim::FishMotion::default(); n_fish],
+            rng_fish,
+            rng_track,
+            dropout_left: vec![0.0; n_fish],
+        })
+    }
+
+    /// One frame on, to time `t`: the robot (unless stopped) and, from `release_s` on, the
+    /// fish, every fish deciding from the same snapshot before any moves.
+    fn advance(&mut self, t: f64, release_s: f64) {
+        let dt = self.dt;
+        if !self.stopped {
+            self.robot.advance(&self.robot_params, &self.tank, dt);
+        }
+        if t >= release_s {
+            for (i, m) in self.motions.iter_mut().enumerate() {
+                let view = FishView::build(
+                    i,
+                    &self.fish,
+                    &[self.robot.state],
+                    self.tank,
+                    dt,
+                    (t - release_s) as f32,
+                );
+                *m = self
+                    .model
+                    .decide(&view, &[], &mut self.minds[i], &mut self.rng_fish[i]);
             }
-            if t >= release {
-                // Every fish decides from the same snapshot, then all move.
-                for (i, m) in motions.iter_mut().enumerate() {
-                    let view =
-                        FishView::build(i, &fish, &[robot.state], tank, dt, (t - release) as f32);
-                    *m = model.decide(&view, &[], &mut minds[i], &mut rng_fish[i]);
-                }
-                for (f, m) in fish.iter_mut().zip(&motions) {
-                    apply_motion(&tank, f, *m, dt);
-                }
+            for (f, m) in self.fish.iter_mut().zip(&self.motions) {
+                apply_motion(&self.tank, f, *m, dt);
             }
         }
-        // Tracking: noise, and fish dropouts (each fish its own).
-        for left in &mut dropout_left {
+    }
+
+    /// The tracker's frame at time `t`: every pose with noise, fish in a dropout without one
+    /// (counted in `out`).
+    fn track(&mut self, t: f64, out: &mut LabTrial) -> ClientMsg {
+        let (cfg, dt) = (self.cfg, self.dt);
+        for left in &mut self.dropout_left {
             if *left > 0.0 {
                 *left -= dt;
-            } else if rng_track.random::<f32>() < cfg.dropouts_per_min / 60.0 * dt {
+            } else if self.rng_track.random::<f32>() < cfg.dropouts_per_min / 60.0 * dt {
                 *left = cfg.dropout_min_s
-                    + (cfg.dropout_max_s - cfg.dropout_min_s) * rng_track.random::<f32>();
+                    + (cfg.dropout_max_s - cfg.dropout_min_s) * self.rng_track.random::<f32>();
             }
         }
         let noisy = |s: &AgentState, r: &mut SimRng| Pose {
@@ -288,10 +293,10 @@ pub fn run_trial(
             y: s.y + cfg.position_noise_cm * normal(r),
             heading: wrap_angle(s.heading + cfg.heading_noise_rad * normal(r)),
         };
-        let robot_pose = noisy(&robot.state, &mut rng_track);
-        let mut poses = Vec::with_capacity(n_fish);
-        for (i, (f, left)) in fish.iter().zip(&dropout_left).enumerate() {
-            let pose = noisy(f, &mut rng_track);
+        let robot_pose = noisy(&self.robot.state, &mut self.rng_track);
+        let mut poses = Vec::with_capacity(self.fish.len());
+        for (i, (f, left)) in self.fish.iter().zip(&self.dropout_left).enumerate() {
+            let pose = noisy(f, &mut self.rng_track);
             let lost = *left > 0.0;
             if lost {
                 out.frames_lost += 1;
@@ -301,44 +306,114 @@ pub fn run_trial(
                 pose: (!lost).then_some(pose),
             });
         }
-        let frame = ClientMsg::Frame {
+        ClientMsg::Frame {
             t,
             robot: Some(robot_pose),
             fish: poses,
-        };
+        }
+    }
+
+    /// Applies what the bridge said: a command to the robot, the trial's end or a warning to
+    /// `out`. Whether the trial is done.
+    fn apply(&mut self, m: ServerMsg, out: &mut LabTrial) -> bool {
+        match m {
+            ServerMsg::Command {
+                seq, turn, stop, ..
+            } => {
+                if stop {
+                    if !self.stopped {
+                        out.stops += 1;
+                    }
+                    self.stopped = true;
+                    self.robot.speed = 0.0;
+                    self.robot.turn_rate = 0.0;
+                } else {
+                    self.stopped = false;
+                    if seq.is_some() {
+                        self.robot.begin_action(turn);
+                    }
+                }
+                false
+            }
+            ServerMsg::Done {
+                file,
+                goals_reached,
+            } => {
+                out.file = file;
+                out.goals_reached = goals_reached;
+                true
+            }
+            ServerMsg::Error { reason } => {
+                out.warnings.push(reason);
+                false
+            }
+            _ => false,
+        }
+    }
+}
+
+/// " (it last said: …)" with the bridge's last warning, or nothing.
+fn last_said(out: &LabTrial) -> String {
+    out.warnings
+        .last()
+        .map_or_else(String::new, |w| format!(" (it last said: {w})"))
+}
+
+/// Runs one virtual trial against the bridge at `addr`.
+pub fn run_trial(
+    addr: SocketAddr,
+    cfg: &LabConfig,
+    guppy: &GuppyParams,
+    seed: u64,
+) -> Result<LabTrial, LiveError> {
+    cfg.validate()?;
+    let net = |e: std::io::Error| LiveError::Net(format!("{addr}: {e}"));
+    let mut conn = TcpStream::connect(addr).map_err(net)?;
+    let _ = conn.set_nodelay(true);
+    let rx = reader_thread(conn.try_clone().map_err(net)?);
+    let terms = handshake(&mut conn, &rx, cfg, net)?;
+    let wait = Duration::from_secs_f32(cfg.command_timeout_s);
+    let mut lab = VirtualTank::new(cfg, guppy, seed, terms.fish_count)?;
+    let mut out = LabTrial {
+        file: String::new(),
+        goals_reached: 0,
+        frames_sent: 0,
+        frames_lost: 0,
+        stops: 0,
+        policy_sha256: terms.policy_sha256,
+        warnings: Vec::new(),
+    };
+    let total =
+        ((terms.habituation_s + terms.control_s) * f64::from(cfg.tracking_hz)).ceil() as u64 + 2;
+    for k in 0..total + 50 {
+        let t = k as f64 / f64::from(cfg.tracking_hz);
+        if k > 0 {
+            lab.advance(t, terms.release_s);
+        }
+        let frame = lab.track(t, &mut out);
         if conn.write_all(to_line(&frame).as_bytes()).is_err() {
             break;
         }
         out.frames_sent += 1;
         // Lockstep: apply everything the bridge says about this frame, up to its ack.
-        let mut done = false;
         loop {
             let m = match rx.recv_timeout(wait) {
                 Ok(m) => m.map_err(LiveError::Net)?,
                 Err(_) => {
-                    let last = out
-                        .warnings
-                        .last()
-                        .map_or_else(String::new, |w| format!(" (it last said: {w})"));
                     return Err(LiveError::Net(format!(
-                        "no answer from the bridge for {:.0} s{last}",
-                        cfg.command_timeout_s
+                        "no answer from the bridge for {:.0} s{}",
+                        cfg.command_timeout_s,
+                        last_said(&out)
                     )));
                 }
             };
             if matches!(m, ServerMsg::Ack { .. }) {
                 break;
             }
-            if let Some((_, is_done)) = apply(m, &mut robot, &mut stopped, &mut out) {
-                if is_done {
-                    done = true;
-                    break;
-                }
+            if lab.apply(m, &mut out) {
+                let _ = conn.shutdown(std::net::Shutdown::Both);
+                return Ok(out);
             }
-        }
-        if done {
-            let _ = conn.shutdown(std::net::Shutdown::Both);
-            return Ok(out);
         }
     }
     // The bridge never said done (it was killed, or the trial ran past its end).
@@ -357,9 +432,7 @@ pub fn run_trial(
             _ => {
                 return Err(LiveError::Net(format!(
                     "the bridge did not finish the trial{}",
-                    out.warnings
-                        .last()
-                        .map_or_else(String::new, |w| format!(" (it last said: {w})"))
+                    last_said(&out)
                 )))
             }
         }
