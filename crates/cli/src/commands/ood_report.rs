@@ -284,31 +284,8 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     };
     let compare_name = a.compare_trials.is_empty().then_some(a.compare.as_str());
     // The training recordings too: a bad --data fails before minutes of episodes.
-    let data = if !a.data.is_empty() {
-        a.data.clone()
-    } else {
-        match (&model, fishprobe_io::shared_data_dir()) {
-            (ModelSpec::ConvNet(p), Some(d)) if p.weights.is_empty() => {
-                vec![d.join("guppy-pairs/legacy/train")]
-            }
-            _ => Vec::new(),
-        }
-    };
-    let mut training_disagreement = None;
-    let training = if data.is_empty() {
-        say!("note: no training recordings given (--data): the report has no training-data row");
-        None
-    } else {
-        let clone = CloneConfig {
-            robot_as_partner: true,
-            ..CloneConfig::default()
-        };
-        let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
-        training_disagreement = ensemble
-            .as_ref()
-            .map(|e| disagreement_of_views(e, "training recordings", &d.x, 50_000));
-        Some(score_views(&support, "training recordings", &d.x, 50_000))
-    };
+    let (training, training_disagreement) =
+        training_scores(&a.data, &model, &support, ensemble.as_ref())?;
     // Locked (and so created) only now: a refused report leaves no empty --out behind.
     let _lock = super::lock_out(&a.out, "ood-report")?;
     let mut sources = Vec::new();
@@ -356,28 +333,10 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         Source::Recorded(f) => Some(f.len()),
         Source::Simulated(_) => None,
     };
-    let disagreement = match &ensemble {
-        None => None,
-        Some(e) => {
-            say!("scoring the views by the ensemble's disagreement ...");
-            let policies = all_files
-                .iter()
-                .map(|(label, files)| disagreement_of_trials(e, label, files))
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(anyhow::Error::msg)?;
-            let p95 = quantile(&policies[1].scores, 0.95);
-            Some(DisagreementPart {
-                members: e.members(),
-                distributions: training_disagreement
-                    .iter()
-                    .chain(&policies)
-                    .map(distribution)
-                    .collect(),
-                goal_policy_p95: p95,
-                ood_share_beyond_goal_p95: share_at_least(&policies[0].scores, p95),
-            })
-        }
-    };
+    let disagreement = ensemble
+        .as_ref()
+        .map(|e| disagreement_part(e, training_disagreement.as_ref(), &all_files))
+        .transpose()?;
     let report = OodReport {
         model: model.name().to_string(),
         ood_policy: describe(&ood_src, policy),
@@ -400,24 +359,13 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         ),
         disagreement,
     };
-    // Figures.
-    let curves: Vec<(String, Vec<f32>)> = training
-        .iter()
-        .chain(&sources)
-        .map(|s| (s.label.clone(), s.scores.clone()))
-        .collect();
-    fishprobe_report::write_figure(&ood_scores(&curves, cap), &a.out, 2.0)?;
-    let examples = [
-        ("OOD policy", &first_files[0]),
-        ("lead-to-goal policy", &first_files[1]),
-    ]
-    .into_iter()
-    .map(|(title, file)| {
-        let name = file.file_name().unwrap_or_default().to_string_lossy();
-        scored_episode(&support, file, format!("{title}, {name}"))
-    })
-    .collect::<Result<Vec<_>>>()?;
-    fishprobe_report::write_figure(&ood_trajectories(&examples, cap), &a.out, 2.0)?;
+    write_figures(
+        &a.out,
+        &support,
+        training.iter().chain(&sources),
+        &first_files,
+        cap,
+    )?;
     let json = serde_json::to_string_pretty(&report)? + "\n";
     fishprobe_io::write_atomically(&a.out.join("ood.json"), json.as_bytes())?;
     let md = markdown(&report, &a);
@@ -427,6 +375,95 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     } else {
         emit(&summary(&report, &a.out))
     }
+}
+
+/// The support scores (and, with an ensemble, the disagreements) of the views of the training
+/// recordings: `data`, or for the shipped M_ConvNet its training recordings in the shared data;
+/// none when neither is there.
+fn training_scores(
+    data: &[PathBuf],
+    model: &ModelSpec,
+    support: &SupportModel,
+    ensemble: Option<&Disagreement>,
+) -> Result<(Option<SourceScores>, Option<SourceScores>)> {
+    let data = if !data.is_empty() {
+        data.to_vec()
+    } else {
+        match (model, fishprobe_io::shared_data_dir()) {
+            (ModelSpec::ConvNet(p), Some(d)) if p.weights.is_empty() => {
+                vec![d.join("guppy-pairs/legacy/train")]
+            }
+            _ => Vec::new(),
+        }
+    };
+    if data.is_empty() {
+        say!("note: no training recordings given (--data): the report has no training-data row");
+        return Ok((None, None));
+    }
+    let clone = CloneConfig {
+        robot_as_partner: true,
+        ..CloneConfig::default()
+    };
+    let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
+    let disagreement =
+        ensemble.map(|e| disagreement_of_views(e, "training recordings", &d.x, 50_000));
+    Ok((
+        Some(score_views(support, "training recordings", &d.x, 50_000)),
+        disagreement,
+    ))
+}
+
+/// The report's disagreement part: every policy's trial files (`all_files`, the OOD policy's
+/// first, then the lead-to-goal policy's) scored by the ensemble, beside the training views'.
+fn disagreement_part(
+    e: &Disagreement,
+    training: Option<&SourceScores>,
+    all_files: &[(&str, Vec<PathBuf>)],
+) -> Result<DisagreementPart> {
+    say!("scoring the views by the ensemble's disagreement ...");
+    let policies = all_files
+        .iter()
+        .map(|(label, files)| disagreement_of_trials(e, label, files))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(anyhow::Error::msg)?;
+    let p95 = quantile(&policies[1].scores, 0.95);
+    Ok(DisagreementPart {
+        members: e.members(),
+        distributions: training
+            .into_iter()
+            .chain(&policies)
+            .map(distribution)
+            .collect(),
+        goal_policy_p95: p95,
+        ood_share_beyond_goal_p95: share_at_least(&policies[0].scores, p95),
+    })
+}
+
+/// The figures: the score distributions of `curves` and the first episode of each policy
+/// (`first_files`: the OOD policy's, the lead-to-goal policy's) coloured by its scores.
+fn write_figures<'s>(
+    out: &Path,
+    support: &SupportModel,
+    curves: impl Iterator<Item = &'s SourceScores>,
+    first_files: &[PathBuf],
+    cap: f32,
+) -> Result<()> {
+    let curves: Vec<(String, Vec<f32>)> = curves
+        .map(|s| (s.label.clone(), s.scores.clone()))
+        .collect();
+    fishprobe_report::write_figure(&ood_scores(&curves, cap), out, 2.0)?;
+    let examples = [
+        ("OOD policy", &first_files[0]),
+        ("lead-to-goal policy", &first_files[1]),
+    ]
+    .into_iter()
+    .map(|(title, file)| {
+        let name = file.file_name().unwrap_or_default().to_string_lossy();
+        scored_episode(support, file, format!("{title}, {name}"))
+    })
+    .collect::<Result<Vec<_>>>()?;
+    fishprobe_report::write_figure(&ood_trajectories(&examples, cap), out, 2.0)?;
+    Ok(())
 }
 
 /// The support score at which the figures' colour scale and the wishlist's weights saturate:
