@@ -70,76 +70,11 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     // As the file will hold it (an f32 becomes its shortest decimal there).
     let settings: Value = serde_json::from_str(&serde_json::to_string(&settings)?)?;
     let done = dir.join("cell.json");
-    if let Ok(text) = fishprobe_io::read_small_text(&done) {
-        if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
-            if v["settings"] == settings {
-                // Cells made before the scoreboard gave the time to reach the fish get it from
-                // their own trial files, once; a cell whose trial files are gone keeps "–".
-                if v.get("reach_s").is_none() {
-                    match reach_columns(dir) {
-                        Ok((reach_s, baselines_reach_s)) => {
-                            v["reach_s"] = json!(reach_s);
-                            v["baselines_reach_s"] = json!(baselines_reach_s);
-                            fishprobe_nn::store::write_atomic(
-                                &done,
-                                serde_json::to_string_pretty(&v)?.as_bytes(),
-                            )?;
-                        }
-                        Err(e) => say!(
-                            "  {}: no time to reach the fish for this older cell ({e:#})",
-                            dir.display()
-                        ),
-                    }
-                }
-                return Ok(v);
-            }
-            bail!(
-                "{} holds a cell made with other settings (another --preset, --episodes or \
-                 --seed, or fishprobe's defaults or trainer changed since): use another --out \
-                 or remove it",
-                dir.display()
-            );
-        }
+    if let Some(v) = finished_cell(dir, &settings)? {
+        return Ok(v);
     }
     let train_dir = dir.join("policy");
-    let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
-    let run_spec = RunSpec {
-        ppo,
-        env: env.clone(),
-        model: spec.clone(),
-        seed,
-        preset: a.preset.clone(),
-        program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: super::BUILD.into(),
-        trainer_revision: fishprobe_learn::TRAINER_REVISION,
-    };
-    let mut t = if train_dir.join("params.json").exists() {
-        // A cell stopped before it finished resumes its training only if that training is
-        // this cell's: resumed with other settings, it would be scored as this reading.
-        let old = Trainer::recorded_spec(&train_dir)?;
-        if !old.same_run(&run_spec) {
-            bail!(
-                "{} holds a partly trained policy made with other settings (another --preset or \
-                 --seed, or fishprobe's defaults or trainer changed since): use another --out or \
-                 remove it",
-                train_dir.display()
-            );
-        }
-        Trainer::resume(&train_dir)?
-    } else {
-        Trainer::create(&train_dir, run_spec)?
-    };
-    while !t.done() {
-        let s = t.iterate()?;
-        say!(
-            "  {} / {model}: iteration {} steps {} goals/episode {:.2}",
-            r.name,
-            s.iteration,
-            s.timesteps,
-            s.goals_per_episode
-        );
-    }
-    t.finish()?;
+    let t = train_cell(a, r, model, &train_dir, &spec, ppo, &env)?;
     let policy = PolicyController::load(&train_dir, false)?;
     // The cell is not finished (it has no cell.json), so its episodes, if any, are from a run
     // that stopped, perhaps with another --episodes: they go, or the times to reach the fish
@@ -227,6 +162,95 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     });
     fishprobe_nn::store::write_atomic(&done, serde_json::to_string_pretty(&row)?.as_bytes())?;
     Ok(row)
+}
+
+/// The row of the finished cell in `dir` (its `cell.json`) when it was made with `settings`;
+/// `None` when there is none; an error when it was made with others.
+fn finished_cell(dir: &Path, settings: &Value) -> Result<Option<Value>> {
+    let done = dir.join("cell.json");
+    if let Ok(text) = fishprobe_io::read_small_text(&done) {
+        if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
+            if v["settings"] == *settings {
+                // Cells made before the scoreboard gave the time to reach the fish get it from
+                // their own trial files, once; a cell whose trial files are gone keeps "–".
+                if v.get("reach_s").is_none() {
+                    match reach_columns(dir) {
+                        Ok((reach_s, baselines_reach_s)) => {
+                            v["reach_s"] = json!(reach_s);
+                            v["baselines_reach_s"] = json!(baselines_reach_s);
+                            fishprobe_nn::store::write_atomic(
+                                &done,
+                                serde_json::to_string_pretty(&v)?.as_bytes(),
+                            )?;
+                        }
+                        Err(e) => say!(
+                            "  {}: no time to reach the fish for this older cell ({e:#})",
+                            dir.display()
+                        ),
+                    }
+                }
+                return Ok(Some(v));
+            }
+            bail!(
+                "{} holds a cell made with other settings (another --preset, --episodes or \
+                 --seed, or fishprobe's defaults or trainer changed since): use another --out \
+                 or remove it",
+                dir.display()
+            );
+        }
+    }
+    Ok(None)
+}
+
+/// Trains the cell's probe in `train_dir` (resuming a run of this cell's settings).
+fn train_cell(
+    a: &FidelityArgs,
+    r: &Combo,
+    model: &str,
+    train_dir: &Path,
+    spec: &ModelSpec,
+    ppo: PpoConfig,
+    env: &EnvConfig,
+) -> Result<Trainer> {
+    let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
+    let run_spec = RunSpec {
+        ppo,
+        env: env.clone(),
+        model: spec.clone(),
+        seed,
+        preset: a.preset.clone(),
+        program_version: env!("CARGO_PKG_VERSION").into(),
+        program_build: super::BUILD.into(),
+        trainer_revision: fishprobe_learn::TRAINER_REVISION,
+    };
+    let mut t = if train_dir.join("params.json").exists() {
+        // A cell stopped before it finished resumes its training only if that training is
+        // this cell's: resumed with other settings, it would be scored as this reading.
+        let old = Trainer::recorded_spec(train_dir)?;
+        if !old.same_run(&run_spec) {
+            bail!(
+                "{} holds a partly trained policy made with other settings (another --preset or \
+                 --seed, or fishprobe's defaults or trainer changed since): use another --out or \
+                 remove it",
+                train_dir.display()
+            );
+        }
+        Trainer::resume(train_dir)?
+    } else {
+        Trainer::create(train_dir, run_spec)?
+    };
+    while !t.done() {
+        let s = t.iterate()?;
+        say!(
+            "  {} / {model}: iteration {} steps {} goals/episode {:.2}",
+            r.name,
+            s.iteration,
+            s.timesteps,
+            s.goals_per_episode
+        );
+    }
+    t.finish()?;
+    Ok(t)
 }
 
 /// Median seconds to reach the fish, per scripted controller (`None`: its median episode never did).
