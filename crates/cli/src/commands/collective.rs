@@ -88,7 +88,42 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
                 format!("--turn-rate must be `couzin`, `paper` or a positive number, got `{x}`")
             })?,
     };
-    let swimmers: Vec<(Vec<f32>, Swimmer)> = match a.model {
+    let swimmers = swimmers(&a, turn)?;
+    let runs = swimmers.len() * a.seeds as usize;
+    if swimmers.is_empty() || runs > MAX_RUNS {
+        bail!("the sweep has {runs} runs; it must have 1 to {MAX_RUNS}");
+    }
+    let bar = ProgressBar::new(runs as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} run {pos}/{len}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let jobs: Vec<(usize, u64)> = (0..swimmers.len())
+        .flat_map(|c| (0..a.seeds).map(move |s| (c, s)))
+        .collect();
+    let results: Vec<CollectiveState> = jobs
+        .par_iter()
+        .map(|&(c, s)| {
+            let r = run_group(&swimmers[c].1, &p, a.seed.wrapping_add(s));
+            bar.inc(1);
+            r.map_err(|e| anyhow::anyhow!("{e}"))
+        })
+        .collect::<Result<_>>()?;
+    bar.finish_and_clear();
+    let cells: Vec<Vec<CollectiveState>> = results
+        .chunks(a.seeds as usize)
+        .map(<[CollectiveState]>::to_vec)
+        .collect();
+    match a.model {
+        GroupModel::Zone => zone_output(&a, &p, turn, cells),
+        GroupModel::Force => force_output(&a, &swimmers, &cells),
+    }
+}
+
+/// The swimmers of the sweep, each with its parameter values: M_Zone over the grid of
+/// orientation and attraction widths (turning at `turn` rad/s), or M_Force over the alignments.
+fn swimmers(a: &CollectiveArgs, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
+    Ok(match a.model {
         GroupModel::Zone => {
             let mut v = Vec::new();
             for &ra in &a.attraction {
@@ -118,126 +153,103 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
                 Ok((vec![al], s))
             })
             .collect::<Result<_>>()?,
+    })
+}
+
+/// M_Zone's phase grid: the picture and numbers into `--out`, the table (or JSON) printed.
+fn zone_output(
+    a: &CollectiveArgs,
+    p: &CollectiveParams,
+    turn: f32,
+    cells: Vec<Vec<CollectiveState>>,
+) -> Result<()> {
+    let grid = PhaseGrid {
+        orientation_cm: a.orientation.clone(),
+        attraction_cm: a.attraction.clone(),
+        cells,
+        repulsion_cm: ZoneParams::default().repulsion_zone_cm,
+        fish: a.fish,
+        max_turn_rate_rad_s: turn,
+        cohesive_share: p.cohesive_share,
     };
-    let runs = swimmers.len() * a.seeds as usize;
-    if swimmers.is_empty() || runs > MAX_RUNS {
-        bail!("the sweep has {runs} runs; it must have 1 to {MAX_RUNS}");
+    if let Some(dir) = &a.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let fig = fishprobe_report::figures::collective_phase(&grid);
+        fishprobe_report::write_figure(&fig, dir, 2.0)
+            .with_context(|| format!("writing the picture into {}", dir.display()))?;
+        fishprobe_io::write_atomically(
+            &dir.join("collective.json"),
+            serde_json::to_string_pretty(&grid)?.as_bytes(),
+        )
+        .with_context(|| format!("writing {}", dir.join("collective.json").display()))?;
     }
-    let bar = ProgressBar::new(runs as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} run {pos}/{len}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    if a.json {
+        return emit(&(serde_json::to_string_pretty(&grid)? + "\n"));
+    }
+    let mut t = format!(
+        "M_Zone, {} fish in open water, turning rate {:.2} rad/s, {} seeds per cell \
+         (mean polarisation / milling / share in the largest cluster, state)\n\
+         {:>8} {:>8}  {:>6} {:>6} {:>8}  state\n",
+        a.fish, grid.max_turn_rate_rad_s, a.seeds, "Δr_o cm", "Δr_a cm", "P", "M", "cluster"
     );
-    let jobs: Vec<(usize, u64)> = (0..swimmers.len())
-        .flat_map(|c| (0..a.seeds).map(move |s| (c, s)))
-        .collect();
-    let results: Vec<CollectiveState> = jobs
-        .par_iter()
-        .map(|&(c, s)| {
-            let r = run_group(&swimmers[c].1, &p, a.seed.wrapping_add(s));
-            bar.inc(1);
-            r.map_err(|e| anyhow::anyhow!("{e}"))
-        })
-        .collect::<Result<_>>()?;
-    bar.finish_and_clear();
-    let cells: Vec<Vec<CollectiveState>> = results
-        .chunks(a.seeds as usize)
-        .map(<[CollectiveState]>::to_vec)
-        .collect();
-    match a.model {
-        GroupModel::Zone => {
-            let grid = PhaseGrid {
-                orientation_cm: a.orientation.clone(),
-                attraction_cm: a.attraction.clone(),
-                cells,
-                repulsion_cm: ZoneParams::default().repulsion_zone_cm,
-                fish: a.fish,
-                max_turn_rate_rad_s: turn,
-                cohesive_share: p.cohesive_share,
-            };
-            if let Some(dir) = &a.out {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("creating {}", dir.display()))?;
-                let fig = fishprobe_report::figures::collective_phase(&grid);
-                fishprobe_report::write_figure(&fig, dir, 2.0)
-                    .with_context(|| format!("writing the picture into {}", dir.display()))?;
-                fishprobe_io::write_atomically(
-                    &dir.join("collective.json"),
-                    serde_json::to_string_pretty(&grid)?.as_bytes(),
-                )
-                .with_context(|| format!("writing {}", dir.join("collective.json").display()))?;
-            }
-            if a.json {
-                return emit(&(serde_json::to_string_pretty(&grid)? + "\n"));
-            }
-            let mut t = format!(
-                "M_Zone, {} fish in open water, turning rate {:.2} rad/s, {} seeds per cell \
-                 (mean polarisation / milling / share in the largest cluster, state)\n\
-                 {:>8} {:>8}  {:>6} {:>6} {:>8}  state\n",
-                a.fish,
-                grid.max_turn_rate_rad_s,
-                a.seeds,
-                "Δr_o cm",
-                "Δr_a cm",
-                "P",
-                "M",
-                "cluster"
+    for (ai, ra) in grid.attraction_cm.iter().enumerate() {
+        for (oi, ro) in grid.orientation_cm.iter().enumerate() {
+            let m = grid.mean(ai, oi);
+            let _ = writeln!(
+                t,
+                "{ro:>8} {ra:>8}  {:>6.2} {:>6.2} {:>8.2}  {}",
+                m.polarisation,
+                m.milling,
+                m.cohesion,
+                grid.label(ai, oi)
             );
-            for (ai, ra) in grid.attraction_cm.iter().enumerate() {
-                for (oi, ro) in grid.orientation_cm.iter().enumerate() {
-                    let m = grid.mean(ai, oi);
-                    let _ = writeln!(
-                        t,
-                        "{ro:>8} {ra:>8}  {:>6.2} {:>6.2} {:>8.2}  {}",
-                        m.polarisation,
-                        m.milling,
-                        m.cohesion,
-                        grid.label(ai, oi)
-                    );
-                }
-            }
-            if let Some(dir) = &a.out {
-                let _ = writeln!(t, "picture and numbers in {}", dir.display());
-            }
-            emit(&t)
-        }
-        GroupModel::Force => {
-            let rows: Vec<serde_json::Value> = swimmers
-                .iter()
-                .zip(&cells)
-                .map(|((k, _), c)| serde_json::json!({"alignment": k[0], "runs": c}))
-                .collect();
-            if let Some(dir) = &a.out {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("creating {}", dir.display()))?;
-                fishprobe_io::write_atomically(
-                    &dir.join("collective-force.json"),
-                    serde_json::to_string_pretty(&rows)?.as_bytes(),
-                )?;
-            }
-            if a.json {
-                return emit(&(serde_json::to_string_pretty(&rows)? + "\n"));
-            }
-            let mut t = format!(
-                "M_Force, {} fish in open water, {} seeds (mean polarisation / milling / \
-                 nearest-neighbour distance / share in the largest cluster)\n\
-                 {:>9}  {:>6} {:>6} {:>8} {:>8}\n",
-                a.fish, a.seeds, "μ_alg", "P", "M", "NND cm", "cluster"
-            );
-            for ((k, _), c) in swimmers.iter().zip(&cells) {
-                let n = c.len() as f32;
-                let f = |g: fn(&CollectiveState) -> f32| c.iter().map(g).sum::<f32>() / n;
-                let _ = writeln!(
-                    t,
-                    "{:>9}  {:>6.2} {:>6.2} {:>8.1} {:>8.2}",
-                    k[0],
-                    f(|s| s.polarisation),
-                    f(|s| s.milling),
-                    f(|s| s.mean_nnd_cm),
-                    f(|s| s.cohesion)
-                );
-            }
-            emit(&t)
         }
     }
+    if let Some(dir) = &a.out {
+        let _ = writeln!(t, "picture and numbers in {}", dir.display());
+    }
+    emit(&t)
+}
+
+/// M_Force's order over alignment: the numbers into `--out`, the table (or JSON) printed.
+fn force_output(
+    a: &CollectiveArgs,
+    swimmers: &[(Vec<f32>, Swimmer)],
+    cells: &[Vec<CollectiveState>],
+) -> Result<()> {
+    let rows: Vec<serde_json::Value> = swimmers
+        .iter()
+        .zip(cells)
+        .map(|((k, _), c)| serde_json::json!({"alignment": k[0], "runs": c}))
+        .collect();
+    if let Some(dir) = &a.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        fishprobe_io::write_atomically(
+            &dir.join("collective-force.json"),
+            serde_json::to_string_pretty(&rows)?.as_bytes(),
+        )?;
+    }
+    if a.json {
+        return emit(&(serde_json::to_string_pretty(&rows)? + "\n"));
+    }
+    let mut t = format!(
+        "M_Force, {} fish in open water, {} seeds (mean polarisation / milling / \
+         nearest-neighbour distance / share in the largest cluster)\n\
+         {:>9}  {:>6} {:>6} {:>8} {:>8}\n",
+        a.fish, a.seeds, "μ_alg", "P", "M", "NND cm", "cluster"
+    );
+    for ((k, _), c) in swimmers.iter().zip(cells) {
+        let n = c.len() as f32;
+        let f = |g: fn(&CollectiveState) -> f32| c.iter().map(g).sum::<f32>() / n;
+        let _ = writeln!(
+            t,
+            "{:>9}  {:>6.2} {:>6.2} {:>8.1} {:>8.2}",
+            k[0],
+            f(|s| s.polarisation),
+            f(|s| s.milling),
+            f(|s| s.mean_nnd_cm),
+            f(|s| s.cohesion)
+        );
+    }
+    emit(&t)
 }
