@@ -175,40 +175,7 @@ pub fn gather(
         analysis_dir: analysis_dir.to_path_buf(),
         ..StudyData::default()
     };
-    let results_path = StudyLayout::results_in(analysis_dir);
-    let mut acfg = AnalysisConfig::default();
-    match fishprobe_io::read_small_text(&results_path) {
-        Ok(text) => match serde_json::from_str::<Value>(&text) {
-            Ok(v) if v.is_object() => match serde_json::from_value::<Results>(v) {
-                Ok(r) => {
-                    acfg = r.config.clone();
-                    d.results = Some(r);
-                }
-                Err(e) => d.missing.push(Missing {
-                    what: "analysis results".into(),
-                    why: format!(
-                        "{} does not hold what fishprobe analyze writes: {e}",
-                        results_path.display()
-                    ),
-                    remedy: format!("fishprobe analyze {root_s}"),
-                }),
-            },
-            Ok(_) | Err(_) => d.missing.push(Missing {
-                what: "analysis results".into(),
-                why: format!("{} is not a JSON object", results_path.display()),
-                remedy: format!("fishprobe analyze {root_s}"),
-            }),
-        },
-        Err(e) => d.missing.push(Missing {
-            what: "analysis results (tables, sim-to-real and sim-to-sim figures)".into(),
-            why: if e.kind() == std::io::ErrorKind::NotFound {
-                format!("{} not found", results_path.display())
-            } else {
-                format!("{}: {e}", results_path.display())
-            },
-            remedy: format!("fishprobe analyze {root_s}"),
-        }),
-    }
+    let acfg = read_results(analysis_dir, &root_s, &mut d);
 
     d.candidates = candidates(root);
     let study = StudyFiles::discover(root).ok();
@@ -253,7 +220,80 @@ pub fn gather(
         });
     }
 
-    // Trials per policy, loaded in parallel.
+    load_trials(&study, cfg, &acfg, &mut d);
+    // Example tracks: the first readable file of each arm.
+    for p in d.policies.clone() {
+        let first = |m: &str| -> Option<Track> {
+            study
+                .rollouts
+                .get(&(p.clone(), m.to_string()))?
+                .iter()
+                .find_map(|f| track(f, cfg).ok())
+        };
+        let sim_track = first(&p);
+        let real_track = d.arm.clone().and_then(|a| first(&a));
+        let e = d.trials.entry(p).or_default();
+        e.sim_track = sim_track;
+        e.real_track = real_track;
+    }
+
+    approach(&study, cfg, &acfg, &mut d);
+    if d.approach.is_empty() {
+        d.missing.push(Missing {
+            what: "approach assay".into(),
+            why: "no readable approach_test/<Policy>/ episodes".into(),
+            remedy:
+                "the approach-assay step of fishprobe run (episodes in approach_test/<Policy>/)"
+                    .into(),
+        });
+    }
+    Ok(d)
+}
+
+/// The analysis results into `d.results` (or what is missing into `d.missing`); the analysis
+/// settings they were made with (the defaults without them).
+fn read_results(analysis_dir: &Path, root_s: &str, d: &mut StudyData) -> AnalysisConfig {
+    let results_path = StudyLayout::results_in(analysis_dir);
+    let mut acfg = AnalysisConfig::default();
+    match fishprobe_io::read_small_text(&results_path) {
+        Ok(text) => match serde_json::from_str::<Value>(&text) {
+            Ok(v) if v.is_object() => match serde_json::from_value::<Results>(v) {
+                Ok(r) => {
+                    acfg = r.config.clone();
+                    d.results = Some(r);
+                }
+                Err(e) => d.missing.push(Missing {
+                    what: "analysis results".into(),
+                    why: format!(
+                        "{} does not hold what fishprobe analyze writes: {e}",
+                        results_path.display()
+                    ),
+                    remedy: format!("fishprobe analyze {root_s}"),
+                }),
+            },
+            Ok(_) | Err(_) => d.missing.push(Missing {
+                what: "analysis results".into(),
+                why: format!("{} is not a JSON object", results_path.display()),
+                remedy: format!("fishprobe analyze {root_s}"),
+            }),
+        },
+        Err(e) => d.missing.push(Missing {
+            what: "analysis results (tables, sim-to-real and sim-to-sim figures)".into(),
+            why: if e.kind() == std::io::ErrorKind::NotFound {
+                format!("{} not found", results_path.display())
+            } else {
+                format!("{}: {e}", results_path.display())
+            },
+            remedy: format!("fishprobe analyze {root_s}"),
+        }),
+    }
+    acfg
+}
+
+/// Every trial's numbers for the figures: each policy's own-model trials (the analysis's
+/// `sim_trials` first) and its reality-arm trials, loaded in parallel; unreadable files into
+/// `d.unreadable`.
+fn load_trials(study: &StudyFiles, cfg: &ReportConfig, acfg: &AnalysisConfig, d: &mut StudyData) {
     let iid_bins = (cfg.iid_max_cm / cfg.iid_bin_cm).ceil() as usize;
     let mut jobs: Vec<(String, bool, PathBuf)> = Vec::new();
     for p in &d.policies {
@@ -273,7 +313,7 @@ pub fn gather(
     let loaded: Vec<(String, bool, PathBuf, Result<TrialNumbers, String>)> = jobs
         .into_par_iter()
         .map(|(p, real, f)| {
-            let r = load_trial(&f, &acfg, true).map(|t| {
+            let r = load_trial(&f, acfg, true).map(|t| {
                 let iid = t
                     .metrics
                     .as_ref()
@@ -304,33 +344,6 @@ pub fn gather(
             Err(why) => d.unreadable.push((f, why)),
         }
     }
-    // Example tracks: the first readable file of each arm.
-    for p in d.policies.clone() {
-        let first = |m: &str| -> Option<Track> {
-            study
-                .rollouts
-                .get(&(p.clone(), m.to_string()))?
-                .iter()
-                .find_map(|f| track(f, cfg).ok())
-        };
-        let sim_track = first(&p);
-        let real_track = d.arm.clone().and_then(|a| first(&a));
-        let e = d.trials.entry(p).or_default();
-        e.sim_track = sim_track;
-        e.real_track = real_track;
-    }
-
-    approach(&study, cfg, &acfg, &mut d);
-    if d.approach.is_empty() {
-        d.missing.push(Missing {
-            what: "approach assay".into(),
-            why: "no readable approach_test/<Policy>/ episodes".into(),
-            remedy:
-                "the approach-assay step of fishprobe run (episodes in approach_test/<Policy>/)"
-                    .into(),
-        });
-    }
-    Ok(d)
 }
 
 /// "kind, set-up" as the file records them.
