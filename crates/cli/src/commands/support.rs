@@ -4,7 +4,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use fishprobe_learn::bc::{build_support, load_pairs, CloneConfig, PairDataset};
+use fishprobe_learn::bc::{build_support, file_names, load_pairs, CloneConfig, PairDataset};
 use fishprobe_models::convnet::{shipped_sha256, ConvNetArch};
 use fishprobe_models::support::{auc, synthetic_views, Estimator, SupportConfig};
 use fishprobe_models::ModelSpec;
@@ -186,15 +186,10 @@ pub fn run(a: SupportArgs) -> Result<()> {
     let command: Vec<String> = std::iter::once("fishprobe".to_string())
         .chain(std::env::args().skip(1))
         .collect();
-    let names = |v: &[PathBuf]| -> Vec<String> {
-        v.iter()
-            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
-            .collect()
-    };
     let provenance = serde_json::json!({
         "command": command.join(" "),
-        "training_files": names(&train.files),
-        "validation_files": names(&val.files),
+        "training_files": file_names(&train.files),
+        "validation_files": file_names(&val.files),
     });
     let tank = Tank::new(&TankParams::default());
     let mut rng = fishprobe_sim::stream(a.seed, "support/synthetic", 0);
@@ -262,7 +257,7 @@ pub fn run(a: SupportArgs) -> Result<()> {
             "checks": checks,
         }))? + "\n"
     } else {
-        let mut t = format!(
+        let head = format!(
             "support of {} from {} training views ({} files); checked on {} held-out views \
              ({} files) and {} synthetic views per unseen situation\n\n",
             spec_label(&spec),
@@ -272,33 +267,40 @@ pub fn run(a: SupportArgs) -> Result<()> {
             val.files.len(),
             a.synthetic
         );
-        t += "| estimator | held-out views with score <= 1 | held-out median score |";
-        for (kind, _) in &unseen {
-            t += &format!(" {kind}: AUC / share > 1 |");
-        }
-        t += " build (s) | score (µs per view and core) |\n|---|---|---|";
-        t += &"---|".repeat(unseen.len());
-        t += "---|---|\n";
-        for c in &checks {
-            t += &format!(
-                "| {} | {:.1} % | {:.2} |",
-                c.estimator,
-                100.0 * c.held_out_within_1,
-                c.held_out_median_score
-            );
-            for u in &c.unseen {
-                t += &format!(" {:.3} / {:.1} % |", u.auc, 100.0 * u.beyond_1);
-            }
-            t += &format!(" {:.1} | {:.1} |\n", c.build_s, c.score_us_per_view);
-        }
-        t += &format!(
-            "\nwrote {} ({})\n",
-            out.display(),
-            chosen_name.as_str().unwrap_or_default()
-        );
-        t
+        let kinds: Vec<&str> = unseen.iter().map(|(kind, _)| *kind).collect();
+        head + &checks_table(&kinds, &checks)
+            + &format!(
+                "\nwrote {} ({})\n",
+                out.display(),
+                chosen_name.as_str().unwrap_or_default()
+            )
     };
     emit(&text)
+}
+
+/// The checks as a Markdown table, a column per unseen situation (`kinds`).
+fn checks_table(kinds: &[&str], checks: &[Check]) -> String {
+    let mut t =
+        "| estimator | held-out views with score <= 1 | held-out median score |".to_string();
+    for kind in kinds {
+        t += &format!(" {kind}: AUC / share > 1 |");
+    }
+    t += " build (s) | score (µs per view and core) |\n|---|---|---|";
+    t += &"---|".repeat(kinds.len());
+    t += "---|---|\n";
+    for c in checks {
+        t += &format!(
+            "| {} | {:.1} % | {:.2} |",
+            c.estimator,
+            100.0 * c.held_out_within_1,
+            c.held_out_median_score
+        );
+        for u in &c.unseen {
+            t += &format!(" {:.3} / {:.1} % |", u.auc, 100.0 * u.beyond_1);
+        }
+        t += &format!(" {:.1} | {:.1} |\n", c.build_s, c.score_us_per_view);
+    }
+    t
 }
 
 fn spec_label(spec: &ModelSpec) -> String {

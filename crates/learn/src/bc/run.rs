@@ -317,8 +317,9 @@ fn load_disjoint(
     Ok((train, val))
 }
 
-/// The file names (without directories) of `files`, as sidecars record them.
-fn file_names(files: &[PathBuf]) -> Vec<String> {
+/// The file names (without directories) of `files`, as sidecars and support files record
+/// them.
+pub fn file_names(files: &[PathBuf]) -> Vec<String> {
     files
         .iter()
         .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
