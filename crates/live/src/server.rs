@@ -491,38 +491,15 @@ fn run_trial(
     // Without a live robot (the virtual lab in lockstep) a slow client is no danger.
     let watch_silence = !(sync && source == "virtual_lab");
     while !session.is_done() {
-        let replies = match reader.next() {
-            Ok(Line::Text(l)) if l.trim().is_empty() => {
-                silence(&mut session, watch_silence, last_frame)
-            }
-            Ok(Line::Text(l)) => match parse_client(&l) {
-                Ok(ClientMsg::End) => break,
-                Ok(m) => {
-                    let t = match &m {
-                        ClientMsg::Frame { t, .. } => Some(*t),
-                        _ => None,
-                    };
-                    let accepted = session.frames_accepted();
-                    let mut r = session.on_message(m);
-                    if session.frames_accepted() > accepted {
-                        last_frame = Instant::now();
-                    }
-                    if let (true, Some(t)) = (sync, t) {
-                        if !session.is_done() {
-                            r.push(ServerMsg::Ack { t });
-                        }
-                    }
-                    r
-                }
-                Err(e) => session.on_malformed(&e),
-            },
-            Ok(Line::TooLong(len)) => session.on_malformed(&format!(
-                "message of more than {} bytes ({len} read) dropped",
-                cfg.max_message_bytes
-            )),
-            Ok(Line::Binary) => session.on_malformed("not UTF-8"),
-            Ok(Line::Partial | Line::Timeout) => silence(&mut session, watch_silence, last_frame),
-            Ok(Line::Closed) | Err(_) => break,
+        let Some(replies) = replies_to(
+            reader.next(),
+            &mut session,
+            sync,
+            watch_silence,
+            &mut last_frame,
+            cfg.max_message_bytes,
+        ) else {
+            break;
         };
         // A client that stopped listening may still have frames on the way: keep reading
         // them (into the trial file), only stop answering.
@@ -573,6 +550,49 @@ fn run_trial(
         frames: session.frames(),
         warning,
     }
+}
+
+/// The bridge's answers to one read from the client: the session's replies (in lockstep with
+/// the frame's ack); `None` when the client ended the trial or the connection closed.
+/// `last_frame` moves when the session accepted a frame.
+fn replies_to(
+    read: std::io::Result<Line>,
+    session: &mut Session,
+    sync: bool,
+    watch_silence: bool,
+    last_frame: &mut Instant,
+    max_message_bytes: usize,
+) -> Option<Vec<ServerMsg>> {
+    Some(match read {
+        Ok(Line::Text(l)) if l.trim().is_empty() => silence(session, watch_silence, *last_frame),
+        Ok(Line::Text(l)) => match parse_client(&l) {
+            Ok(ClientMsg::End) => return None,
+            Ok(m) => {
+                let t = match &m {
+                    ClientMsg::Frame { t, .. } => Some(*t),
+                    _ => None,
+                };
+                let accepted = session.frames_accepted();
+                let mut r = session.on_message(m);
+                if session.frames_accepted() > accepted {
+                    *last_frame = Instant::now();
+                }
+                if let (true, Some(t)) = (sync, t) {
+                    if !session.is_done() {
+                        r.push(ServerMsg::Ack { t });
+                    }
+                }
+                r
+            }
+            Err(e) => session.on_malformed(&e),
+        },
+        Ok(Line::TooLong(len)) => session.on_malformed(&format!(
+            "message of more than {max_message_bytes} bytes ({len} read) dropped"
+        )),
+        Ok(Line::Binary) => session.on_malformed("not UTF-8"),
+        Ok(Line::Partial | Line::Timeout) => silence(session, watch_silence, *last_frame),
+        Ok(Line::Closed) | Err(_) => return None,
+    })
 }
 
 fn silence(session: &mut Session, watch: bool, last_frame: Instant) -> Vec<ServerMsg> {
