@@ -178,6 +178,36 @@ fn blank_lines_and_partial_lines_do_not_defeat_the_silence_stop() {
 }
 
 #[test]
+fn an_overlong_or_binary_line_mid_trial_stops_the_robot_and_the_trial_goes_on() {
+    let out = tmp("overlong");
+    let (addr, h) = start(options(&out, 1), "Seeker", 0.1);
+    let mut c = Client::welcomed(addr);
+    for k in 0..5 {
+        c.send(&frame(f64::from(k) * 0.04));
+    }
+    // A line past the limit (65,536 bytes by default): dropped, named, the robot stopped.
+    let limit = LiveConfig::default().max_message_bytes;
+    c.send(&format!("{}\n", "x".repeat(limit + 10)));
+    let (_, line) = c.until("malformed input", Duration::from_secs(3));
+    assert!(
+        line.contains(&format!("message of more than {limit} bytes"))
+            && line.contains("\"stop\":true"),
+        "{line}"
+    );
+    // A good frame lifts the stop; then bytes that are not UTF-8: stopped again.
+    c.send(&frame(0.2));
+    c.s.write_all(b"\xff\xfe\n").unwrap();
+    let (_, line) = c.until("not UTF-8", Duration::from_secs(3));
+    assert!(line.contains("\"stop\":true"), "{line}");
+    // The next good frame is taken and the trial ends as usual, keeping its frames.
+    c.send(&frame(0.24));
+    c.send(&to_line(&ClientMsg::End));
+    let outcomes = h.join().unwrap().unwrap();
+    assert_eq!(outcomes.len(), 1);
+    assert_eq!(outcomes[0].frames, 7, "{:?}", outcomes[0]);
+}
+
+#[test]
 fn lockstep_is_refused_for_a_live_lab() {
     let (addr, _h) = start(options(&tmp("sync"), 1), "Seeker", 0.1);
     let mut c = Client::connect(addr);
