@@ -190,8 +190,10 @@ fn an_overlong_or_binary_line_mid_trial_stops_the_robot_and_the_trial_goes_on() 
     c.send(&format!("{}\n", "x".repeat(limit + 10)));
     let (_, line) = c.until("malformed input", Duration::from_secs(3));
     assert!(
-        line.contains(&format!("message of more than {limit} bytes"))
-            && line.contains("\"stop\":true"),
+        line.contains(&format!(
+            "message of more than {limit} bytes ({} read) dropped",
+            limit + 10
+        )) && line.contains("\"stop\":true"),
         "{line}"
     );
     // A good frame lifts the stop; then bytes that are not UTF-8: stopped again.
