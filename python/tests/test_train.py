@@ -36,6 +36,13 @@ def test_train_against_a_python_model_and_resume(tmp_path):
     fishprobe.train(Attractor(), out, resume=True, callback=None)
     with pytest.raises(ValueError, match="Attractor"):
         fishprobe.train("Zone", out, resume=True, callback=None)
+    # The run records the trainer's revision; one that another revision started is refused.
+    assert params["trainer_revision"] >= 2
+    assert params["program_build"].endswith("Python package")
+    params["trainer_revision"] = 1
+    (out / "params.json").write_text(json.dumps(params))
+    with pytest.raises(RuntimeError, match="started by trainer revision 1"):
+        fishprobe.train(Attractor(), out, resume=True, callback=None)
 
 
 def test_interrupted_training_resumes_where_it_stopped(tmp_path):
