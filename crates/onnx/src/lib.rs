@@ -30,7 +30,7 @@ mod net;
 mod policy;
 
 pub use guard::{CappedAlloc, MAX_ALLOCATION_BYTES};
-pub use net::{read_model_file, sha256_hex, Contract, OnnxNet, MAX_FILE_BYTES};
+pub use net::{hex, read_model_file, sha256_hex, Contract, OnnxNet, MAX_FILE_BYTES};
 
 // The unit tests check the allocation cap, so their binary installs it as binaries do.
 #[cfg(test)]

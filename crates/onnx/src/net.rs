@@ -139,10 +139,12 @@ pub fn read_model_file(path: &Path) -> Result<Vec<u8>, OnnxError> {
 /// The SHA-256 of `bytes`, lower-case hex (what trial files record for a model file).
 pub fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::Digest;
-    sha2::Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
+    hex(&sha2::Sha256::digest(bytes))
+}
+
+/// `bytes` as lower-case hex, two digits a byte (a digest computed elsewhere, e.g. streamed).
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 impl OnnxNet {
@@ -406,5 +408,21 @@ fn first_line(e: &impl std::fmt::Display) -> String {
         format!("({ENGINE} gave no reason)")
     } else {
         line
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{hex, sha256_hex};
+
+    #[test]
+    fn hex_and_sha256_known_answers() {
+        assert_eq!(hex(&[0x00, 0xab, 0x0f, 0xff]), "00ab0fff");
+        assert_eq!(hex(&[]), "");
+        // FIPS 180-2, appendix B.1.
+        assert_eq!(
+            sha256_hex(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
     }
 }

@@ -98,7 +98,7 @@ fn fit_inputs_sha256(
             h.update(&buf);
         }
     }
-    h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    fishprobe_onnx::hex(&h.finalize())
 }
 
 /// The SHA-256 of a network's tensors as a weights file stores them.
