@@ -31,55 +31,119 @@ pub(crate) fn f(x: f64) -> String {
     }
 }
 
+/// A CSV table: its file name, whether the results have its section, and what writes it.
+type CsvTable = (&'static str, bool, fn(&Results) -> String);
+
 impl Results {
     /// One CSV table per present section: (file name, contents).
     pub fn csv_tables(&self) -> Vec<(&'static str, String)> {
-        let mut out = Vec::new();
-        if !self.competence.is_empty() {
-            let rows = self
-                .competence
-                .iter()
-                .flat_map(|(p, c)| {
-                    c.baselines.iter().map(move |(b, g)| {
-                        let reach = |t: Option<&f64>| t.map_or(String::new(), f64::to_string);
-                        vec![
-                            p.clone(),
-                            c.policy_goals.to_string(),
-                            b.clone(),
-                            g.to_string(),
-                            (c.policy_goals / g).to_string(),
-                            (b == &c.best).to_string(),
-                            c.weak.to_string(),
-                            reach(c.reach_s.as_ref()),
-                            reach(c.baselines_reach_s.get(b)),
-                            // The standard error belongs to the ratio to the best.
-                            reach(c.ratio_se.as_ref().filter(|_| b == &c.best)),
-                        ]
-                    })
-                })
-                .collect();
-            out.push((
+        let tables: [CsvTable; 12] = [
+            (
                 "competence.csv",
-                table(
-                    &[
-                        "policy",
-                        "policy_goals",
-                        "baseline",
-                        "baseline_goals",
-                        "ratio",
-                        "best",
-                        "weak",
-                        "policy_reach_s",
-                        "baseline_reach_s",
-                        "ratio_se",
-                    ],
-                    rows,
-                ),
-            ));
-        }
-        if !self.goals.is_empty() {
-            let rows = self
-                .goals
+                !self.competence.is_empty(),
+                Self::competence_csv,
+            ),
+            ("goals.csv", !self.goals.is_empty(), Self::goals_csv),
+            (
+                "sim_to_real.csv",
+                !self.sim_to_real.is_empty(),
+                Self::sim_to_real_csv,
+            ),
+            (
+                "metric_gaps.csv",
+                !self.metric_gaps.is_empty(),
+                Self::metric_gaps_csv,
+            ),
+            (
+                "mean_ranks.csv",
+                !self.metric_gaps.is_empty(),
+                Self::mean_ranks_csv,
+            ),
+            (
+                "sim_to_sim.csv",
+                !self.sim_to_sim.is_empty(),
+                Self::sim_to_sim_csv,
+            ),
+            (
+                "kruskal.csv",
+                !self.sim_to_sim.is_empty(),
+                Self::kruskal_csv,
+            ),
+            (
+                "temporal.csv",
+                !self.temporal.is_empty(),
+                Self::temporal_csv,
+            ),
+            (
+                "time_to_goal.csv",
+                !self.time_to_goal.is_empty(),
+                Self::time_to_goal_csv,
+            ),
+            (
+                "approach.csv",
+                !self.approach.is_empty(),
+                Self::approach_csv,
+            ),
+            ("seeds.csv", !self.seeds.is_empty(), Self::seeds_csv),
+            (
+                "stability.csv",
+                self.stability.is_some(),
+                Self::stability_csv,
+            ),
+        ];
+        tables
+            .into_iter()
+            .filter(|(_, present, _)| *present)
+            .map(|(name, _, make)| (name, make(self)))
+            .collect()
+    }
+
+    /// `competence.csv`: each policy's goals beside each scripted controller's on the same
+    /// episodes: the ratio, whether that controller is the best, the times to reach the fish.
+    fn competence_csv(&self) -> String {
+        let rows = self
+            .competence
+            .iter()
+            .flat_map(|(p, c)| {
+                c.baselines.iter().map(move |(b, g)| {
+                    let reach = |t: Option<&f64>| t.map_or(String::new(), f64::to_string);
+                    vec![
+                        p.clone(),
+                        c.policy_goals.to_string(),
+                        b.clone(),
+                        g.to_string(),
+                        (c.policy_goals / g).to_string(),
+                        (b == &c.best).to_string(),
+                        c.weak.to_string(),
+                        reach(c.reach_s.as_ref()),
+                        reach(c.baselines_reach_s.get(b)),
+                        // The standard error belongs to the ratio to the best.
+                        reach(c.ratio_se.as_ref().filter(|_| b == &c.best)),
+                    ]
+                })
+            })
+            .collect();
+        table(
+            &[
+                "policy",
+                "policy_goals",
+                "baseline",
+                "baseline_goals",
+                "ratio",
+                "best",
+                "weak",
+                "policy_reach_s",
+                "baseline_reach_s",
+                "ratio_se",
+            ],
+            rows,
+        )
+    }
+
+    /// `goals.csv`: goals reached per trial, each policy's simulated and reality arm.
+    fn goals_csv(&self) -> String {
+        let rows =
+            self.goals
                 .iter()
                 .flat_map(|(p, g)| {
                     let sim = g.sim.iter().enumerate().map(move |(i, v)| {
@@ -91,234 +155,241 @@ impl Results {
                     sim.chain(real)
                 })
                 .collect();
-            out.push((
-                "goals.csv",
-                table(&["policy", "arm", "trial", "goals_reached"], rows),
-            ));
-        }
-        if !self.sim_to_real.is_empty() {
-            let rows = self
-                .sim_to_real
-                .iter()
-                .map(|(p, g)| {
+        table(&["policy", "arm", "trial", "goals_reached"], rows)
+    }
+
+    /// `sim_to_real.csv`: the sim-to-real gap of each policy's goals: Wasserstein distance with its
+    /// interval, p, Cliff's delta.
+    fn sim_to_real_csv(&self) -> String {
+        let rows = self
+            .sim_to_real
+            .iter()
+            .map(|(p, g)| {
+                vec![
+                    p.clone(),
+                    f(g.w),
+                    f(g.ci[0]),
+                    f(g.ci[1]),
+                    f(g.p),
+                    f(g.cliffs_delta),
+                    g.magnitude.clone(),
+                    g.n_sim.to_string(),
+                    g.n_real.to_string(),
+                ]
+            })
+            .collect();
+        table(
+            &[
+                "policy",
+                "w",
+                "ci_low",
+                "ci_high",
+                "p",
+                "cliffs_delta",
+                "magnitude",
+                "n_sim",
+                "n_real",
+            ],
+            rows,
+        )
+    }
+
+    /// `metric_gaps.csv`: each behavioural metric's gap per policy: median Wasserstein distance
+    /// with its interval, normalised, and its rank.
+    fn metric_gaps_csv(&self) -> String {
+        let rows = self
+            .metric_gaps
+            .iter()
+            .flat_map(|(m, per)| {
+                per.iter().map(move |(p, g)| {
                     vec![
+                        m.clone(),
                         p.clone(),
-                        f(g.w),
+                        f(g.median),
                         f(g.ci[0]),
                         f(g.ci[1]),
-                        f(g.p),
-                        f(g.cliffs_delta),
-                        g.magnitude.clone(),
-                        g.n_sim.to_string(),
-                        g.n_real.to_string(),
+                        f(g.normalized),
+                        f(g.rank),
                     ]
                 })
-                .collect();
-            out.push((
-                "sim_to_real.csv",
-                table(
-                    &[
-                        "policy",
-                        "w",
-                        "ci_low",
-                        "ci_high",
-                        "p",
-                        "cliffs_delta",
-                        "magnitude",
-                        "n_sim",
-                        "n_real",
-                    ],
-                    rows,
-                ),
-            ));
-        }
-        if !self.metric_gaps.is_empty() {
-            let rows = self
-                .metric_gaps
-                .iter()
-                .flat_map(|(m, per)| {
-                    per.iter().map(move |(p, g)| {
-                        vec![
-                            m.clone(),
-                            p.clone(),
-                            f(g.median),
-                            f(g.ci[0]),
-                            f(g.ci[1]),
-                            f(g.normalized),
-                            f(g.rank),
-                        ]
-                    })
-                })
-                .collect();
-            out.push((
-                "metric_gaps.csv",
-                table(
-                    &[
-                        "metric",
-                        "policy",
-                        "median_w",
-                        "ci_low",
-                        "ci_high",
-                        "normalized",
-                        "rank",
-                    ],
-                    rows,
-                ),
-            ));
-            let rows = self
-                .mean_ranks
-                .iter()
-                .map(|(p, r)| vec![p.clone(), f(*r)])
-                .collect();
-            out.push(("mean_ranks.csv", table(&["policy", "mean_rank"], rows)));
-        }
-        if !self.sim_to_sim.is_empty() {
-            let rows = self
-                .sim_to_sim
-                .iter()
-                .flat_map(|(p, per)| {
-                    per.iter().map(move |(m, c)| {
-                        vec![
-                            p.clone(),
-                            m.clone(),
-                            f(c.median),
-                            f(c.ci[0]),
-                            f(c.ci[1]),
-                            c.p_holm.map(f).unwrap_or_default(),
-                        ]
-                    })
-                })
-                .collect();
-            out.push((
-                "sim_to_sim.csv",
-                table(
-                    &[
-                        "policy",
-                        "rollout_model",
-                        "median_w",
-                        "ci_low",
-                        "ci_high",
-                        "p_holm",
-                    ],
-                    rows,
-                ),
-            ));
-            let rows = self
-                .kruskal
-                .iter()
-                .map(|(p, k)| vec![p.clone(), f(k.h), f(k.p)])
-                .collect();
-            out.push(("kruskal.csv", table(&["policy", "h", "p"], rows)));
-        }
-        if !self.temporal.is_empty() {
-            let rows = self
-                .temporal
-                .iter()
-                .flat_map(|(arm, per)| {
-                    per.iter().map(move |(p, t)| {
-                        vec![
-                            arm.clone(),
-                            p.clone(),
-                            f(t.rate_ratio),
-                            f(t.ci[0]),
-                            f(t.ci[1]),
-                            f(t.p),
-                            f(t.alpha),
-                            f(t.first_minute),
-                        ]
-                    })
-                })
-                .collect();
-            out.push((
-                "temporal.csv",
-                table(
-                    &[
-                        "arm",
-                        "policy",
-                        "rate_ratio",
-                        "ci_low",
-                        "ci_high",
-                        "p",
-                        "alpha",
-                        "first_minute",
-                    ],
-                    rows,
-                ),
-            ));
-        }
-        if !self.time_to_goal.is_empty() {
-            let cell = |m: &Option<MeanSd>| {
-                m.as_ref()
-                    .map_or([String::new(), String::new(), "0".into()], |m| {
-                        [f(m.mean), f(m.sd), m.n.to_string()]
-                    })
-            };
-            let rows = self
-                .time_to_goal
-                .iter()
-                .map(|(p, t)| {
-                    let mut r = vec![p.clone()];
-                    r.extend(cell(&t.sim));
-                    r.extend(cell(&t.real));
-                    r
-                })
-                .collect();
-            out.push((
-                "time_to_goal.csv",
-                table(
-                    &[
-                        "policy",
-                        "sim_mean_s",
-                        "sim_sd_s",
-                        "sim_n",
-                        "real_mean_s",
-                        "real_sd_s",
-                        "real_n",
-                    ],
-                    rows,
-                ),
-            ));
-        }
-        if !self.approach.is_empty() {
-            let rows = self
-                .approach
-                .iter()
-                .map(|(p, a)| {
+            })
+            .collect();
+        table(
+            &[
+                "metric",
+                "policy",
+                "median_w",
+                "ci_low",
+                "ci_high",
+                "normalized",
+                "rank",
+            ],
+            rows,
+        )
+    }
+
+    /// `mean_ranks.csv`: each policy's mean rank over the metrics.
+    fn mean_ranks_csv(&self) -> String {
+        let rows = self
+            .mean_ranks
+            .iter()
+            .map(|(p, r)| vec![p.clone(), f(*r)])
+            .collect();
+        table(&["policy", "mean_rank"], rows)
+    }
+
+    /// `sim_to_sim.csv`: each policy's sim-to-sim cells, one per rollout model: the median
+    /// Wasserstein distance with its interval and the Holm-adjusted p.
+    fn sim_to_sim_csv(&self) -> String {
+        let rows = self
+            .sim_to_sim
+            .iter()
+            .flat_map(|(p, per)| {
+                per.iter().map(move |(m, c)| {
                     vec![
                         p.clone(),
-                        f(a.min_iid),
-                        f(a.mean_iid),
-                        f(a.frac_closer_to_fish),
-                        a.episodes.to_string(),
+                        m.clone(),
+                        f(c.median),
+                        f(c.ci[0]),
+                        f(c.ci[1]),
+                        c.p_holm.map(f).unwrap_or_default(),
                     ]
                 })
-                .collect();
-            out.push((
-                "approach.csv",
-                table(
-                    &[
-                        "policy",
-                        "min_iid_cm",
-                        "mean_iid_cm",
-                        "frac_closer_to_fish",
-                        "episodes",
-                    ],
-                    rows,
-                ),
-            ));
-        }
-        if !self.seeds.is_empty() {
-            out.push(("seeds.csv", crate::seeds::csv(&self.seeds)));
-        }
-        if let Some(s) = &self.stability {
-            out.push((
-                "stability.csv",
-                table(
-                    &["r", "ci_low", "ci_high", "p"],
-                    vec![vec![f(s.r), f(s.ci[0]), f(s.ci[1]), f(s.p)]],
-                ),
-            ));
-        }
-        out
+            })
+            .collect();
+        table(
+            &[
+                "policy",
+                "rollout_model",
+                "median_w",
+                "ci_low",
+                "ci_high",
+                "p_holm",
+            ],
+            rows,
+        )
+    }
+
+    /// `kruskal.csv`: Kruskal-Wallis across each policy's rollout models.
+    fn kruskal_csv(&self) -> String {
+        let rows = self
+            .kruskal
+            .iter()
+            .map(|(p, k)| vec![p.clone(), f(k.h), f(k.p)])
+            .collect();
+        table(&["policy", "h", "p"], rows)
+    }
+
+    /// `temporal.csv`: goals over time per arm and policy: the negative-binomial rate ratio with
+    /// its interval, p, α and the first minute.
+    fn temporal_csv(&self) -> String {
+        let rows = self
+            .temporal
+            .iter()
+            .flat_map(|(arm, per)| {
+                per.iter().map(move |(p, t)| {
+                    vec![
+                        arm.clone(),
+                        p.clone(),
+                        f(t.rate_ratio),
+                        f(t.ci[0]),
+                        f(t.ci[1]),
+                        f(t.p),
+                        f(t.alpha),
+                        f(t.first_minute),
+                    ]
+                })
+            })
+            .collect();
+        table(
+            &[
+                "arm",
+                "policy",
+                "rate_ratio",
+                "ci_low",
+                "ci_high",
+                "p",
+                "alpha",
+                "first_minute",
+            ],
+            rows,
+        )
+    }
+
+    /// `time_to_goal.csv`: mean and s.d. of the time to goal, simulated and real.
+    fn time_to_goal_csv(&self) -> String {
+        let cell = |m: &Option<MeanSd>| {
+            m.as_ref()
+                .map_or([String::new(), String::new(), "0".into()], |m| {
+                    [f(m.mean), f(m.sd), m.n.to_string()]
+                })
+        };
+        let rows = self
+            .time_to_goal
+            .iter()
+            .map(|(p, t)| {
+                let mut r = vec![p.clone()];
+                r.extend(cell(&t.sim));
+                r.extend(cell(&t.real));
+                r
+            })
+            .collect();
+        table(
+            &[
+                "policy",
+                "sim_mean_s",
+                "sim_sd_s",
+                "sim_n",
+                "real_mean_s",
+                "real_sd_s",
+                "real_n",
+            ],
+            rows,
+        )
+    }
+
+    /// `approach.csv`: the approach assay per policy: closest and mean distance to the fish, the
+    /// share of frames nearer the fish than the goal.
+    fn approach_csv(&self) -> String {
+        let rows = self
+            .approach
+            .iter()
+            .map(|(p, a)| {
+                vec![
+                    p.clone(),
+                    f(a.min_iid),
+                    f(a.mean_iid),
+                    f(a.frac_closer_to_fish),
+                    a.episodes.to_string(),
+                ]
+            })
+            .collect();
+        table(
+            &[
+                "policy",
+                "min_iid_cm",
+                "mean_iid_cm",
+                "frac_closer_to_fish",
+                "episodes",
+            ],
+            rows,
+        )
+    }
+
+    /// `seeds.csv`: every training seed's competence and approach assay.
+    fn seeds_csv(&self) -> String {
+        crate::seeds::csv(&self.seeds)
+    }
+
+    /// `stability.csv`: retraining stability, σ²_between / σ²_within over the training seeds, with
+    /// its bootstrap interval and permutation p.
+    fn stability_csv(&self) -> String {
+        let Some(s) = &self.stability else {
+            return String::new();
+        };
+        table(
+            &["r", "ci_low", "ci_high", "p"],
+            vec![vec![f(s.r), f(s.ci[0]), f(s.ci[1]), f(s.p)]],
+        )
     }
 }
