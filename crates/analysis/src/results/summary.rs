@@ -25,96 +25,10 @@ impl Results {
             );
         }
         if !self.sim_to_real.is_empty() {
-            s += "## Sim-to-real gap, goals reached\n\n| policy | sim mean | real mean | W | 95 % CI | p | Cliff's δ |\n|---|---|---|---|---|---|---|\n";
-            for (p, g) in &self.sim_to_real {
-                let mean = |v: &[u32]| {
-                    v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len().max(1) as f64
-                };
-                let pair = &self.goals[p];
-                s += &format!(
-                    "| {p} | {:.1} | {:.1} | {:.2} | [{:.2}, {:.2}] | {:.4} | {:.2} ({}) |\n",
-                    mean(&pair.sim),
-                    mean(&pair.real),
-                    g.w,
-                    g.ci[0],
-                    g.ci[1],
-                    g.p,
-                    g.cliffs_delta,
-                    g.magnitude
-                );
-            }
-            s.push('\n');
+            s += &self.sim_to_real_markdown();
         }
         if !self.competence.is_empty() {
-            s += "## Probe competence: goals on the own model, next to the best scripted controller\n\n| policy | goals | best scripted | its goals | ratio | reaches its fish (median s) | scripted controllers reach it (median s) |\n|---|---|---|---|---|---|---|\n";
-            for (p, c) in &self.competence {
-                let scripted: Vec<String> = c
-                    .baselines_reach_s
-                    .iter()
-                    .map(|(b, t)| format!("{b} {t:.1}"))
-                    .collect();
-                s += &format!(
-                    "| {p} | {:.1} | {} | {:.1} | {:.2}{}{} | {} | {} |\n",
-                    c.policy_goals,
-                    c.best,
-                    c.best_goals,
-                    c.ratio,
-                    crate::competence::plus_minus(c.ratio_se),
-                    if c.weak { " **weak**" } else { "" },
-                    c.reach_s.map_or("–".into(), |t| format!("{t:.1}")),
-                    if scripted.is_empty() {
-                        "–".into()
-                    } else {
-                        scripted.join(", ")
-                    },
-                );
-            }
-            s += &format!(
-                "\nThe ratio's ± is its standard error over the episodes (delta method): a ratio \
-                 within about two of them of the bar is not clearly on either side. \
-                 Reaching the fish: the first moment a fish is within {} cm of the robot. A probe \
-                 that takes as long as GoalSeeker waits at the goal for its fish to come by; one \
-                 near FetchAndLead fetches it. The goal count hides the difference when the probe \
-                 holds the fish once it has it.\n",
-                self.config.robot_reach_cm
-            );
-            let weak: Vec<&str> = self
-                .competence
-                .iter()
-                .filter(|(_, c)| c.weak)
-                .map(|(p, _)| p.as_str())
-                .collect();
-            if !weak.is_empty() {
-                s += &format!(
-                    "\n**Warning:** {} reach{} less than {:.0} % of the best scripted controller's goals on \
-                     {} own model: {} strateg{} reflect{} the optimiser, not only the model.\n",
-                    weak.join(", "),
-                    if weak.len() == 1 { "es" } else { "" },
-                    100.0 * self.config.competence_threshold,
-                    if weak.len() == 1 { "its" } else { "their" },
-                    if weak.len() == 1 { "its" } else { "their" },
-                    if weak.len() == 1 { "y" } else { "ies" },
-                    if weak.len() == 1 { "s" } else { "" },
-                );
-                // Weak by less than two standard errors: the measurement cannot tell.
-                let near: Vec<String> = self
-                    .competence
-                    .iter()
-                    .filter(|(_, c)| c.weak)
-                    .filter_map(|(p, c)| {
-                        let se = c.ratio_se?;
-                        (c.ratio + 2.0 * se >= self.config.competence_threshold)
-                            .then(|| format!("{p} ({:.2} ± {se:.2})", c.ratio))
-                    })
-                    .collect();
-                if !near.is_empty() {
-                    s += &format!(
-                        "Within two standard errors of the bar, so not clearly below it: {}; more evaluation episodes would tell.\n",
-                        near.join(", ")
-                    );
-                }
-            }
-            s.push('\n');
+            s += &self.competence_markdown();
         }
         if !self.seeds.is_empty() {
             s += &crate::seeds::summary_markdown(&self.seeds, &self.config);
@@ -150,6 +64,106 @@ impl Results {
                 s += &format!("- {}: {}\n", k.what, k.reason);
             }
         }
+        s
+    }
+
+    /// The sim-to-real gap of the goals, a row per policy.
+    fn sim_to_real_markdown(&self) -> String {
+        let mut s = String::from(
+            "## Sim-to-real gap, goals reached\n\n| policy | sim mean | real mean | W | 95 % CI | p | Cliff's δ |\n|---|---|---|---|---|---|---|\n");
+        for (p, g) in &self.sim_to_real {
+            let mean =
+                |v: &[u32]| v.iter().map(|&x| f64::from(x)).sum::<f64>() / v.len().max(1) as f64;
+            let pair = &self.goals[p];
+            s += &format!(
+                "| {p} | {:.1} | {:.1} | {:.2} | [{:.2}, {:.2}] | {:.4} | {:.2} ({}) |\n",
+                mean(&pair.sim),
+                mean(&pair.real),
+                g.w,
+                g.ci[0],
+                g.ci[1],
+                g.p,
+                g.cliffs_delta,
+                g.magnitude
+            );
+        }
+        s.push('\n');
+        s
+    }
+
+    /// Probe competence, a row per policy, with what the columns mean and a warning naming
+    /// the weak probes (and those within two standard errors of the bar).
+    fn competence_markdown(&self) -> String {
+        let mut s = String::from(
+            "## Probe competence: goals on the own model, next to the best scripted controller\n\n| policy | goals | best scripted | its goals | ratio | reaches its fish (median s) | scripted controllers reach it (median s) |\n|---|---|---|---|---|---|---|\n");
+        for (p, c) in &self.competence {
+            let scripted: Vec<String> = c
+                .baselines_reach_s
+                .iter()
+                .map(|(b, t)| format!("{b} {t:.1}"))
+                .collect();
+            s += &format!(
+                "| {p} | {:.1} | {} | {:.1} | {:.2}{}{} | {} | {} |\n",
+                c.policy_goals,
+                c.best,
+                c.best_goals,
+                c.ratio,
+                crate::competence::plus_minus(c.ratio_se),
+                if c.weak { " **weak**" } else { "" },
+                c.reach_s.map_or("–".into(), |t| format!("{t:.1}")),
+                if scripted.is_empty() {
+                    "–".into()
+                } else {
+                    scripted.join(", ")
+                },
+            );
+        }
+        s += &format!(
+            "\nThe ratio's ± is its standard error over the episodes (delta method): a ratio \
+             within about two of them of the bar is not clearly on either side. \
+             Reaching the fish: the first moment a fish is within {} cm of the robot. A probe \
+             that takes as long as GoalSeeker waits at the goal for its fish to come by; one \
+             near FetchAndLead fetches it. The goal count hides the difference when the probe \
+             holds the fish once it has it.\n",
+            self.config.robot_reach_cm
+        );
+        let weak: Vec<&str> = self
+            .competence
+            .iter()
+            .filter(|(_, c)| c.weak)
+            .map(|(p, _)| p.as_str())
+            .collect();
+        if !weak.is_empty() {
+            s += &format!(
+                "\n**Warning:** {} reach{} less than {:.0} % of the best scripted controller's goals on \
+                 {} own model: {} strateg{} reflect{} the optimiser, not only the model.\n",
+                weak.join(", "),
+                if weak.len() == 1 { "es" } else { "" },
+                100.0 * self.config.competence_threshold,
+                if weak.len() == 1 { "its" } else { "their" },
+                if weak.len() == 1 { "its" } else { "their" },
+                if weak.len() == 1 { "y" } else { "ies" },
+                if weak.len() == 1 { "s" } else { "" },
+            );
+            // Weak by less than two standard errors: the measurement cannot tell.
+            let near: Vec<String> = self
+                .competence
+                .iter()
+                .filter(|(_, c)| c.weak)
+                .filter_map(|(p, c)| {
+                    let se = c.ratio_se?;
+                    (c.ratio + 2.0 * se >= self.config.competence_threshold)
+                        .then(|| format!("{p} ({:.2} ± {se:.2})", c.ratio))
+                })
+                .collect();
+            if !near.is_empty() {
+                s += &format!(
+                    "Within two standard errors of the bar, so not clearly below it: {}; more evaluation episodes would tell.\n",
+                    near.join(", ")
+                );
+            }
+        }
+        s.push('\n');
         s
     }
 }
