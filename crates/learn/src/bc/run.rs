@@ -326,11 +326,11 @@ pub fn file_names(files: &[PathBuf]) -> Vec<String> {
         .collect()
 }
 
-/// The SHA-256 of a file just written, read back.
+/// The SHA-256 of a weights file just written, read back as every weights file is hashed
+/// ([`fishprobe_models::weights_sha256`]).
 fn sha256_of_file(file: &Path) -> Result<String, LearnError> {
-    let bytes = std::fs::read(file)
-        .map_err(|e| LearnError::Run(format!("reading back {}: {e}", file.display())))?;
-    Ok(fishprobe_models::sha256_hex(&bytes))
+    fishprobe_models::weights_sha256(file)
+        .map_err(|e| LearnError::Run(format!("reading back {}: {e}", file.display())))
 }
 
 /// The epoch log as CSV beside the weights (`training.csv`).
