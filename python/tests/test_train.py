@@ -56,7 +56,15 @@ def test_interrupted_training_resumes_where_it_stopped(tmp_path):
     out = tmp_path / "run"
     with pytest.raises(Stop):
         fishprobe.train("Follow", out, preset="smoke", seed=2, callback=stop_after_two)
+    # Continued as if by another build than the one that started it: each line of
+    # result.json names the build that made it.
+    params = json.loads((out / "params.json").read_text())
+    params["program_build"] = "0.1.0 (commit 0123456789ab)"
+    (out / "params.json").write_text(json.dumps(params))
     fishprobe.train("Follow", out, preset="smoke", resume=True, callback=None)
+    lines = [json.loads(l) for l in (out / "result.json").read_text().splitlines()]
+    assert len(lines) > 2
+    assert all(l["build"].endswith("Python package") for l in lines)
     whole = tmp_path / "whole"
     fishprobe.train("Follow", whole, preset="smoke", seed=2, callback=None)
     assert (out / "policy.safetensors").read_bytes() == (whole / "policy.safetensors").read_bytes()

@@ -61,10 +61,28 @@ fn a_killed_run_resumes_to_the_same_result() {
     }
     child.kill().unwrap();
     child.wait().unwrap();
+    // The killed run is continued as if by another build than the one that started it: each
+    // line of result.json names the build that made it, params.json the one that started it.
+    let version = stdout(&fishprobe(&["--version"]));
+    let build = version.trim().trim_start_matches("fishprobe ");
+    let b_params = b.join("params.json");
+    let mut started: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&b_params).unwrap()).unwrap();
+    started["program_build"] = "0.1.0 (commit 0123456789ab)".into();
+    std::fs::write(&b_params, started.to_string()).unwrap();
     let mut resume = args(&b);
     resume.push("--resume");
     let o = fishprobe(&resume);
     assert!(o.status.success(), "{}", stderr(&o));
+    let b_builds: Vec<serde_json::Value> = std::fs::read_to_string(b.join("result.json"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["build"].clone())
+        .collect();
+    assert_eq!(b_builds, vec![serde_json::Value::from(build); 24]);
+    assert!(std::fs::read_to_string(&b_params)
+        .unwrap()
+        .contains("0123456789ab"));
     assert_eq!(
         std::fs::read(a.join("policy.safetensors")).unwrap(),
         std::fs::read(b.join("policy.safetensors")).unwrap(),
@@ -116,8 +134,6 @@ fn a_killed_run_resumes_to_the_same_result() {
     // The run records the build and the trainer revision that started it. Another build of the
     // same revision continues it and says so; a run of another revision, or one that does not
     // record its revision (started before fishprobe recorded it), is refused, naming both.
-    let version = stdout(&fishprobe(&["--version"]));
-    let build = version.trim().trim_start_matches("fishprobe ");
     assert_eq!(params["program_build"], build, "{version}");
     assert_eq!(
         params["trainer_revision"],

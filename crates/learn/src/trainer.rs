@@ -122,6 +122,8 @@ pub struct Trainer {
     episodes: u64,
     roll: Rollout,
     scratch: Scratch,
+    /// The build that makes the iterations from now on (see [`Trainer::continue_with`]).
+    build: String,
 }
 
 fn run_err(path: &Path, what: impl std::fmt::Display) -> LearnError {
@@ -191,6 +193,7 @@ impl Trainer {
             roll: Rollout::new(spec.ppo.num_envs, steps, obs_dim),
             kl_coeff: spec.ppo.kl_coeff,
             rng: stream(spec.seed, "ppo-sampling", 0),
+            build: spec.program_build.clone(),
             spec,
             venv,
             policy,
@@ -242,6 +245,13 @@ impl Trainer {
         }
         t.truncate_logs()?;
         Ok(t)
+    }
+
+    /// Names the program build that makes this run's iterations from now on: the one that
+    /// resumes it, when that is not the build `params.json` records (which started the run and
+    /// stays its record). Each line of `result.json` names the build that made it.
+    pub fn continue_with(&mut self, build: &str) {
+        build.clone_into(&mut self.build);
     }
 
     /// The run's settings.
@@ -344,6 +354,7 @@ impl Trainer {
             vf_explained_var_fit: u.vf_explained_var_fit,
             time_s,
             steps_per_s: self.roll.len() as f64 / time_s.max(1e-9),
+            build: self.build.clone(),
         };
         self.append_logs(&stats)?;
         if iteration.is_multiple_of(self.spec.ppo.checkpoint_every as u64) || self.done() {
@@ -422,6 +433,33 @@ mod tests {
         assert_eq!((old.trainer_revision, old.program_build.as_str()), (0, ""));
         let e = old.check_revision(&dir).unwrap_err().to_string();
         assert!(e.contains("did not record its trainer's revision"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn each_iteration_names_the_build_that_made_it() {
+        let dir = std::env::temp_dir().join(format!("fishprobe-builds-{}", std::process::id()));
+        drop(smoke_run(&dir, 2));
+        let mut t = Trainer::resume(&dir).unwrap();
+        t.continue_with("9.9.9 (commit abc)");
+        t.iterate().unwrap();
+        drop(t);
+        // A resume by the starting build again: its iterations say so.
+        let mut t = Trainer::resume(&dir).unwrap();
+        assert_eq!(t.iterate().unwrap().build, "test");
+        let builds: Vec<String> = std::fs::read_to_string(dir.join("result.json"))
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str::<IterationStats>(l).unwrap().build)
+            .collect();
+        assert_eq!(builds, ["test", "test", "9.9.9 (commit abc)", "test"]);
+        // params.json keeps the build that started the run.
+        assert_eq!(Trainer::recorded_spec(&dir).unwrap().program_build, "test");
+        // A log line written before the build was recorded still reads.
+        let mut old = serde_json::to_value(t.iterate().unwrap()).unwrap();
+        old.as_object_mut().unwrap().remove("build");
+        let old: IterationStats = serde_json::from_value(old).unwrap();
+        assert_eq!(old.build, "");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -168,7 +168,9 @@ fn train(
             Some(_) => resolved.model.clone(),
             None => recorded.model.build().map_err(model_err)?,
         };
-        Trainer::resume_with_model(&out, model).map_err(learn_err)?
+        let mut t = Trainer::resume_with_model(&out, model).map_err(learn_err)?;
+        t.continue_with(PY_BUILD);
+        t
     } else {
         // (Checked above unless the run's params.json vanished since.)
         let (spec, measure) = match fresh.take() {
@@ -298,13 +300,17 @@ fn fresh_run(
         seed,
         preset: preset.to_string(),
         program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: concat!(env!("CARGO_PKG_VERSION"), ", Python package").into(),
+        program_build: PY_BUILD.into(),
         trainer_revision: fishprobe_learn::TRAINER_REVISION,
     };
     // The OOD reward needs the model's support: a missing or foreign file is refused here.
     spec.check().map_err(learn_err)?;
     Ok(spec)
 }
+
+/// The build a run records when this package starts or continues it (`params.json`'s
+/// `program_build`, `result.json`'s `build`).
+const PY_BUILD: &str = concat!(env!("CARGO_PKG_VERSION"), ", Python package");
 
 /// `base` with the fields of the dict `over` (if given) replaced, for the argument `what`.
 fn overrides<T: serde::Serialize + serde::de::DeserializeOwned>(

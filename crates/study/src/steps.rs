@@ -275,7 +275,9 @@ fn train_step(
     };
     let mut t = if same {
         say("resuming from the last checkpoint");
-        Trainer::resume(out)?
+        let mut t = Trainer::resume(out)?;
+        t.continue_with(&spec.program_build);
+        t
     } else {
         if out.exists() {
             std::fs::remove_dir_all(out).map_err(|e| StepError::io("removing", out, e))?;

@@ -235,7 +235,9 @@ fn train_cell(
                 train_dir.display()
             );
         }
-        Trainer::resume(train_dir)?
+        let mut t = Trainer::resume(train_dir)?;
+        t.continue_with(super::BUILD);
+        t
     } else {
         Trainer::create(train_dir, run_spec)?
     };

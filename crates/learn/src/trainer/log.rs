@@ -51,6 +51,12 @@ pub struct IterationStats {
     pub time_s: f64,
     /// Environment steps per second in this iteration.
     pub steps_per_s: f64,
+    /// The program build that made this iteration (what `fishprobe --version` prints; the
+    /// run's `params.json` records the one that started it, and a run resumed by another
+    /// build says here which iterations which build made). `result.json` only: the CSV's
+    /// columns are numbers. Empty in logs written before it was recorded.
+    #[serde(default)]
+    pub build: String,
 }
 
 pub(super) const CSV_HEADER: &str = "iteration,timesteps,episodes_total,episodes,episode_return_mean,episode_return_min,episode_return_max,goals_per_episode,policy_loss,value_loss,kl,kl_coeff,entropy,clip_frac,action_clip_frac,vf_explained_var,vf_explained_var_fit,time_s,steps_per_s";
