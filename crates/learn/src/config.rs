@@ -43,8 +43,18 @@ fishprobe_sim::documented_params! {
         /// sweep"). No reading under which the published 100
         /// epochs learn was found.
         pub num_sgd_iter: usize = 2; "epochs",
-        /// Adam learning rate (paper: 0.00026).
+        /// Adam learning rate (paper: 0.00026); with [`PpoConfig::lr_final`], the rate at the
+        /// start.
         pub lr: f32 = 0.000_26; "1",
+        /// Learning rate at the end of the run, reached linearly over the environment steps
+        /// from `lr` (RLlib's `lr_schedule` from `[[0, lr], [total_timesteps, lr_final]]`,
+        /// Stable-Baselines3's linear schedule; each iteration takes the rate of the steps
+        /// done before it). `None`: `lr` throughout, as the paper, which lists one rate (and
+        /// RLlib 2.0.1's default): falling to 0 left π_ConvNet where the constant rate does
+        /// (docs/validation.md, "A falling learning rate for π_ConvNet?"). Written to
+        /// `params.json` only when set, so runs and studies of the default stay what they were.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub lr_final: Option<f32> = None; "1",
         /// Discount γ (paper: 0.9453).
         pub gamma: f32 = 0.9453; "1",
         /// GAE λ (paper: 0.9652).
@@ -236,6 +246,9 @@ impl PpoConfig {
             ));
         }
         check::positive(p, "lr", self.lr)?;
+        if let Some(end) = self.lr_final {
+            check::non_negative(p, "lr_final", end)?;
+        }
         check::within(p, "gamma", self.gamma, 0.0, 1.0)?;
         check::within(p, "lambda", self.lambda, 0.0, 1.0)?;
         check::non_negative(p, "entropy_coeff", self.entropy_coeff)?;
@@ -265,6 +278,18 @@ impl PpoConfig {
     /// Most epochs per batch (the published settings: 100).
     pub const MAX_SGD_ITER: usize = 10_000;
 
+    /// The learning rate after `timesteps` environment steps: `lr`, or with
+    /// [`PpoConfig::lr_final`] the linear schedule from `lr` to it over `total_timesteps`.
+    pub fn lr_at(&self, timesteps: u64) -> f32 {
+        match self.lr_final {
+            None => self.lr,
+            Some(end) => {
+                let done = (timesteps as f64 / self.total_timesteps as f64).min(1.0);
+                (f64::from(self.lr) + (f64::from(end) - f64::from(self.lr)) * done) as f32
+            }
+        }
+    }
+
     /// Iterations until `total_timesteps` is reached.
     pub fn iterations(&self) -> u64 {
         self.total_timesteps.div_ceil(self.train_batch_size as u64)
@@ -274,6 +299,35 @@ impl PpoConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_learning_rate_schedule_is_linear_in_steps() {
+        let p = PpoConfig {
+            lr: 0.001,
+            lr_final: Some(0.0001),
+            total_timesteps: 1000,
+            ..PpoConfig::default()
+        };
+        for (steps, want) in [(0, 0.001), (500, 0.00055), (1000, 0.0001), (5000, 0.0001)] {
+            assert!(
+                (p.lr_at(steps) - want).abs() < 1e-9,
+                "{steps}: {}",
+                p.lr_at(steps)
+            );
+        }
+        let constant = PpoConfig::default();
+        assert_eq!(constant.lr_at(123_456), 0.000_26);
+        for bad in [-0.1, f32::NAN] {
+            let e = PpoConfig {
+                lr_final: Some(bad),
+                ..PpoConfig::default()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("`ppo.lr_final`"), "{e}");
+        }
+    }
 
     #[test]
     fn an_absurd_budget_names_its_own_field() {

@@ -295,6 +295,8 @@ impl Trainer {
             },
             other => other.into(),
         })?;
+        let lr = self.spec.ppo.lr_at(self.timesteps);
+        (self.adam_pi.lr, self.adam_vf.lr) = (lr, lr);
         let u: UpdateStats = update(
             &self.spec.ppo,
             &mut self.policy,
@@ -380,9 +382,15 @@ mod tests {
 
     /// A smoke run of `iterations` iterations (a checkpoint after each) in a fresh `dir`.
     fn smoke_run(dir: &Path, iterations: usize) -> Trainer {
+        smoke_run_with(dir, iterations, |_| {})
+    }
+
+    /// [`smoke_run`] with the smoke preset's PPO settings changed by `adjust`.
+    fn smoke_run_with(dir: &Path, iterations: usize, adjust: impl Fn(&mut PpoConfig)) -> Trainer {
         let _ = std::fs::remove_dir_all(dir);
         let mut ppo = PpoConfig::preset("smoke").unwrap();
         ppo.total_timesteps = 1_000_000;
+        adjust(&mut ppo);
         let spec = RunSpec {
             ppo,
             env: EnvConfig::default(),
@@ -434,6 +442,40 @@ mod tests {
         let e = old.check_revision(&dir).unwrap_err().to_string();
         assert!(e.contains("did not record its trainer's revision"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_learning_rate_schedule_takes_effect_and_resumes_exactly() {
+        let dir = |tag: &str| {
+            std::env::temp_dir().join(format!("fishprobe-lr-{tag}-{}", std::process::id()))
+        };
+        let anneal = |p: &mut PpoConfig| {
+            p.total_timesteps = 4 * p.train_batch_size as u64;
+            p.lr = 0.003;
+            p.lr_final = Some(0.0);
+        };
+        let whole = smoke_run_with(&dir("whole"), 4, anneal);
+        assert!(whole.done());
+        drop(smoke_run_with(&dir("cut"), 2, anneal));
+        let mut cut = Trainer::resume(&dir("cut")).unwrap();
+        while !cut.done() {
+            cut.iterate().unwrap();
+        }
+        assert_eq!(cut.policy().pi.params(), whole.policy().pi.params());
+        assert_eq!(cut.policy().vf.params(), whole.policy().vf.params());
+        let params = std::fs::read_to_string(dir("whole").join("params.json")).unwrap();
+        assert!(params.contains("\"lr_final\": 0.0"), "{params}");
+        // The same run at a constant rate ends elsewhere, and its params.json has no schedule.
+        let constant = smoke_run_with(&dir("constant"), 4, |p| {
+            anneal(p);
+            p.lr_final = None;
+        });
+        assert_ne!(constant.policy().pi.params(), whole.policy().pi.params());
+        let params = std::fs::read_to_string(dir("constant").join("params.json")).unwrap();
+        assert!(!params.contains("lr_final"), "{params}");
+        for tag in ["whole", "cut", "constant"] {
+            let _ = std::fs::remove_dir_all(dir(tag));
+        }
     }
 
     #[test]

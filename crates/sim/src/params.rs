@@ -41,6 +41,7 @@ macro_rules! documented_params {
         pub struct $name:ident {
             $(
                 $(#[doc = $doc:literal])*
+                $(#[serde($($serde:tt)*)])*
                 pub $field:ident : $ty:ty = $default:expr ; $unit:literal
             ),* $(,)?
         }
@@ -53,6 +54,7 @@ macro_rules! documented_params {
                 $(#[doc = $doc])*
                 #[doc = ""]
                 #[doc = concat!("Unit: ", $unit, ". Default: `", stringify!($default), "`.")]
+                $(#[serde($($serde)*)])*
                 pub $field: $ty,
             )*
         }

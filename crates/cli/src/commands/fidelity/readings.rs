@@ -155,6 +155,14 @@ pub(super) const READINGS: &[Reading] = &[
         ppo: || json!({"vf_clip_param": 1.0e9}),
     },
     Reading {
+        name: "lr-anneal",
+        what: "the learning rate falls linearly to 0 over the run (RLlib's lr_schedule, SB3's linear schedule; the paper lists one rate)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"lr_final": 0.0}),
+    },
+    Reading {
         name: "evaluation-goals",
         what: "training goals are the evaluation's two corner goals, alternating, not random ones (not in the paper)",
         models: &[],
