@@ -122,7 +122,8 @@ pub struct Trainer {
     episodes: u64,
     roll: Rollout,
     scratch: Scratch,
-    /// The build that makes the iterations from now on (see [`Trainer::continue_with`]).
+    /// The build that makes the iterations from now on: the run's own when created, the
+    /// resuming one when resumed ([`Trainer::resume`]).
     build: String,
 }
 
@@ -206,16 +207,23 @@ impl Trainer {
         })
     }
 
-    /// Continues the run in `dir` from its last checkpoint (from the start when it has none).
-    pub fn resume(dir: &Path) -> Result<Self, LearnError> {
+    /// Continues the run in `dir` from its last checkpoint (from the start when it has none),
+    /// with the program build `build` (what `fishprobe --version` prints) making the
+    /// iterations from now on: each line of `result.json` names the build that made it, while
+    /// `params.json` keeps the one that started the run.
+    pub fn resume(dir: &Path, build: &str) -> Result<Self, LearnError> {
         let spec = Self::recorded_spec(dir)?;
         let model = spec.model.build()?;
-        Self::resume_spec(dir, spec, model)
+        Self::resume_spec(dir, spec, model, build)
     }
 
     /// [`Trainer::resume`] with the fish model given (see [`Trainer::create_with_model`]).
-    pub fn resume_with_model(dir: &Path, model: Arc<dyn FishModel>) -> Result<Self, LearnError> {
-        Self::resume_spec(dir, Self::recorded_spec(dir)?, model)
+    pub fn resume_with_model(
+        dir: &Path,
+        model: Arc<dyn FishModel>,
+        build: &str,
+    ) -> Result<Self, LearnError> {
+        Self::resume_spec(dir, Self::recorded_spec(dir)?, model, build)
     }
 
     /// The settings `dir`'s `params.json` records.
@@ -232,10 +240,12 @@ impl Trainer {
         dir: &Path,
         spec: RunSpec,
         model: Arc<dyn FishModel>,
+        build: &str,
     ) -> Result<Self, LearnError> {
         spec.check_revision(dir)?;
         spec.ppo.validate()?;
         let mut t = Self::build(dir, spec, model)?;
+        build.clone_into(&mut t.build);
         match latest_checkpoint(dir)? {
             Some(ckpt) => t.load_checkpoint(&ckpt)?,
             None => t
@@ -245,13 +255,6 @@ impl Trainer {
         }
         t.truncate_logs()?;
         Ok(t)
-    }
-
-    /// Names the program build that makes this run's iterations from now on: the one that
-    /// resumes it, when that is not the build `params.json` records (which started the run and
-    /// stays its record). Each line of `result.json` names the build that made it.
-    pub fn continue_with(&mut self, build: &str) {
-        build.clone_into(&mut self.build);
     }
 
     /// The run's settings.
@@ -457,7 +460,7 @@ mod tests {
         let whole = smoke_run_with(&dir("whole"), 4, anneal);
         assert!(whole.done());
         drop(smoke_run_with(&dir("cut"), 2, anneal));
-        let mut cut = Trainer::resume(&dir("cut")).unwrap();
+        let mut cut = Trainer::resume(&dir("cut"), "test").unwrap();
         while !cut.done() {
             cut.iterate().unwrap();
         }
@@ -482,12 +485,11 @@ mod tests {
     fn each_iteration_names_the_build_that_made_it() {
         let dir = std::env::temp_dir().join(format!("fishprobe-builds-{}", std::process::id()));
         drop(smoke_run(&dir, 2));
-        let mut t = Trainer::resume(&dir).unwrap();
-        t.continue_with("9.9.9 (commit abc)");
+        let mut t = Trainer::resume(&dir, "9.9.9 (commit abc)").unwrap();
         t.iterate().unwrap();
         drop(t);
         // A resume by the starting build again: its iterations say so.
-        let mut t = Trainer::resume(&dir).unwrap();
+        let mut t = Trainer::resume(&dir, "test").unwrap();
         assert_eq!(t.iterate().unwrap().build, "test");
         let builds: Vec<String> = std::fs::read_to_string(dir.join("result.json"))
             .unwrap()
@@ -516,7 +518,7 @@ mod tests {
         let end = row2 + bytes[row2..].iter().position(|&b| b == b'\n').unwrap();
         bytes[end - 1] = 0xff;
         std::fs::write(&csv, &bytes).unwrap();
-        let r = Trainer::resume(&dir).unwrap();
+        let r = Trainer::resume(&dir, "test").unwrap();
         assert_eq!(r.iteration(), 3);
         drop(r);
         assert_eq!(
@@ -532,7 +534,7 @@ mod tests {
         let mut long = kept.clone();
         long.extend(std::iter::repeat_n(b'x', MAX_LOG_LINE_BYTES as usize + 2));
         std::fs::write(&result, &long).unwrap();
-        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        let e = Trainer::resume(&dir, "test").err().unwrap().to_string();
         assert!(e.contains("a line longer than 1048576 bytes"), "{e}");
         assert_eq!(std::fs::read(&result).unwrap(), long);
         std::fs::write(&result, &kept).unwrap();
@@ -540,7 +542,7 @@ mod tests {
         let aside = dir.join("progress.aside");
         std::fs::rename(&csv, &aside).unwrap();
         std::fs::create_dir(&csv).unwrap();
-        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        let e = Trainer::resume(&dir, "test").err().unwrap().to_string();
         assert!(
             e.contains("progress.csv: cannot rewrite the run's log: not a regular file"),
             "{e}"
@@ -556,18 +558,18 @@ mod tests {
         // `latest` unreadable (here a directory): refused, not started over.
         std::fs::remove_file(&latest).unwrap();
         std::fs::create_dir(&latest).unwrap();
-        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        let e = Trainer::resume(&dir, "test").err().unwrap().to_string();
         assert!(e.contains("checkpoints/latest: cannot read"), "{e}");
         std::fs::remove_dir(&latest).unwrap();
         // `latest` lost beside the two checkpoints kept: refused, naming the newest.
-        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        let e = Trainer::resume(&dir, "test").err().unwrap().to_string();
         assert!(
             e.contains("missing, but checkpoints/ holds 2 checkpoint(s), the newest ckpt_000003"),
             "{e}"
         );
         // `latest` naming something else than a checkpoint.
         std::fs::write(&latest, "../../elsewhere").unwrap();
-        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        let e = Trainer::resume(&dir, "test").err().unwrap().to_string();
         assert!(e.contains("not a checkpoint of this run"), "{e}");
         // Every refusal left the logs as they were.
         assert_eq!(std::fs::read(&csv).unwrap(), bytes);
@@ -581,7 +583,7 @@ mod tests {
         // A run stopped while writing its first checkpoint (one, no `latest`) starts over.
         drop(smoke_run(&dir, 1));
         std::fs::remove_file(&latest).unwrap();
-        let r = Trainer::resume(&dir).unwrap();
+        let r = Trainer::resume(&dir, "test").unwrap();
         assert_eq!(r.iteration(), 0);
         let _ = std::fs::remove_dir_all(&dir);
     }
@@ -607,7 +609,7 @@ mod tests {
             good
         );
         // And the run resumes from it.
-        let r = Trainer::resume(&dir).unwrap();
+        let r = Trainer::resume(&dir, "test").unwrap();
         assert_eq!(r.iteration(), 1);
         // But not when its policy's log-s.d. bound disagrees with params.json (a checkpoint from
         // before the bound existed).
@@ -616,7 +618,7 @@ mod tests {
             serde_json::from_str(&std::fs::read_to_string(&sidecar).unwrap()).unwrap();
         meta.as_object_mut().unwrap().remove("log_std_max");
         std::fs::write(&sidecar, meta.to_string()).unwrap();
-        let e = Trainer::resume(&dir).err().unwrap().to_string();
+        let e = Trainer::resume(&dir, "test").err().unwrap().to_string();
         assert!(
             e.contains("log-s.d. bound (none) is not params.json's (0)"),
             "{e}"

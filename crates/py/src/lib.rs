@@ -168,9 +168,7 @@ fn train(
             Some(_) => resolved.model.clone(),
             None => recorded.model.build().map_err(model_err)?,
         };
-        let mut t = Trainer::resume_with_model(&out, model).map_err(learn_err)?;
-        t.continue_with(PY_BUILD);
-        t
+        Trainer::resume_with_model(&out, model, PY_BUILD).map_err(learn_err)?
     } else {
         // (Checked above unless the run's params.json vanished since.)
         let (spec, measure) = match fresh.take() {

@@ -275,9 +275,7 @@ fn train_step(
     };
     let mut t = if same {
         say("resuming from the last checkpoint");
-        let mut t = Trainer::resume(out)?;
-        t.continue_with(&spec.program_build);
-        t
+        Trainer::resume(out, &spec.program_build)?
     } else {
         if out.exists() {
             std::fs::remove_dir_all(out).map_err(|e| StepError::io("removing", out, e))?;

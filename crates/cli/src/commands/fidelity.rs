@@ -235,9 +235,7 @@ fn train_cell(
                 train_dir.display()
             );
         }
-        let mut t = Trainer::resume(train_dir)?;
-        t.continue_with(super::BUILD);
-        t
+        Trainer::resume(train_dir, super::BUILD)?
     } else {
         Trainer::create(train_dir, run_spec)?
     };

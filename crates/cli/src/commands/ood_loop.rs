@@ -156,9 +156,7 @@ fn train(
             .context("the loop was begun by another fishprobe; use another --out")?;
     } else {
         let mut t = if dir.join("params.json").exists() {
-            let mut t = Trainer::resume(dir)?;
-            t.continue_with(super::BUILD);
-            t
+            Trainer::resume(dir, super::BUILD)?
         } else {
             let mut ppo = PpoConfig::preset(&cfg.ppo_preset).context("preset checked")?;
             ppo.total_timesteps = cfg.train_steps;

@@ -238,8 +238,8 @@ pub fn run(a: TrainArgs) -> Result<()> {
         {
             say!("note: --resume continues the run as params.json records it; --model, --settings, --steps, --ppo, --task, --ood-goal-weight and --ood-yardstick are ignored");
         }
-        let mut t =
-            Trainer::resume(&a.out).with_context(|| format!("resuming {}", a.out.display()))?;
+        let t = Trainer::resume(&a.out, super::BUILD)
+            .with_context(|| format!("resuming {}", a.out.display()))?;
         // The seed and the preset have defaults, so they are always "given": say only when
         // the run's own differ from them.
         let (seed, preset) = (t.spec().seed, &t.spec().preset);
@@ -267,7 +267,6 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 fishprobe_learn::TRAINER_REVISION
             );
         }
-        t.continue_with(super::BUILD);
         t
     } else {
         // (Checked above unless the run's params.json vanished since.)
