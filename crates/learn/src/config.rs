@@ -53,7 +53,7 @@ fishprobe_sim::documented_params! {
         /// RLlib 2.0.1's default): falling to 0 left π_ConvNet where the constant rate does
         /// (docs/validation.md, "A falling learning rate for π_ConvNet?"). Written to
         /// `params.json` only when set, so runs and studies of the default stay what they were.
-        #[serde(default, skip_serializing_if = "Option::is_none")]
+        #[serde(skip_serializing_if = "Option::is_none")]
         pub lr_final: Option<f32> = None; "1",
         /// Discount γ (paper: 0.9453).
         pub gamma: f32 = 0.9453; "1",
