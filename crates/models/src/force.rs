@@ -20,6 +20,23 @@ pub enum NoiseConvention {
     StdDev,
 }
 
+/// Frames per second of the parameters' time unit: speeds are in cm per frame and forces in
+/// cm per frame² at the paper's 25 Hz.
+pub const UNIT_FRAMES_PER_S: f32 = 25.0;
+
+/// Largest alignment strength μ_alg (per frame). The alignment pulls the fish's velocity
+/// toward its partner's by μ_alg of the difference each frame; beyond 2 that frame-by-frame
+/// step overshoots by more than the difference and diverges (with the paper's other values,
+/// 50 fish in open water stay a polarised school up to 1.9 and scatter at 2.5:
+/// `fishprobe collective --model force --alignment 1.9,2.5`).
+pub const MAX_ALIGNMENT: f32 = 2.0;
+
+/// Largest preferred speed (cm per frame): [`check::MAX_SPEED_CM_S`] at 25 Hz.
+pub const MAX_SPEED: f32 = check::MAX_SPEED_CM_S / UNIT_FRAMES_PER_S;
+
+/// Largest force strength (cm per frame²): [`check::MAX_ACCELERATION_CM_S2`] at 25 Hz.
+pub const MAX_FORCE: f32 = check::MAX_ACCELERATION_CM_S2 / (UNIT_FRAMES_PER_S * UNIT_FRAMES_PER_S);
+
 fishprobe_sim::documented_params! {
     /// Parameters of M_Force. Defaults: the published values (SPEC §6).
     pub struct ForceParams {
@@ -70,10 +87,16 @@ impl ForceParams {
         ] {
             check::within(prefix, f, v, 0.0, check::MAX_LENGTH_CM)?;
         }
-        check::non_negative(prefix, "alignment", self.alignment)?;
-        check::non_negative(prefix, "distance_regulation", self.distance_regulation)?;
+        check::within(prefix, "alignment", self.alignment, 0.0, MAX_ALIGNMENT)?;
+        check::within(
+            prefix,
+            "distance_regulation",
+            self.distance_regulation,
+            0.0,
+            MAX_FORCE,
+        )?;
         check::non_negative(prefix, "distance_slope", self.distance_slope)?;
-        check::positive(prefix, "preferred_speed", self.preferred_speed)?;
+        check::positive_at_most(prefix, "preferred_speed", self.preferred_speed, MAX_SPEED)?;
         check::within(prefix, "speed_relaxation", self.speed_relaxation, 0.0, 1.0)?;
         check::positive(prefix, "rotational_friction", self.rotational_friction)?;
         check::non_negative(prefix, "angular_noise", self.angular_noise)?;
@@ -88,17 +111,25 @@ impl ForceParams {
             "wall_perpendicular_factor",
             self.wall_perpendicular_factor,
         )?;
-        check::non_negative(prefix, "wall_attraction", self.wall_attraction)?;
+        check::within(
+            prefix,
+            "wall_attraction",
+            self.wall_attraction,
+            0.0,
+            MAX_FORCE,
+        )?;
         check::positive_at_most(
             prefix,
             "wall_repulsion_range_cm",
             self.wall_repulsion_range_cm,
             check::MAX_LENGTH_CM,
         )?;
-        check::non_negative(
+        check::within(
             prefix,
             "wall_repulsion_strength",
             self.wall_repulsion_strength,
+            0.0,
+            MAX_FORCE,
         )?;
         check::non_negative(prefix, "wall_attraction_band", self.wall_attraction_band)
     }
@@ -205,7 +236,7 @@ impl FishModel for Force {
     fn begin_episode(&self, _: &AgentState, mind: &mut FishMind, _: &mut SimRng) {
         // Start at the preferred speed (cm/s at 25 Hz; rescaled by dt in decide).
         *mind = FishMind {
-            speed: self.p.preferred_speed * 25.0,
+            speed: self.p.preferred_speed * UNIT_FRAMES_PER_S,
             ..FishMind::default()
         };
     }
@@ -281,6 +312,34 @@ mod tests {
     use super::*;
     use fishprobe_sim::Sandbox;
     use std::sync::Arc;
+
+    #[test]
+    fn absurd_strengths_and_speeds_are_refused_by_name() {
+        let with = |f: &dyn Fn(&mut ForceParams)| {
+            let mut p = ForceParams::default();
+            f(&mut p);
+            p.validate("fish")
+        };
+        // The bounds themselves are allowed.
+        with(&|p| p.alignment = MAX_ALIGNMENT).unwrap();
+        with(&|p| p.preferred_speed = MAX_SPEED).unwrap();
+        with(&|p| p.distance_regulation = MAX_FORCE).unwrap();
+        let cases: [(&str, &dyn Fn(&mut ForceParams)); 5] = [
+            ("fish.alignment", &|p| p.alignment = 2.5),
+            ("fish.preferred_speed", &|p| p.preferred_speed = 1e20),
+            ("fish.distance_regulation", &|p| {
+                p.distance_regulation = 17.0
+            }),
+            ("fish.wall_attraction", &|p| p.wall_attraction = 1e9),
+            ("fish.wall_repulsion_strength", &|p| {
+                p.wall_repulsion_strength = 1e9
+            }),
+        ];
+        for (field, f) in cases {
+            let e = with(f).unwrap_err().to_string();
+            assert!(e.contains(field) && e.contains("must lie in"), "{e}");
+        }
+    }
 
     #[test]
     fn noise_conventions() {
