@@ -315,28 +315,62 @@ mod tests {
 
     #[test]
     fn absurd_strengths_and_speeds_are_refused_by_name() {
-        let with = |f: &dyn Fn(&mut ForceParams)| {
-            let mut p = ForceParams::default();
-            f(&mut p);
-            p.validate("fish")
-        };
+        let d = ForceParams::default;
         // The bounds themselves are allowed.
-        with(&|p| p.alignment = MAX_ALIGNMENT).unwrap();
-        with(&|p| p.preferred_speed = MAX_SPEED).unwrap();
-        with(&|p| p.distance_regulation = MAX_FORCE).unwrap();
-        let cases: [(&str, &dyn Fn(&mut ForceParams)); 5] = [
-            ("fish.alignment", &|p| p.alignment = 2.5),
-            ("fish.preferred_speed", &|p| p.preferred_speed = 1e20),
-            ("fish.distance_regulation", &|p| {
-                p.distance_regulation = 17.0
-            }),
-            ("fish.wall_attraction", &|p| p.wall_attraction = 1e9),
-            ("fish.wall_repulsion_strength", &|p| {
-                p.wall_repulsion_strength = 1e9
-            }),
-        ];
-        for (field, f) in cases {
-            let e = with(f).unwrap_err().to_string();
+        for ok in [
+            ForceParams {
+                alignment: MAX_ALIGNMENT,
+                ..d()
+            },
+            ForceParams {
+                preferred_speed: MAX_SPEED,
+                ..d()
+            },
+            ForceParams {
+                distance_regulation: MAX_FORCE,
+                ..d()
+            },
+        ] {
+            ok.validate("fish").unwrap();
+        }
+        for (field, bad) in [
+            (
+                "fish.alignment",
+                ForceParams {
+                    alignment: 2.5,
+                    ..d()
+                },
+            ),
+            (
+                "fish.preferred_speed",
+                ForceParams {
+                    preferred_speed: 1e20,
+                    ..d()
+                },
+            ),
+            (
+                "fish.distance_regulation",
+                ForceParams {
+                    distance_regulation: 17.0,
+                    ..d()
+                },
+            ),
+            (
+                "fish.wall_attraction",
+                ForceParams {
+                    wall_attraction: 1e9,
+                    ..d()
+                },
+            ),
+            (
+                "fish.wall_repulsion_strength",
+                ForceParams {
+                    wall_repulsion_strength: 1e9,
+                    ..d()
+                },
+            ),
+        ] {
+            let e = bad.validate("fish").unwrap_err().to_string();
             assert!(e.contains(field) && e.contains("must lie in"), "{e}");
         }
     }
