@@ -1,15 +1,20 @@
 //! The OOD objective from the command line (issue 23): the in-silico loop with tiny budgets
 //! (narrow virtual-guppy data, M_ConvNet and its support, an OOD and a lead-to-goal policy,
-//! refits, gaps), the report of what the OOD policy finds, the support command, and the
-//! refusals: a model that is not data-driven, a missing support file, a support file of other
-//! weights, settings out of range.
+//! refits, gaps), in one and two rounds and with an ensemble's disagreement; the report of what
+//! the OOD policy finds; a reward measured against a lead-to-goal policy's yardstick; the
+//! support command; and the refusals: a model that is not data-driven, a missing support
+//! file, a support file of other weights, settings out of range.
+//!
+//! The one-round loop is made once per test binary ([`one_round`]) and only read by the tests
+//! that use it; a test that changes a loop's files runs its own.
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
 mod common;
 
-use common::{fishprobe, fresh_dir, stderr, stdout};
-use std::path::Path;
+use common::{fishprobe, fresh_dir, stderr, stdout, Scratch};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 const TINY: &str = r#"
 narrow_episodes = 2
@@ -59,28 +64,73 @@ fn support_command(
     fishprobe(&args)
 }
 
-#[test]
-fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_input() {
-    let dir = fresh_dir("ood");
-    let cfg = dir.join("tiny.toml");
-    std::fs::write(&cfg, TINY).unwrap();
-    let out = dir.join("loop");
-    let loop_args = [
+/// `fishprobe ood-loop` of seed 5 into `out` with the settings file `cfg`.
+fn loop_args<'a>(out: &'a Path, cfg: &'a Path) -> [&'a str; 7] {
+    [
         "ood-loop",
         "--out",
-        s(&out),
+        s(out),
         "--seeds",
         "5",
         "--config",
-        s(&cfg),
-    ];
-    let o = fishprobe(&loop_args);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let text = stdout(&o);
+        s(cfg),
+    ]
+}
+
+/// A finished one-round loop of [`TINY`]: its directory, the table it printed, its
+/// `loop.json`.
+struct Loop {
+    out: PathBuf,
+    table: String,
+    json: serde_json::Value,
+}
+
+impl Loop {
+    /// Runs the loop of `settings` into `dir/loop` (`dir/loop.toml` its settings file).
+    fn run(dir: &Path, settings: &str) -> Self {
+        let cfg = dir.join("loop.toml");
+        std::fs::write(&cfg, settings).unwrap();
+        let out = dir.join("loop");
+        let o = fishprobe(&loop_args(&out, &cfg));
+        assert!(o.status.success(), "{}", stderr(&o));
+        let json = serde_json::from_slice(&std::fs::read(out.join("loop.json")).unwrap()).unwrap();
+        Self {
+            out,
+            table: stdout(&o),
+            json,
+        }
+    }
+
+    /// The seed's directory: its data, models and policies.
+    fn seed_dir(&self) -> PathBuf {
+        self.out.join("seed-5")
+    }
+
+    /// The narrow model's weights (its support file beside them).
+    fn weights(&self) -> PathBuf {
+        self.seed_dir().join("model-narrow/convnet.safetensors")
+    }
+
+    /// The seed's row of `loop.json`.
+    fn seed(&self) -> &serde_json::Value {
+        &self.json["seeds"][0]
+    }
+}
+
+/// The one-round loop of [`TINY`], made once per test binary; the tests only read it.
+fn one_round() -> &'static Loop {
+    static LOOP: OnceLock<Loop> = OnceLock::new();
+    LOOP.get_or_init(|| Loop::run(&Scratch::for_process("e2e-ood-loop"), TINY))
+}
+
+#[test]
+fn the_loop_measures_every_gap_resumes_and_refuses_other_settings() {
+    // Its own loop: this test changes the loop's files.
+    let dir = fresh_dir("ood-loop-own");
+    let lp = Loop::run(&dir, TINY);
+    let (out, cfg, text, seed) = (&lp.out, dir.join("loop.toml"), lp.table.as_str(), lp.seed());
+    let loop_args = loop_args(out, &cfg);
     assert!(text.contains("| 5 |") && text.contains("seeds"), "{text}");
-    let j: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("loop.json")).unwrap()).unwrap();
-    let seed = &j["seeds"][0];
     for k in ["narrow", "after_goal_data", "after_ood_data"] {
         let g = seed[k]["metrics"].as_f64().unwrap();
         assert!(g.is_finite() && g >= 0.0, "{k}: {g}");
@@ -102,7 +152,6 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
             .join("summary.csv")
             .is_file());
     }
-    let weights = seed_dir.join("model-narrow/convnet.safetensors");
     let support = seed_dir.join("model-narrow/convnet.safetensors.support.json");
     assert!(
         support.is_file(),
@@ -144,6 +193,47 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         stderr(&o)
     );
     std::fs::write(&params, kept).unwrap();
+    // Other settings into the same directory: refused.
+    std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
+    let o = fishprobe(&loop_args);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
+    // A gap probe that is not one, one listed twice, a partner range out of range: each
+    // refused by name before anything runs.
+    for (settings, says) in [
+        (format!("{TINY}ensemble_members = 1\n"), "ensemble_members"),
+        (
+            format!("{TINY}more_gap_probes = [\"scripted:dance\"]\n"),
+            "scripted:dance",
+        ),
+        (
+            format!("{TINY}more_gap_probes = [\"scripted:random\", \"scripted:random\"]\n"),
+            "listed twice",
+        ),
+        (
+            format!("{TINY}more_gap_probes = [\"scripted:fetch-and-lead\"]\n"),
+            "listed twice",
+        ),
+        (TINY.replace("= 15.0", "= -1.0"), "support_partner_range_cm"),
+    ] {
+        std::fs::write(&cfg, &settings).unwrap();
+        let o = fishprobe(&[
+            "ood-loop",
+            "--out",
+            s(&dir.join("never")),
+            "--config",
+            s(&cfg),
+        ]);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(says), "{settings}: {}", stderr(&o));
+    }
+    assert!(!dir.join("never").exists());
+}
+
+#[test]
+fn two_rounds_train_and_refit_again_on_both_rounds() {
+    let dir = fresh_dir("ood-rounds");
+    let seed = one_round().seed();
     // Two rounds: each chain trains again against its own refitted model, records as much
     // again and refits on the narrow data plus both rounds' recordings.
     let cfg2 = dir.join("rounds.toml");
@@ -184,6 +274,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     }
     // The narrow model is the same data and fit: its gap is the one-round loop's.
     assert_eq!(j2["seeds"][0]["narrow"], seed["narrow"]);
+}
+
+#[test]
+fn an_ensembles_disagreement_rewards_the_policy_and_is_reported() {
+    let dir = fresh_dir("ood-disagreement");
+    let (seed, weights) = (one_round().seed(), one_round().weights());
     // The OOD policy rewarded by an ensemble's disagreement: the narrow model is fitted as an
     // ensemble (its own network unchanged, so the narrow gap is the one above), the policy
     // trains against it, and the table says so.
@@ -410,42 +506,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--members"), "{}", stderr(&o));
     assert!(!dir.join("never-ds").exists());
-    // Other settings into the same directory: refused.
-    std::fs::write(&cfg, TINY.replace("new_episodes = 1", "new_episodes = 2")).unwrap();
-    let o = fishprobe(&loop_args);
-    assert!(!o.status.success());
-    assert!(stderr(&o).contains("other settings"), "{}", stderr(&o));
-    // A gap probe that is not one, one listed twice, a partner range out of range: each
-    // refused by name before anything runs.
-    for (settings, says) in [
-        (format!("{TINY}ensemble_members = 1\n"), "ensemble_members"),
-        (
-            format!("{TINY}more_gap_probes = [\"scripted:dance\"]\n"),
-            "scripted:dance",
-        ),
-        (
-            format!("{TINY}more_gap_probes = [\"scripted:random\", \"scripted:random\"]\n"),
-            "listed twice",
-        ),
-        (
-            format!("{TINY}more_gap_probes = [\"scripted:fetch-and-lead\"]\n"),
-            "listed twice",
-        ),
-        (TINY.replace("= 15.0", "= -1.0"), "support_partner_range_cm"),
-    ] {
-        std::fs::write(&cfg, &settings).unwrap();
-        let o = fishprobe(&[
-            "ood-loop",
-            "--out",
-            s(&dir.join("never")),
-            "--config",
-            s(&cfg),
-        ]);
-        assert!(!o.status.success());
-        assert!(stderr(&o).contains(says), "{settings}: {}", stderr(&o));
-    }
-    assert!(!dir.join("never").exists());
+}
 
+#[test]
+fn the_report_finds_what_the_policy_does_and_scores_recorded_trials_the_same() {
+    let dir = fresh_dir("ood-report");
+    let seed_dir = one_round().seed_dir();
     // What the OOD policy finds.
     let report = dir.join("report");
     let report_of = |episodes: &str| {
@@ -562,7 +628,12 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         !dir.join("never-report").exists(),
         "a refused report leaves no --out behind"
     );
+}
 
+#[test]
+fn a_yardstick_from_a_lead_to_goal_policy_sets_the_reward_and_the_report() {
+    let dir = fresh_dir("ood-yardstick");
+    let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());
     // A reward that counts time beyond a lead-to-goal policy's 95th percentile: measured before
     // training on `ood-report`'s episodes, so the report's yardstick is the reward's floor.
     let good = format!("convnet:{}", s(&weights));
@@ -710,7 +781,13 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         stderr(&o)
     );
     assert!(!bad_report.join("episodes").exists());
+}
 
+#[test]
+fn the_support_command_checks_its_estimators_and_bad_input_is_refused() {
+    let dir = fresh_dir("ood-support");
+    let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());
+    let good = format!("convnet:{}", s(&weights));
     // The support command: both estimators checked, the chosen one written.
     let other = dir.join("support.json");
     let o = support_command(
@@ -821,5 +898,4 @@ fn the_loop_the_report_and_the_support_command_run_end_to_end_and_refuse_bad_inp
         ]),
         "not data-driven",
     );
-    std::fs::remove_dir_all(&dir).ok();
 }
