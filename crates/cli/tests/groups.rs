@@ -80,6 +80,19 @@ fn collective_and_bench_refuse_bad_groups() {
             "orientation_zone_cm",
         ),
         (vec!["collective", "--seconds", "nan"], "seconds"),
+        // A flag of the other model's sweep would be ignored: refused.
+        (
+            vec!["collective", "--alignment", "0.5"],
+            "add --model force",
+        ),
+        (
+            vec!["collective", "--model", "force", "--orientation", "1"],
+            "--orientation sweeps M_Zone",
+        ),
+        (
+            vec!["collective", "--model", "force", "--alignment", "2.5"],
+            "must lie in [0, 2]",
+        ),
         (
             vec!["bench", "sim", "--fish", "17", "--seconds", "0.1"],
             "fish_count",

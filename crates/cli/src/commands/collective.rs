@@ -39,18 +39,21 @@ pub struct CollectiveArgs {
     /// Simulated seconds per run (the first half is left out as burn-in).
     #[arg(long, default_value_t = 150.0)]
     seconds: f32,
-    /// M_Zone: orientation widths Δr_o (cm), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "0,1,2,4,8,12,16,20,30")]
-    orientation: Vec<f32>,
-    /// M_Zone: attraction widths Δr_a (cm), comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "4,8,14,20,28,40")]
-    attraction: Vec<f32>,
-    /// M_Zone: maximum turning rate in rad/s, or `couzin` (40°/s) or `paper` (10 rad/s).
-    #[arg(long, default_value = "couzin")]
-    turn_rate: String,
-    /// M_Force: alignment strengths μ_alg, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "0,0.05,0.1,0.2,0.3,0.6")]
-    alignment: Vec<f32>,
+    // The sweeps' flags have no clap default, so that a flag of the other model's sweep is
+    // refused instead of ignored; their defaults are the constants below, shown in the help.
+    /// M_Zone: orientation widths Δr_o (cm), comma-separated [default: 0,1,2,4,8,12,16,20,30]
+    #[arg(long, value_delimiter = ',')]
+    orientation: Option<Vec<f32>>,
+    /// M_Zone: attraction widths Δr_a (cm), comma-separated [default: 4,8,14,20,28,40]
+    #[arg(long, value_delimiter = ',')]
+    attraction: Option<Vec<f32>>,
+    /// M_Zone: maximum turning rate in rad/s, or `couzin` (40°/s) or `paper` (10 rad/s)
+    /// [default: couzin]
+    #[arg(long)]
+    turn_rate: Option<String>,
+    /// M_Force: alignment strengths μ_alg, comma-separated [default: 0,0.05,0.1,0.2,0.3,0.6]
+    #[arg(long, value_delimiter = ',')]
+    alignment: Option<Vec<f32>>,
     /// Master seed.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -65,6 +68,50 @@ pub struct CollectiveArgs {
 /// Most runs one invocation may ask for (cells x seeds).
 const MAX_RUNS: usize = 10_000;
 
+/// M_Zone's default orientation widths Δr_o (cm): Couzin et al. 2002's range, from none to
+/// wider than the attraction zones.
+const ORIENTATION_CM: &[f32] = &[0.0, 1.0, 2.0, 4.0, 8.0, 12.0, 16.0, 20.0, 30.0];
+/// M_Zone's default attraction widths Δr_a (cm).
+const ATTRACTION_CM: &[f32] = &[4.0, 8.0, 14.0, 20.0, 28.0, 40.0];
+/// M_Force's default alignment strengths μ_alg (per frame), around the published 0.1.
+const ALIGNMENT: &[f32] = &[0.0, 0.05, 0.1, 0.2, 0.3, 0.6];
+
+/// The sweep's values: the flags given, else the defaults.
+struct Sweep {
+    orientation_cm: Vec<f32>,
+    attraction_cm: Vec<f32>,
+    alignment: Vec<f32>,
+}
+
+impl Sweep {
+    /// Refuses a flag of the other model's sweep, which would otherwise be ignored
+    /// (`collective --alignment 0.5` without `--model force` swept M_Zone).
+    fn of(a: &CollectiveArgs) -> Result<Self> {
+        let zone_flags = [
+            ("--orientation", a.orientation.is_some()),
+            ("--attraction", a.attraction.is_some()),
+            ("--turn-rate", a.turn_rate.is_some()),
+        ];
+        match a.model {
+            GroupModel::Zone if a.alignment.is_some() => {
+                bail!("--alignment sweeps M_Force: add --model force (this run sweeps M_Zone)")
+            }
+            GroupModel::Force => {
+                if let Some((flag, _)) = zone_flags.iter().find(|(_, given)| *given) {
+                    bail!("{flag} sweeps M_Zone: leave out --model force (this run sweeps M_Force)")
+                }
+            }
+            GroupModel::Zone => {}
+        }
+        let or = |v: &Option<Vec<f32>>, d: &[f32]| v.clone().unwrap_or_else(|| d.to_vec());
+        Ok(Self {
+            orientation_cm: or(&a.orientation, ORIENTATION_CM),
+            attraction_cm: or(&a.attraction, ATTRACTION_CM),
+            alignment: or(&a.alignment, ALIGNMENT),
+        })
+    }
+}
+
 pub fn run(a: CollectiveArgs) -> Result<()> {
     if a.seeds == 0 || a.seeds > 100 {
         bail!("--seeds must lie in [1, 100], got {}", a.seeds);
@@ -77,7 +124,8 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
     };
     p.validate("")
         .map_err(|e| anyhow::anyhow!("{e}").context("--fish/--seconds"))?;
-    let turn = match a.turn_rate.as_str() {
+    let sweep = Sweep::of(&a)?;
+    let turn = match a.turn_rate.as_deref().unwrap_or("couzin") {
         "couzin" => COUZIN_TURN_RATE_RAD_S,
         "paper" => ZoneParams::default().max_turn_rate_rad_s,
         x => x
@@ -88,7 +136,7 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
                 format!("--turn-rate must be `couzin`, `paper` or a positive number, got `{x}`")
             })?,
     };
-    let swimmers = swimmers(&a, turn)?;
+    let swimmers = swimmers(&a, &sweep, turn)?;
     let runs = swimmers.len() * a.seeds as usize;
     if swimmers.is_empty() || runs > MAX_RUNS {
         bail!("the sweep has {runs} runs; it must have 1 to {MAX_RUNS}");
@@ -115,19 +163,19 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
         .map(<[CollectiveState]>::to_vec)
         .collect();
     match a.model {
-        GroupModel::Zone => zone_output(&a, &p, turn, cells),
+        GroupModel::Zone => zone_output(&a, &sweep, &p, turn, cells),
         GroupModel::Force => force_output(&a, &swimmers, &cells),
     }
 }
 
 /// The swimmers of the sweep, each with its parameter values: M_Zone over the grid of
 /// orientation and attraction widths (turning at `turn` rad/s), or M_Force over the alignments.
-fn swimmers(a: &CollectiveArgs, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
+fn swimmers(a: &CollectiveArgs, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
     Ok(match a.model {
         GroupModel::Zone => {
             let mut v = Vec::new();
-            for &ra in &a.attraction {
-                for &ro in &a.orientation {
+            for &ra in &sweep.attraction_cm {
+                for &ro in &sweep.orientation_cm {
                     let zp = ZoneParams {
                         max_turn_rate_rad_s: turn,
                         ..couzin_zone(ro, ra)
@@ -140,7 +188,7 @@ fn swimmers(a: &CollectiveArgs, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
             }
             v
         }
-        GroupModel::Force => a
+        GroupModel::Force => sweep
             .alignment
             .iter()
             .map(|&al| {
@@ -159,13 +207,14 @@ fn swimmers(a: &CollectiveArgs, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
 /// M_Zone's phase grid: the picture and numbers into `--out`, the table (or JSON) printed.
 fn zone_output(
     a: &CollectiveArgs,
+    sweep: &Sweep,
     p: &CollectiveParams,
     turn: f32,
     cells: Vec<Vec<CollectiveState>>,
 ) -> Result<()> {
     let grid = PhaseGrid {
-        orientation_cm: a.orientation.clone(),
-        attraction_cm: a.attraction.clone(),
+        orientation_cm: sweep.orientation_cm.clone(),
+        attraction_cm: sweep.attraction_cm.clone(),
         cells,
         repulsion_cm: ZoneParams::default().repulsion_zone_cm,
         fish: a.fish,
@@ -252,4 +301,26 @@ fn force_output(
         );
     }
     emit(&t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory as _;
+
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: CollectiveArgs,
+    }
+
+    #[test]
+    fn the_help_shows_the_default_sweeps() {
+        let help = Cli::command().render_long_help().to_string();
+        for d in [ORIENTATION_CM, ATTRACTION_CM, ALIGNMENT] {
+            let shown: Vec<String> = d.iter().map(f32::to_string).collect();
+            let shown = format!("[default: {}]", shown.join(","));
+            assert!(help.contains(&shown), "{shown} not in\n{help}");
+        }
+    }
 }
