@@ -98,9 +98,30 @@ impl ForceParams {
         check::non_negative(prefix, "distance_slope", self.distance_slope)?;
         check::positive_at_most(prefix, "preferred_speed", self.preferred_speed, MAX_SPEED)?;
         check::within(prefix, "speed_relaxation", self.speed_relaxation, 0.0, 1.0)?;
-        check::positive(prefix, "rotational_friction", self.rotational_friction)?;
+        check::positive_at_most(
+            prefix,
+            "rotational_friction",
+            self.rotational_friction,
+            MAX_SPEED,
+        )?;
         check::non_negative(prefix, "angular_noise", self.angular_noise)?;
         check::non_negative(prefix, "speed_noise", self.speed_noise)?;
+        // The speed noise is a speed once its convention turns it into a per-frame σ.
+        let (sigma_v, _) = self.noise_sigmas(1.0 / UNIT_FRAMES_PER_S);
+        if sigma_v > MAX_SPEED {
+            return Err(ConfigError::new(
+                prefix,
+                "speed_noise",
+                check::shown(self.speed_noise),
+                &format!(
+                    "gives a speed noise σ of {} cm per frame ({:?} convention); it must be at \
+                     most {} (fishprobe_models::force::MAX_SPEED)",
+                    check::shown(sigma_v),
+                    self.noise_convention,
+                    check::shown(MAX_SPEED)
+                ),
+            ));
+        }
         check::finite(
             prefix,
             "wall_outward_angle_factor",
@@ -313,65 +334,66 @@ mod tests {
     use fishprobe_sim::Sandbox;
     use std::sync::Arc;
 
+    /// The default parameters with one change.
+    fn with(change: impl FnOnce(&mut ForceParams)) -> ForceParams {
+        let mut p = ForceParams::default();
+        change(&mut p);
+        p
+    }
+
     #[test]
     fn absurd_strengths_and_speeds_are_refused_by_name() {
-        let d = ForceParams::default;
-        // The bounds themselves are allowed.
+        // The bounds themselves are allowed; 20,000 per second is a speed noise σ of 40 cm/frame.
         for ok in [
-            ForceParams {
-                alignment: MAX_ALIGNMENT,
-                ..d()
-            },
-            ForceParams {
-                preferred_speed: MAX_SPEED,
-                ..d()
-            },
-            ForceParams {
-                distance_regulation: MAX_FORCE,
-                ..d()
-            },
+            with(|p| p.alignment = MAX_ALIGNMENT),
+            with(|p| p.preferred_speed = MAX_SPEED),
+            with(|p| p.distance_regulation = MAX_FORCE),
+            with(|p| p.speed_noise = 20_000.0),
         ] {
             ok.validate("fish").unwrap();
         }
-        for (field, bad) in [
+        for (field, bad, says) in [
+            ("alignment", with(|p| p.alignment = 2.5), "[0, 2]"),
             (
-                "fish.alignment",
-                ForceParams {
-                    alignment: 2.5,
-                    ..d()
-                },
+                "preferred_speed",
+                with(|p| p.preferred_speed = 1e20),
+                "(0, 40]",
             ),
             (
-                "fish.preferred_speed",
-                ForceParams {
-                    preferred_speed: 1e20,
-                    ..d()
-                },
+                "distance_regulation",
+                with(|p| p.distance_regulation = 17.0),
+                "[0, 16]",
             ),
             (
-                "fish.distance_regulation",
-                ForceParams {
-                    distance_regulation: 17.0,
-                    ..d()
-                },
+                "wall_attraction",
+                with(|p| p.wall_attraction = 1e9),
+                "[0, 16]",
             ),
             (
-                "fish.wall_attraction",
-                ForceParams {
-                    wall_attraction: 1e9,
-                    ..d()
-                },
+                "wall_repulsion_strength",
+                with(|p| p.wall_repulsion_strength = 1e9),
+                "[0, 16]",
             ),
             (
-                "fish.wall_repulsion_strength",
-                ForceParams {
-                    wall_repulsion_strength: 1e9,
-                    ..d()
-                },
+                "rotational_friction",
+                with(|p| p.rotational_friction = 1e30),
+                "(0, 40]",
+            ),
+            ("speed_noise", with(|p| p.speed_noise = 1e30), "at most 40"),
+            (
+                "speed_noise",
+                with(|p| {
+                    p.speed_noise = 41.0;
+                    p.noise_convention = NoiseConvention::StdDev;
+                }),
+                "σ of 41 cm per frame (StdDev convention); it must be at most 40",
             ),
         ] {
             let e = bad.validate("fish").unwrap_err().to_string();
-            assert!(e.contains(field) && e.contains("must lie in"), "{e}");
+            assert!(
+                e.contains(&format!("fish.{field}")) && e.contains(says),
+                "{e}"
+            );
         }
     }
 
