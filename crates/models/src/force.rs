@@ -114,10 +114,14 @@ impl ForceParams {
                 "speed_noise",
                 check::shown(self.speed_noise),
                 &format!(
-                    "gives a speed noise σ of {} cm per frame ({:?} convention); it must be at \
-                     most {} (fishprobe_models::force::MAX_SPEED)",
+                    "gives a speed noise σ of {} cm per frame (noise_convention = \"{}\"); it \
+                     must be at most {} (fishprobe_models::force::MAX_SPEED)",
                     check::shown(sigma_v),
-                    self.noise_convention,
+                    match self.noise_convention {
+                        NoiseConvention::PerSecond => "per_second",
+                        NoiseConvention::PerFrame => "per_frame",
+                        NoiseConvention::StdDev => "std_dev",
+                    },
                     check::shown(MAX_SPEED)
                 ),
             ));
@@ -386,7 +390,7 @@ mod tests {
                     p.speed_noise = 41.0;
                     p.noise_convention = NoiseConvention::StdDev;
                 }),
-                "σ of 41 cm per frame (StdDev convention); it must be at most 40",
+                "σ of 41 cm per frame (noise_convention = \"std_dev\"); it must be at most 40",
             ),
         ] {
             let e = bad.validate("fish").unwrap_err().to_string();
