@@ -163,6 +163,14 @@ pub(super) const READINGS: &[Reading] = &[
         ppo: || json!({"lr_final": 0.0}),
     },
     Reading {
+        name: "gamma-0.99",
+        what: "a discount of 0.99 per 1-s action, a 100-s horizon (the paper's 0.9453 is 18 s, less than a fetch and a lead; not the paper's)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"gamma": 0.99}),
+    },
+    Reading {
         name: "evaluation-goals",
         what: "training goals are the evaluation's two corner goals, alternating, not random ones (not in the paper)",
         models: &[],
