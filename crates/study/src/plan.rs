@@ -356,6 +356,18 @@ mod tests {
         // The published epochs, by override or by preset, change the training and all that
         // follows it, and nothing else; the override keeps the `paper` preset's log-s.d. bound
         // and the preset does not, so the two trainings differ.
+        // The discount: the preset's own changes nothing, another changes every training and
+        // what follows it; the settings record it only when it is set.
+        let mut own_gamma = paper.clone();
+        own_gamma.ppo_gamma = Some(0.9453);
+        let mut longer = paper.clone();
+        longer.ppo_gamma = Some(0.99);
+        for (a, (b, c)) in base.iter().zip(plan(own_gamma).iter().zip(&plan(longer))) {
+            assert_eq!(a.hash, b.hash, "{}", a.id);
+            let downstream = !a.id.starts_with("fit-convnet") && !a.id.starts_with("baseline-");
+            assert_eq!(a.hash != c.hash, downstream, "{}", a.id);
+        }
+        assert!(!serde_json::to_string(&paper).unwrap().contains("ppo_gamma"));
         let mut hundred = paper.clone();
         hundred.ppo_epochs = Some(100);
         let published = StudyConfig::preset("published").unwrap();
