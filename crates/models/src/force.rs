@@ -114,14 +114,11 @@ impl ForceParams {
                 "speed_noise",
                 check::shown(self.speed_noise),
                 &format!(
-                    "gives a speed noise σ of {} cm per frame (noise_convention = \"{}\"); it \
+                    "gives a speed noise σ of {} cm per frame (noise_convention = {}); it \
                      must be at most {} (fishprobe_models::force::MAX_SPEED)",
                     check::shown(sigma_v),
-                    match self.noise_convention {
-                        NoiseConvention::PerSecond => "per_second",
-                        NoiseConvention::PerFrame => "per_frame",
-                        NoiseConvention::StdDev => "std_dev",
-                    },
+                    // The name a settings file uses, quoted, as serde spells it.
+                    serde_json::to_string(&self.noise_convention).unwrap_or_default(),
                     check::shown(MAX_SPEED)
                 ),
             ));
