@@ -182,6 +182,15 @@ fn absurd_numbers_are_refused_before_any_work() {
         ],
         "`robot.max_speed_cm_s` = 1e30: must lie in (0, 1000]",
     );
+    // A report setting that made the report crash (an 800-TB histogram) is refused by name.
+    let study = d.join("study");
+    std::fs::create_dir_all(study.join("rollouts")).unwrap();
+    let rcfg = d.join("report.toml");
+    std::fs::write(&rcfg, "iid_bin_cm = 1e-12\n").unwrap();
+    refused(
+        &["report", s(&study), "--config", s(&rcfg)],
+        "`report.iid_bin_cm` = 1e-12: makes 1e14 bins",
+    );
     // An absurd number is named as typed, not in three hundred digits.
     refused(
         &["bench", "ood", "--seconds", "1e300"],

@@ -24,14 +24,48 @@ fishprobe_sim::documented_params! {
     }
 }
 
+/// Most bins of a distance density (`iid_max_cm / iid_bin_cm`): 2,000, a 0.05-cm bin over
+/// the 100-cm axis. Each trial holds one histogram of this many bins, and smoothing costs
+/// bins x kernel width per trial.
+pub const MAX_IID_BINS: f32 = 2000.0;
+
 impl ReportConfig {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        check::positive("report", "trajectory_seconds", self.trajectory_seconds)?;
+        for (f, v) in [
+            ("trajectory_seconds", self.trajectory_seconds),
+            ("approach_bin_s", self.approach_bin_s),
+        ] {
+            check::positive_at_most("report", f, v, check::MAX_DURATION_S)?;
+        }
+        check::positive_at_most(
+            "report",
+            "iid_max_cm",
+            self.iid_max_cm,
+            check::MAX_LENGTH_CM,
+        )?;
         check::positive("report", "iid_bin_cm", self.iid_bin_cm)?;
-        check::positive("report", "iid_kernel_cm", self.iid_kernel_cm)?;
-        check::positive("report", "iid_max_cm", self.iid_max_cm)?;
-        check::positive("report", "approach_bin_s", self.approach_bin_s)?;
+        if self.iid_max_cm / self.iid_bin_cm > MAX_IID_BINS {
+            return Err(ConfigError::new(
+                "report",
+                "iid_bin_cm",
+                check::shown(self.iid_bin_cm),
+                &format!(
+                    "makes {} bins of the {}-cm axis (iid_max_cm); at most {} \
+                     (fishprobe_report::config::MAX_IID_BINS)",
+                    check::shown((self.iid_max_cm / self.iid_bin_cm).ceil()),
+                    check::shown(self.iid_max_cm),
+                    check::shown(MAX_IID_BINS)
+                ),
+            ));
+        }
+        // A kernel wider than the axis smooths every density flat.
+        check::positive_at_most(
+            "report",
+            "iid_kernel_cm",
+            self.iid_kernel_cm,
+            self.iid_max_cm,
+        )?;
         check::positive("report", "png_scale", self.png_scale)?;
         if self.png_scale > 8.0 {
             return Err(ConfigError::new(
@@ -42,5 +76,69 @@ impl ReportConfig {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each of these made `fishprobe report --config` crash: an add overflow (trajectory),
+    /// an 800-TB histogram (bin), a kernel of 1e30 bins (kernel).
+    #[test]
+    fn settings_that_crashed_the_report_are_refused_by_name() {
+        assert!(ReportConfig::default().validate().is_ok());
+        let cases: [(ReportConfig, &str, &str); 5] = [
+            (
+                ReportConfig {
+                    trajectory_seconds: 1e30,
+                    ..ReportConfig::default()
+                },
+                "report.trajectory_seconds",
+                "(0, 86400]",
+            ),
+            (
+                ReportConfig {
+                    iid_bin_cm: 1e-12,
+                    ..ReportConfig::default()
+                },
+                "report.iid_bin_cm",
+                "makes 1e14 bins of the 100-cm axis",
+            ),
+            (
+                ReportConfig {
+                    iid_kernel_cm: 1e30,
+                    ..ReportConfig::default()
+                },
+                "report.iid_kernel_cm",
+                "(0, 100]",
+            ),
+            (
+                ReportConfig {
+                    iid_max_cm: 1e9,
+                    ..ReportConfig::default()
+                },
+                "report.iid_max_cm",
+                "(0, 1000]",
+            ),
+            (
+                ReportConfig {
+                    approach_bin_s: 1e30,
+                    ..ReportConfig::default()
+                },
+                "report.approach_bin_s",
+                "(0, 86400]",
+            ),
+        ];
+        for (cfg, field, reason) in cases {
+            let e = cfg.validate().unwrap_err().to_string();
+            assert!(e.contains(field) && e.contains(reason), "{e}");
+        }
+        // The finest bin allowed on the default axis.
+        let fine = ReportConfig {
+            iid_bin_cm: 0.05,
+            ..ReportConfig::default()
+        };
+        assert!(fine.validate().is_ok());
     }
 }

@@ -371,7 +371,8 @@ fn track(path: &Path, cfg: &ReportConfig) -> Result<Track, String> {
         .iter()
         .map(|f| f.frames())
         .fold(robot.frames(), usize::min);
-    let end = (start + (f64::from(cfg.trajectory_seconds) * f64::from(t.frame_rate_hz)) as usize)
+    let end = start
+        .saturating_add((f64::from(cfg.trajectory_seconds) * f64::from(t.frame_rate_hz)) as usize)
         .min(frames);
     if start >= end {
         return Err("no frame of control".into());

@@ -222,6 +222,9 @@ pub mod check {
     pub const MAX_ACCELERATION_CM_S2: f32 = 10_000.0;
     /// Largest turn rate (rad/s): some 160 turns a second, beyond any fish or robot.
     pub const MAX_TURN_RATE_RAD_S: f32 = 1000.0;
+    /// Longest duration (s) a setting may have: a day, the longest episode or trial fishprobe
+    /// records (`env::MAX_EPISODE_FRAMES` at 25 Hz, a live trial's habituation and control).
+    pub const MAX_DURATION_S: f32 = 86_400.0;
 
     /// A finite number in `(0, hi]`.
     pub fn positive_at_most(prefix: &str, field: &str, v: f32, hi: f32) -> Result<(), ConfigError> {

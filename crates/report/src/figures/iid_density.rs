@@ -6,7 +6,8 @@ use super::prelude::*;
 pub(super) fn density(hist: &[f64], frames: usize, cfg: &ReportConfig) -> Vec<f64> {
     let bin = f64::from(cfg.iid_bin_cm);
     let sigma = f64::from(cfg.iid_kernel_cm) / bin;
-    let reach = (3.0 * sigma).ceil() as isize;
+    // Beyond the histogram's length the kernel meets no bin.
+    let reach = ((3.0 * sigma).ceil() as isize).min(hist.len() as isize);
     let kernel: Vec<f64> = (-reach..=reach)
         .map(|k| (-0.5 * (k as f64 / sigma).powi(2)).exp())
         .collect();
