@@ -43,6 +43,10 @@ fishprobe_sim::documented_params! {
     }
 }
 
+/// Largest `max_message_bytes` accepted: 16 MiB, thousands of times a frame of 16 fish
+/// (under 2 kB); the bridge holds one line of at most this size per connection.
+pub const MAX_MESSAGE_BYTES: usize = 1 << 24;
+
 impl LiveConfig {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
@@ -92,13 +96,20 @@ impl LiveConfig {
             self.mill_radius_cm,
             crate::TANK_CM / 2.0,
         )?;
-        check::positive("live", "file_rate_hz", self.file_rate_hz)?;
-        if self.max_message_bytes < 256 {
+        // The trial file holds every frame of the trial in memory until it is written, so
+        // the rate bounds what a peer's time stamps can make the bridge store.
+        check::positive_at_most(
+            "live",
+            "file_rate_hz",
+            self.file_rate_hz,
+            fishprobe_sim::env::MAX_FRAME_RATE_HZ,
+        )?;
+        if !(256..=MAX_MESSAGE_BYTES).contains(&self.max_message_bytes) {
             return Err(ConfigError::new(
                 "live",
                 "max_message_bytes",
                 self.max_message_bytes,
-                "must be at least 256",
+                &format!("must lie in [256, {MAX_MESSAGE_BYTES}]"),
             ));
         }
         Ok(())
@@ -741,6 +752,39 @@ mod tests {
             e.contains("live.mill_radius_cm") && e.contains("(0, 50]"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_file_rate_or_line_length_that_would_let_a_peer_fill_memory_is_refused() {
+        let rate = |hz: f32| {
+            LiveConfig {
+                file_rate_hz: hz,
+                ..LiveConfig::default()
+            }
+            .validate()
+        };
+        assert!(rate(1000.0).is_ok());
+        // 1e30 frames per second: a peer's time stamp one second on made the bridge store
+        // frames without end.
+        let e = rate(1e30).unwrap_err().to_string();
+        assert!(
+            e.contains("live.file_rate_hz") && e.contains("(0, 1000]"),
+            "{e}"
+        );
+        let line = |n: usize| {
+            LiveConfig {
+                max_message_bytes: n,
+                ..LiveConfig::default()
+            }
+            .validate()
+        };
+        assert!(line(MAX_MESSAGE_BYTES).is_ok());
+        let e = line(1 << 40).unwrap_err().to_string();
+        assert!(
+            e.contains("live.max_message_bytes") && e.contains("[256, 16777216]"),
+            "{e}"
+        );
+        assert!(line(255).is_err());
     }
 
     #[test]

@@ -109,7 +109,8 @@ impl ZoneParams {
             1e-3,
             TAU,
         )?;
-        check::non_negative(prefix, "turn_noise_rad", self.turn_noise_rad)?;
+        // Beyond a full turn the noise draws a uniform heading either way.
+        check::within(prefix, "turn_noise_rad", self.turn_noise_rad, 0.0, TAU)?;
         check::positive_at_most(
             prefix,
             "max_turn_rate_rad_s",
@@ -357,6 +358,23 @@ mod tests {
     use super::*;
     use fishprobe_sim::{AgentState, Sandbox};
     use std::sync::Arc;
+
+    #[test]
+    fn a_turn_noise_beyond_a_full_turn_is_refused() {
+        let noise = |v: f32| {
+            ZoneParams {
+                turn_noise_rad: v,
+                ..ZoneParams::default()
+            }
+            .validate("zone")
+        };
+        assert!(noise(TAU).is_ok());
+        let e = noise(1e30).unwrap_err().to_string();
+        assert!(
+            e.contains("zone.turn_noise_rad") && e.contains("= 1e30"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn zone_radii_follow_the_convention() {

@@ -63,7 +63,13 @@ impl RobotParams {
         check::positive(prefix, "heading_slope_rad", self.heading_slope_rad)?;
         check::within(prefix, "forward_gain", self.forward_gain, 0.0, 1.0)?;
         check::non_negative(prefix, "heading_gate_exponent", self.heading_gate_exponent)?;
-        check::non_negative(prefix, "actuator_lag_s", self.actuator_lag_s)?;
+        check::within(
+            prefix,
+            "actuator_lag_s",
+            self.actuator_lag_s,
+            0.0,
+            check::MAX_DURATION_S,
+        )?;
         for (f, v) in [
             ("acceleration_cm_s2", self.acceleration_cm_s2),
             ("braking_cm_s2", self.braking_cm_s2),
@@ -71,7 +77,13 @@ impl RobotParams {
         ] {
             check::positive_at_most(prefix, f, v, check::MAX_ACCELERATION_CM_S2)?;
         }
-        check::non_negative(prefix, "burst_duration_s", self.burst_duration_s)
+        check::within(
+            prefix,
+            "burst_duration_s",
+            self.burst_duration_s,
+            0.0,
+            check::MAX_DURATION_S,
+        )
     }
 }
 
@@ -180,6 +192,30 @@ mod tests {
             max_acc = max_acc.max((robot.state.speed() - v0) / DT);
         }
         (max_v, max_w, max_acc)
+    }
+
+    #[test]
+    fn durations_beyond_a_day_are_refused_by_name() {
+        assert!(RobotParams::default().validate("robot").is_ok());
+        for (field, p) in [
+            (
+                "robot.actuator_lag_s",
+                RobotParams {
+                    actuator_lag_s: 1e30,
+                    ..RobotParams::default()
+                },
+            ),
+            (
+                "robot.burst_duration_s",
+                RobotParams {
+                    burst_duration_s: 86_401.0,
+                    ..RobotParams::default()
+                },
+            ),
+        ] {
+            let e = p.validate("robot").unwrap_err().to_string();
+            assert!(e.contains(field) && e.contains("[0, 86400]"), "{e}");
+        }
     }
 
     #[test]
