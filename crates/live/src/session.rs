@@ -43,6 +43,9 @@ fishprobe_sim::documented_params! {
     }
 }
 
+/// Most policy commands per second (`command_hz`): 100, a hundred times the paper's 1 Hz.
+pub const MAX_COMMAND_HZ: f64 = 100.0;
+
 /// Largest `max_message_bytes` accepted: 16 MiB, thousands of times a frame of 16 fish
 /// (under 2 kB); the bridge holds one line of at most this size per connection.
 pub const MAX_MESSAGE_BYTES: usize = 1 << 24;
@@ -50,35 +53,43 @@ pub const MAX_MESSAGE_BYTES: usize = 1 << 24;
 impl LiveConfig {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        for (f, v) in [
-            ("habituation_s", self.habituation_s),
-            ("control_s", self.control_s),
-            ("command_hz", self.command_hz),
-            ("stale_s", self.stale_s),
+        let day = f64::from(check::MAX_DURATION_S);
+        for (f, v, hi) in [
+            ("habituation_s", self.habituation_s, day),
+            ("control_s", self.control_s, day),
+            ("stale_s", self.stale_s, day),
+            ("command_hz", self.command_hz, MAX_COMMAND_HZ),
         ] {
-            if !(v.is_finite() && v > 0.0) {
+            if !(v.is_finite() && v > 0.0 && v <= hi) {
                 return Err(ConfigError::new(
                     "live",
                     f,
-                    v,
-                    "must be finite and greater than 0",
+                    check::shown(v),
+                    &format!("must lie in (0, {}]", check::shown(hi)),
                 ));
             }
         }
-        if self.habituation_s + self.control_s > 86_400.0 || self.command_hz > 100.0 {
+        if self.habituation_s + self.control_s > day {
             return Err(ConfigError::new(
                 "live",
                 "control_s",
-                self.control_s,
-                "habituation and control may last at most 24 hours together, commands at most 100 Hz",
+                check::shown(self.control_s),
+                &format!(
+                    "with habituation_s = {} makes a trial longer than {} s (a day)",
+                    check::shown(self.habituation_s),
+                    check::shown(day)
+                ),
             ));
         }
         if !(self.release_s >= 0.0 && self.release_s <= self.habituation_s) {
             return Err(ConfigError::new(
                 "live",
                 "release_s",
-                self.release_s,
-                "must lie within the habituation",
+                check::shown(self.release_s),
+                &format!(
+                    "must lie within the habituation, [0, habituation_s = {}]",
+                    check::shown(self.habituation_s)
+                ),
             ));
         }
         if !(1..=fishprobe_sim::MAX_FISH as u32).contains(&self.fish_count) {
@@ -785,6 +796,44 @@ mod tests {
             "{e}"
         );
         assert!(line(255).is_err());
+    }
+
+    #[test]
+    fn a_trial_longer_than_a_day_is_refused_naming_the_field_at_fault() {
+        let err = |c: LiveConfig| c.validate().unwrap_err().to_string();
+        let e = err(LiveConfig {
+            habituation_s: 1e30,
+            ..LiveConfig::default()
+        });
+        assert!(
+            e.contains("`live.habituation_s` = 1e30: must lie in (0, 86400]"),
+            "{e}"
+        );
+        let e = err(LiveConfig {
+            habituation_s: 50_000.0,
+            control_s: 50_000.0,
+            ..LiveConfig::default()
+        });
+        assert!(
+            e.contains("`live.control_s` = 50000: with habituation_s = 50000"),
+            "{e}"
+        );
+        let e = err(LiveConfig {
+            command_hz: 1000.0,
+            ..LiveConfig::default()
+        });
+        assert!(
+            e.contains("`live.command_hz` = 1000: must lie in (0, 100]"),
+            "{e}"
+        );
+        let e = err(LiveConfig {
+            release_s: -1e30,
+            ..LiveConfig::default()
+        });
+        assert!(
+            e.contains("`live.release_s` = -1e30: must lie within"),
+            "{e}"
+        );
     }
 
     #[test]
