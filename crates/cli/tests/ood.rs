@@ -215,6 +215,7 @@ fn the_loop_measures_every_gap_resumes_and_refuses_other_settings() {
             "listed twice",
         ),
         (TINY.replace("= 15.0", "= -1.0"), "support_partner_range_cm"),
+        (TINY.replace("= 15.0", "= 1e30"), "support_partner_range_cm"),
     ] {
         std::fs::write(&cfg, &settings).unwrap();
         let o = fishprobe(&[

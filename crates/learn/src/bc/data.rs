@@ -353,6 +353,14 @@ mod tests {
                 },
                 "clone.ensemble_calibration_views",
             ),
+            // The support's bound, before the fit: a range beyond any tank.
+            (
+                CloneConfig {
+                    support_partner_range_cm: 1e30,
+                    ..CloneConfig::default()
+                },
+                "clone.support_partner_range_cm",
+            ),
         ] {
             let e = cfg.validate().unwrap_err().to_string();
             assert!(e.contains(field), "{e}");

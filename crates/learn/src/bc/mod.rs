@@ -87,10 +87,13 @@ impl CloneConfig {
             self.heading_disagreement_rad,
         )?;
         check::positive("clone", "learning_rate", self.learning_rate)?;
-        check::non_negative(
+        // The support's own bound, checked before the fit rather than after it.
+        check::within(
             "clone",
             "support_partner_range_cm",
             self.support_partner_range_cm,
+            0.0,
+            check::MAX_LENGTH_CM,
         )?;
         if self.heading_smoothing_frames.is_multiple_of(2) || self.heading_smoothing_frames > 251 {
             return Err(ConfigError::new(

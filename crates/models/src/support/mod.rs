@@ -155,7 +155,7 @@ impl SupportConfig {
             "partner_range_cm",
             self.partner_range_cm,
             0.0,
-            1000.0,
+            check::MAX_LENGTH_CM,
         )?;
         if !(1..=10_000).contains(&self.em_iterations) {
             return bad(

@@ -86,10 +86,13 @@ impl OodLoopConfig {
         }
         super::super::check_minutes("episode_minutes", self.episode_minutes)?;
         super::super::check_minutes("gap_minutes", self.gap_minutes)?;
-        check::non_negative(
+        // The support's own bound, checked before any recording rather than at the first fit.
+        check::within(
             "",
             "support_partner_range_cm",
             self.support_partner_range_cm,
+            0.0,
+            check::MAX_LENGTH_CM,
         )
         .context("ood-loop settings")?;
         if !(2..=fishprobe_models::disagreement::MAX_MEMBERS).contains(&self.ensemble_members) {
