@@ -216,18 +216,13 @@ impl PpoConfig {
                 ),
             ));
         }
-        if self.num_envs > Self::MAX_NUM_ENVS || self.train_batch_size > Self::MAX_BATCH {
-            return Err(ConfigError::new(
-                p,
-                "train_batch_size",
-                self.train_batch_size,
-                &format!(
-                    "at most {} steps per batch from at most {} environments (num_envs = {})",
-                    Self::MAX_BATCH,
-                    Self::MAX_NUM_ENVS,
-                    self.num_envs
-                ),
-            ));
+        for (f, v, hi) in [
+            ("num_envs", self.num_envs, Self::MAX_NUM_ENVS),
+            ("train_batch_size", self.train_batch_size, Self::MAX_BATCH),
+        ] {
+            if v > hi {
+                return Err(ConfigError::new(p, f, v, &format!("must be at most {hi}")));
+            }
         }
         if self.total_timesteps > Self::MAX_TOTAL_TIMESTEPS {
             return Err(ConfigError::new(
@@ -346,6 +341,20 @@ mod tests {
                     ..p.clone()
                 },
                 "`ppo.total_timesteps`",
+            ),
+            (
+                PpoConfig {
+                    num_envs: 8192,
+                    ..p.clone()
+                },
+                "`ppo.num_envs` = 8192: must be at most 4096",
+            ),
+            (
+                PpoConfig {
+                    train_batch_size: 1 << 21,
+                    ..p.clone()
+                },
+                "`ppo.train_batch_size` = 2097152: must be at most 1048576",
             ),
         ] {
             let e = bad.validate().unwrap_err().to_string();

@@ -353,6 +353,20 @@ mod tests {
                 },
                 "clone.ensemble_calibration_views",
             ),
+            (
+                CloneConfig {
+                    batch_size: 3_000_000_000,
+                    ..CloneConfig::default()
+                },
+                "`clone.batch_size` = 3000000000: must be at most 1048576",
+            ),
+            (
+                CloneConfig {
+                    motion_min_step_cm: 1e30,
+                    ..CloneConfig::default()
+                },
+                "`clone.motion_min_step_cm` = 1e30",
+            ),
             // The support's bound, before the fit: a range beyond any tank.
             (
                 CloneConfig {

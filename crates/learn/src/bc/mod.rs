@@ -78,13 +78,25 @@ fishprobe_sim::documented_params! {
 }
 
 impl CloneConfig {
+    /// Largest batch (examples) accepted: a batch is held in memory.
+    pub const MAX_BATCH: usize = 1 << 20;
+    /// Most epochs accepted (the paper's fit takes well under 1,000).
+    pub const MAX_EPOCHS: usize = 1_000_000;
+
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        check::positive("clone", "motion_min_step_cm", self.motion_min_step_cm)?;
-        check::positive(
+        check::positive_at_most(
+            "clone",
+            "motion_min_step_cm",
+            self.motion_min_step_cm,
+            check::MAX_LENGTH_CM,
+        )?;
+        // Two headings disagree by at most a half turn.
+        check::positive_at_most(
             "clone",
             "heading_disagreement_rad",
             self.heading_disagreement_rad,
+            std::f32::consts::PI,
         )?;
         check::positive("clone", "learning_rate", self.learning_rate)?;
         // The support's own bound, checked before the fit rather than after it.
@@ -134,16 +146,18 @@ impl CloneConfig {
         }
         // Upper bounds, checked before anything is allocated: a batch is held in memory, and
         // the paper's fit takes well under 1,000 epochs.
-        if self.batch_size > 1 << 20 || self.max_epochs > 1_000_000 {
-            return Err(ConfigError::new(
-                "clone",
-                "max_epochs",
-                self.max_epochs,
-                &format!(
-                    "at most 1,000,000 epochs of batches of at most 1,048,576 (batch_size = {})",
-                    self.batch_size
-                ),
-            ));
+        for (f, v, hi) in [
+            ("batch_size", self.batch_size, Self::MAX_BATCH),
+            ("max_epochs", self.max_epochs, Self::MAX_EPOCHS),
+        ] {
+            if v > hi {
+                return Err(ConfigError::new(
+                    "clone",
+                    f,
+                    v,
+                    &format!("must be at most {hi}"),
+                ));
+            }
         }
         Ok(())
     }
