@@ -113,8 +113,21 @@ impl AnalysisConfig {
                 return Err(ConfigError::new("analysis", name, v, why));
             }
         }
-        check::positive("analysis", "goal_radius_cm", self.goal_radius_cm)?;
-        check::positive("analysis", "robot_reach_cm", self.robot_reach_cm)
+        for (f, v) in [
+            ("goal_radius_cm", self.goal_radius_cm),
+            ("robot_reach_cm", self.robot_reach_cm),
+        ] {
+            check::positive_at_most("analysis", f, v, check::MAX_LENGTH_CM)?;
+        }
+        if self.approach_closest_cm > f64::from(check::MAX_LENGTH_CM) {
+            return Err(ConfigError::new(
+                "analysis",
+                "approach_closest_cm",
+                check::shown(self.approach_closest_cm),
+                &format!("must be at most {} cm", check::MAX_LENGTH_CM),
+            ));
+        }
+        Ok(())
     }
 
     /// This config with some settings replaced: `table` maps field names to values (a study

@@ -14,7 +14,7 @@
 
 use fishprobe_io::{Entity, TrialFile};
 use fishprobe_models::ModelSpec;
-use fishprobe_sim::params::ConfigError;
+use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{stream, wrap_angle, Sandbox, SimRng, Tank, TankParams};
 use rand::RngExt;
 use rayon::prelude::*;
@@ -64,18 +64,38 @@ fishprobe_sim::documented_params! {
 impl OfflineConfig {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        if self.bootstrap_reps == 0
-            || self.bootstrap_reps > 10_000_000
-            || self.hist_bins < 10
-            || self.hist_bins > 100_000
-        {
-            return Err(ConfigError::new(
-                "offline",
-                "bootstrap_reps/hist_bins",
-                self.bootstrap_reps,
-                "need 1 to 10,000,000 replicates and 10 to 100,000 bins",
-            ));
+        for (f, v, lo, hi) in [
+            ("bootstrap_reps", self.bootstrap_reps, 1, 10_000_000),
+            ("hist_bins", self.hist_bins, 10, 100_000),
+        ] {
+            if !(lo..=hi).contains(&v) {
+                return Err(ConfigError::new(
+                    "offline",
+                    f,
+                    v,
+                    &format!("must lie in [{lo}, {hi}]"),
+                ));
+            }
         }
+        check::within(
+            "offline",
+            "pause_cm_s",
+            self.pause_cm_s,
+            0.0,
+            check::MAX_SPEED_CM_S,
+        )?;
+        check::positive_at_most(
+            "offline",
+            "motion_min_step_cm",
+            self.motion_min_step_cm,
+            check::MAX_LENGTH_CM,
+        )?;
+        check::positive_at_most(
+            "offline",
+            "heading_disagreement_rad",
+            self.heading_disagreement_rad,
+            std::f32::consts::PI,
+        )?;
         if !(self.ci_level > 0.0 && self.ci_level < 1.0) {
             return Err(ConfigError::new(
                 "offline",

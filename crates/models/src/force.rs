@@ -95,7 +95,13 @@ impl ForceParams {
             0.0,
             MAX_FORCE,
         )?;
-        check::non_negative(prefix, "distance_slope", self.distance_slope)?;
+        check::within(
+            prefix,
+            "distance_slope",
+            self.distance_slope,
+            0.0,
+            check::MAX_WEIGHT,
+        )?;
         check::positive_at_most(prefix, "preferred_speed", self.preferred_speed, MAX_SPEED)?;
         check::within(prefix, "speed_relaxation", self.speed_relaxation, 0.0, 1.0)?;
         check::positive_at_most(
@@ -107,7 +113,21 @@ impl ForceParams {
         check::non_negative(prefix, "angular_noise", self.angular_noise)?;
         check::non_negative(prefix, "speed_noise", self.speed_noise)?;
         // The speed noise is a speed once its convention turns it into a per-frame σ.
-        let (sigma_v, _) = self.noise_sigmas(1.0 / UNIT_FRAMES_PER_S);
+        let (sigma_v, sigma_phi) = self.noise_sigmas(1.0 / UNIT_FRAMES_PER_S);
+        if sigma_phi > check::MAX_ANGLE_NOISE_RAD {
+            return Err(ConfigError::new(
+                prefix,
+                "angular_noise",
+                check::shown(self.angular_noise),
+                &format!(
+                    "gives a heading noise σ of {} rad per frame (noise_convention = {}); it \
+                     must be at most a full turn, {}",
+                    check::shown(sigma_phi),
+                    serde_json::to_string(&self.noise_convention).unwrap_or_default(),
+                    check::shown(check::MAX_ANGLE_NOISE_RAD)
+                ),
+            ));
+        }
         if sigma_v > MAX_SPEED {
             return Err(ConfigError::new(
                 prefix,
@@ -123,16 +143,12 @@ impl ForceParams {
                 ),
             ));
         }
-        check::finite(
-            prefix,
-            "wall_outward_angle_factor",
-            self.wall_outward_angle_factor,
-        )?;
-        check::finite(
-            prefix,
-            "wall_perpendicular_factor",
-            self.wall_perpendicular_factor,
-        )?;
+        for (f, v) in [
+            ("wall_outward_angle_factor", self.wall_outward_angle_factor),
+            ("wall_perpendicular_factor", self.wall_perpendicular_factor),
+        ] {
+            check::within(prefix, f, v, -check::MAX_WEIGHT, check::MAX_WEIGHT)?;
+        }
         check::within(
             prefix,
             "wall_attraction",
@@ -153,7 +169,13 @@ impl ForceParams {
             0.0,
             MAX_FORCE,
         )?;
-        check::non_negative(prefix, "wall_attraction_band", self.wall_attraction_band)
+        check::within(
+            prefix,
+            "wall_attraction_band",
+            self.wall_attraction_band,
+            0.0,
+            check::MAX_WEIGHT,
+        )
     }
 
     /// Per-frame noise standard deviations (speed, angle) for a frame of `dt` seconds.

@@ -74,15 +74,19 @@ impl GuppyParams {
     pub fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
         for (f, v) in [
             ("kick_speed_cm_s", self.kick_speed_cm_s),
-            ("glide_tau_s", self.glide_tau_s),
-            ("kick_interval_s", self.kick_interval_s),
             ("max_turn_rad_s", self.max_turn_rad_s),
-            ("pause_mean_s", self.pause_mean_s),
             ("wall_range_cm", self.wall_range_cm),
             ("social_range_cm", self.social_range_cm),
-            ("engagement_tau_s", self.engagement_tau_s),
         ] {
             check::positive(prefix, f, v)?;
+        }
+        for (f, v) in [
+            ("glide_tau_s", self.glide_tau_s),
+            ("kick_interval_s", self.kick_interval_s),
+            ("pause_mean_s", self.pause_mean_s),
+            ("engagement_tau_s", self.engagement_tau_s),
+        ] {
+            check::positive_at_most(prefix, f, v, check::MAX_DURATION_S)?;
         }
         for (f, v, hi) in [
             (
@@ -105,18 +109,25 @@ impl GuppyParams {
         ] {
             check::within(prefix, f, v, 0.0, hi)?;
         }
-        for (f, v) in [
-            ("speed_spread", self.speed_spread),
-            ("kick_cv", self.kick_cv),
-            ("kick_noise_rad", self.kick_noise_rad),
-            ("frame_noise_rad", self.frame_noise_rad),
-            ("persistence", self.persistence),
-            ("thigmotaxis", self.thigmotaxis),
-            ("attraction", self.attraction),
-            ("alignment", self.alignment),
-            ("repulsion_cm", self.repulsion_cm),
+        for (f, v, hi) in [
+            ("speed_spread", self.speed_spread, check::MAX_WEIGHT),
+            ("kick_cv", self.kick_cv, check::MAX_WEIGHT),
+            (
+                "kick_noise_rad",
+                self.kick_noise_rad,
+                check::MAX_ANGLE_NOISE_RAD,
+            ),
+            (
+                "frame_noise_rad",
+                self.frame_noise_rad,
+                check::MAX_ANGLE_NOISE_RAD,
+            ),
+            ("persistence", self.persistence, check::MAX_WEIGHT),
+            ("thigmotaxis", self.thigmotaxis, check::MAX_WEIGHT),
+            ("attraction", self.attraction, check::MAX_WEIGHT),
+            ("alignment", self.alignment, check::MAX_WEIGHT),
         ] {
-            check::non_negative(prefix, f, v)?;
+            check::within(prefix, f, v, 0.0, hi)?;
         }
         for (f, v) in [
             ("pause_probability", self.pause_probability),

@@ -110,7 +110,13 @@ impl ZoneParams {
             TAU,
         )?;
         // Beyond a full turn the noise draws a uniform heading either way.
-        check::within(prefix, "turn_noise_rad", self.turn_noise_rad, 0.0, TAU)?;
+        check::within(
+            prefix,
+            "turn_noise_rad",
+            self.turn_noise_rad,
+            0.0,
+            check::MAX_ANGLE_NOISE_RAD,
+        )?;
         check::positive_at_most(
             prefix,
             "max_turn_rate_rad_s",
@@ -131,17 +137,14 @@ impl ZoneParams {
             0.0,
             std::f32::consts::PI,
         )?;
-        check::non_negative(
-            prefix,
-            "wall_repulsion_strength",
-            self.wall_repulsion_strength,
-        )?;
-        check::non_negative(prefix, "wall_attraction_band", self.wall_attraction_band)?;
-        check::non_negative(
-            prefix,
-            "wall_attraction_strength",
-            self.wall_attraction_strength,
-        )
+        for (f, v) in [
+            ("wall_repulsion_strength", self.wall_repulsion_strength),
+            ("wall_attraction_band", self.wall_attraction_band),
+            ("wall_attraction_strength", self.wall_attraction_strength),
+        ] {
+            check::within(prefix, f, v, 0.0, check::MAX_WEIGHT)?;
+        }
+        Ok(())
     }
 
     /// Outer radii of the repulsion, orientation and attraction zones (cm).

@@ -44,7 +44,7 @@ impl ReportConfig {
             self.iid_max_cm,
             check::MAX_LENGTH_CM,
         )?;
-        check::positive("report", "iid_bin_cm", self.iid_bin_cm)?;
+        check::positive_at_most("report", "iid_bin_cm", self.iid_bin_cm, self.iid_max_cm)?;
         if self.iid_max_cm / self.iid_bin_cm > MAX_IID_BINS {
             return Err(ConfigError::new(
                 "report",

@@ -38,7 +38,12 @@ impl ObservationParams {
                 "must lie in [4, 720]",
             ));
         }
-        check::positive(prefix, "far_plane_cm", self.far_plane_cm)
+        check::positive_at_most(
+            prefix,
+            "far_plane_cm",
+            self.far_plane_cm,
+            check::MAX_LENGTH_CM,
+        )
     }
 
     /// Length of the observation vector: 5 blocks of `sectors` (6 with `centroid_bins`).

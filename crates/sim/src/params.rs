@@ -225,6 +225,13 @@ pub mod check {
     /// Longest duration (s) a setting may have: a day, the longest episode or trial fishprobe
     /// records (`env::MAX_EPISODE_FRAMES` at 25 Hz, a live trial's habituation and control).
     pub const MAX_DURATION_S: f32 = 86_400.0;
+    /// Largest dimensionless weight, factor or gain: 10,000, some 250 times the largest
+    /// published one (M_Zone's wall repulsion, 40.51). Beyond it one term decides alone, as it
+    /// does at 10,000, and products with other settings approach the range of `f32`.
+    pub const MAX_WEIGHT: f32 = 10_000.0;
+    /// Largest standard deviation of an angle noise (rad): a full turn, beyond which the
+    /// noise draws a uniform heading either way.
+    pub const MAX_ANGLE_NOISE_RAD: f32 = std::f32::consts::TAU;
 
     /// A finite number in `(0, hi]`.
     pub fn positive_at_most(prefix: &str, field: &str, v: f32, hi: f32) -> Result<(), ConfigError> {

@@ -59,10 +59,21 @@ impl RobotParams {
             self.max_turn_rate_rad_s,
             check::MAX_TURN_RATE_RAD_S,
         )?;
-        check::positive(prefix, "heading_gain", self.heading_gain)?;
-        check::positive(prefix, "heading_slope_rad", self.heading_slope_rad)?;
+        check::positive_at_most(prefix, "heading_gain", self.heading_gain, check::MAX_WEIGHT)?;
+        check::positive_at_most(
+            prefix,
+            "heading_slope_rad",
+            self.heading_slope_rad,
+            std::f32::consts::PI,
+        )?;
         check::within(prefix, "forward_gain", self.forward_gain, 0.0, 1.0)?;
-        check::non_negative(prefix, "heading_gate_exponent", self.heading_gate_exponent)?;
+        check::within(
+            prefix,
+            "heading_gate_exponent",
+            self.heading_gate_exponent,
+            0.0,
+            check::MAX_WEIGHT,
+        )?;
         check::within(
             prefix,
             "actuator_lag_s",

@@ -155,3 +155,207 @@ pub fn reference() -> String {
     );
     o.trim_end().to_string() + "\n"
 }
+
+#[cfg(test)]
+mod tests {
+    //! Every number a settings file can hold, set to ±1e30 (or the largest integer): refused,
+    //! or named below with the reason its effect stays bounded. A new field without a bound
+    //! fails here until it gets one or a reason.
+    use serde::{de::DeserializeOwned, Serialize};
+    use serde_json::{json, Map, Value};
+
+    /// The fields of `base` set one at a time to absurd numbers, each checked by `check`
+    /// (deserialising is part of the check: an integer field refuses a float). Returns
+    /// `section.field = value` for every absurd number accepted.
+    fn accepted(
+        section: &str,
+        base: &Map<String, Value>,
+        check: &dyn Fn(Map<String, Value>) -> bool,
+    ) -> Vec<String> {
+        let mut out = Vec::new();
+        for (k, v) in base {
+            let absurd: Vec<Value> = if v.is_u64() {
+                vec![json!(u64::MAX)]
+            } else if v.is_number() {
+                vec![json!(1e30), json!(-1e30)]
+            } else {
+                continue;
+            };
+            for a in absurd {
+                let mut m = base.clone();
+                m.insert(k.clone(), a.clone());
+                if check(m) {
+                    out.push(format!("{section}.{k} = {a}"));
+                }
+            }
+        }
+        out
+    }
+
+    /// Whether a map of a section's fields deserialises and validates.
+    type Check = Box<dyn Fn(Map<String, Value>) -> bool>;
+
+    /// A settings struct's default fields, and its [`Check`].
+    fn plain<T: Serialize + DeserializeOwned + Default>(
+        validate: impl Fn(&T) -> bool + 'static,
+    ) -> (Map<String, Value>, Check) {
+        let base = match serde_json::to_value(T::default()) {
+            Ok(Value::Object(m)) => m,
+            other => panic!("not a struct: {other:?}"),
+        };
+        let check = move |m: Map<String, Value>| {
+            serde_json::from_value::<T>(Value::Object(m)).is_ok_and(|t| validate(&t))
+        };
+        (base, Box::new(check))
+    }
+
+    /// Fields whose absurd values are accepted, each with why that is harmless.
+    const BOUNDED_EFFECT: &[(&str, &str)] = &[
+        (
+            "ppo.lr = 1e+30",
+            "training stops at the first update with `training diverged`, the last good \
+             checkpoint kept",
+        ),
+        (
+            "ppo.entropy_coeff = 1e+30",
+            "Adam's steps do not scale with the loss; `log_std_max` bounds the s.d.",
+        ),
+        (
+            "ppo.vf_loss_coeff = 1e+30",
+            "Adam's steps do not scale with the loss (measured: finite losses and policy)",
+        ),
+        (
+            "ppo.kl_coeff = 1e+30",
+            "the adaptive coefficient halves each iteration the KL stays under target",
+        ),
+        ("ppo.kl_target = 1e+30", "the KL penalty then never grows"),
+        (
+            "ppo.vf_clip_param = 1e+30",
+            "no value clipping, RLlib's own behaviour without it",
+        ),
+        (
+            "clone.learning_rate = 1e+30",
+            "the fit stops with `training NLL is not finite`, the last good checkpoint kept",
+        ),
+        (
+            "ppo.checkpoint_every = 18446744073709551615",
+            "no checkpoint but the final policy",
+        ),
+        (
+            "clone.min_frames = 18446744073709551615",
+            "every file is skipped as too short, then the fit refuses: no training data",
+        ),
+        (
+            "clone.patience = 18446744073709551615",
+            "no early stopping; `max_epochs` bounds the fit",
+        ),
+        (
+            "yardstick.seed = 18446744073709551615",
+            "a seed like any other",
+        ),
+        (
+            "analysis.competence_threshold = 1e+30",
+            "every probe is reported below the bar, as asked",
+        ),
+    ];
+
+    #[test]
+    fn every_number_in_a_settings_file_is_bounded_or_its_effect_is() {
+        use fishprobe_models::ModelSpec;
+        let mut found: Vec<String> = Vec::new();
+        let mut sections: Vec<(&str, Map<String, Value>, Check)> = Vec::new();
+        let tank = fishprobe_sim::Tank::default();
+        sections.push({
+            let (b, c) = plain::<fishprobe_sim::TankParams>(|p| p.validate("tank").is_ok());
+            ("tank", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<fishprobe_sim::RobotParams>(|p| p.validate("robot").is_ok());
+            ("robot", b, c)
+        });
+        sections.push({
+            let (b, c) =
+                plain::<fishprobe_sim::TaskParams>(move |p| p.validate("task", &tank).is_ok());
+            ("task", b, c)
+        });
+        sections.push({
+            let (b, c) =
+                plain::<fishprobe_sim::ObservationParams>(|p| p.validate("observation").is_ok());
+            ("observation", b, c)
+        });
+        sections.push({
+            let (b, c) =
+                plain::<fishprobe_sim::script::ScriptParams>(|p| p.validate("script").is_ok());
+            ("script", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<fishprobe_learn::PpoConfig>(|p| p.validate().is_ok());
+            ("ppo", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<fishprobe_learn::bc::CloneConfig>(|p| p.validate().is_ok());
+            ("clone", b, c)
+        });
+        sections.push({
+            let (b, c) =
+                plain::<fishprobe_models::support::SupportConfig>(|p| p.validate().is_ok());
+            ("support", b, c)
+        });
+        sections.push({
+            let (b, c) =
+                plain::<fishprobe_learn::yardstick::OodYardstickConfig>(|p| p.validate().is_ok());
+            ("yardstick", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<super::super::ood_loop::OodLoopConfig>(|p| p.validate().is_ok());
+            ("ood_loop", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<fishprobe_analysis::AnalysisConfig>(|p| p.validate().is_ok());
+            ("analysis", b, c)
+        });
+        sections.push({
+            let (b, c) =
+                plain::<fishprobe_analysis::offline::OfflineConfig>(|p| p.validate().is_ok());
+            ("offline", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<fishprobe_report::ReportConfig>(|p| p.validate().is_ok());
+            ("report", b, c)
+        });
+        sections.push({
+            let (b, c) = plain::<fishprobe_live::session::LiveConfig>(|p| p.validate().is_ok());
+            ("live", b, c)
+        });
+        for model in ["Follow", "Zone", "Force", "Guppy", "Stationary"] {
+            let base = match serde_json::to_value(
+                serde_json::from_value::<ModelSpec>(json!({ "model": model })).unwrap(),
+            ) {
+                Ok(Value::Object(m)) => m,
+                other => panic!("{other:?}"),
+            };
+            let check = |m: Map<String, Value>| {
+                serde_json::from_value::<ModelSpec>(Value::Object(m))
+                    .is_ok_and(|s| s.validate().is_ok())
+            };
+            sections.push((model, base, Box::new(check)));
+        }
+        for (name, base, check) in &sections {
+            assert!(check(base.clone()), "{name}: the defaults are refused");
+            found.extend(accepted(name, base, check.as_ref()));
+        }
+        let unexplained: Vec<&String> = found
+            .iter()
+            .filter(|f| !BOUNDED_EFFECT.iter().any(|(k, _)| k == f))
+            .collect();
+        assert!(
+            unexplained.is_empty(),
+            "absurd numbers accepted with no bound and no reason:\n{}",
+            unexplained
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
+}

@@ -65,7 +65,7 @@ fishprobe_sim::documented_params! {
 }
 
 impl OodLoopConfig {
-    pub(super) fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (f, v, hi) in [
             ("narrow_episodes", self.narrow_episodes, 1000),
             ("validation_episodes", self.validation_episodes, 1000),
