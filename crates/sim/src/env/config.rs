@@ -53,21 +53,28 @@ impl EnvConfig {
                 "must be at least 1",
             ));
         }
-        let longest = self
-            .task
-            .training_episode_actions
-            .max(self.task.evaluation_episode_actions);
-        if u64::from(longest) * u64::from(self.frames_per_action) > MAX_EPISODE_FRAMES {
-            return Err(ConfigError::new(
-                "",
+        for (f, actions) in [
+            (
+                "task.training_episode_actions",
+                self.task.training_episode_actions,
+            ),
+            (
                 "task.evaluation_episode_actions",
-                longest,
-                &format!(
-                    "with {} frames per action an episode would exceed {MAX_EPISODE_FRAMES} \
-                     frames (24 hours at 25 Hz)",
-                    self.frames_per_action
-                ),
-            ));
+                self.task.evaluation_episode_actions,
+            ),
+        ] {
+            if u64::from(actions) * u64::from(self.frames_per_action) > MAX_EPISODE_FRAMES {
+                return Err(ConfigError::new(
+                    "",
+                    f,
+                    actions,
+                    &format!(
+                        "with {} frames per action an episode would exceed \
+                         {MAX_EPISODE_FRAMES} frames (24 hours at 25 Hz)",
+                        self.frames_per_action
+                    ),
+                ));
+            }
         }
         if !(1..=MAX_FISH as u32).contains(&self.fish_count) {
             return Err(ConfigError::new(
@@ -90,5 +97,29 @@ impl EnvConfig {
         self.mode = TaskMode::Evaluation;
         self.task.objective = Objective::Goal;
         self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_episode_longer_than_a_day_names_the_task_field_at_fault() {
+        let mut c = EnvConfig::default();
+        assert!(c.validate().is_ok());
+        c.task.training_episode_actions = u32::MAX;
+        let e = c.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("`task.training_episode_actions` = 4294967295") && e.contains("2160000"),
+            "{e}"
+        );
+        let mut c = EnvConfig::default();
+        c.task.evaluation_episode_actions = 86_401;
+        let e = c.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("`task.evaluation_episode_actions` = 86401"),
+            "{e}"
+        );
     }
 }
