@@ -235,6 +235,14 @@ pub(super) const READINGS: &[Reading] = &[
         ppo: || json!({"total_timesteps": 2 * PUBLISHED}),
     },
     Reading {
+        name: "budget-16x",
+        what: "sixteen times the paper's 832,300 training steps (twice the `paper` preset's; with `gamma-0.99`, whose longer horizon learns to lead more slowly)",
+        models: &[],
+        env: none,
+        model: none,
+        ppo: || json!({"total_timesteps": 16 * PUBLISHED}),
+    },
+    Reading {
         name: "budget-8x",
         what: "eight times the paper's 832,300 training steps (the `paper` preset's since this sweep)",
         models: &[],
