@@ -112,36 +112,43 @@ impl ForceParams {
         )?;
         check::non_negative(prefix, "angular_noise", self.angular_noise)?;
         check::non_negative(prefix, "speed_noise", self.speed_noise)?;
-        // The speed noise is a speed once its convention turns it into a per-frame σ.
+        // Each noise is a speed or an angle once its convention turns it into a per-frame σ.
         let (sigma_v, sigma_phi) = self.noise_sigmas(1.0 / UNIT_FRAMES_PER_S);
-        if sigma_phi > check::MAX_ANGLE_NOISE_RAD {
-            return Err(ConfigError::new(
-                prefix,
-                "angular_noise",
-                check::shown(self.angular_noise),
-                &format!(
-                    "gives a heading noise σ of {} rad per frame (noise_convention = {}); it \
-                     must be at most a full turn, {}",
-                    check::shown(sigma_phi),
-                    serde_json::to_string(&self.noise_convention).unwrap_or_default(),
-                    check::shown(check::MAX_ANGLE_NOISE_RAD)
-                ),
-            ));
-        }
-        if sigma_v > MAX_SPEED {
-            return Err(ConfigError::new(
-                prefix,
+        for (field, d, sigma, what, unit, max, max_name) in [
+            (
                 "speed_noise",
-                check::shown(self.speed_noise),
-                &format!(
-                    "gives a speed noise σ of {} cm per frame (noise_convention = {}); it \
-                     must be at most {} (fishprobe_models::force::MAX_SPEED)",
-                    check::shown(sigma_v),
-                    // The name a settings file uses, quoted, as serde spells it.
-                    serde_json::to_string(&self.noise_convention).unwrap_or_default(),
-                    check::shown(MAX_SPEED)
-                ),
-            ));
+                self.speed_noise,
+                sigma_v,
+                "a speed noise",
+                "cm",
+                MAX_SPEED,
+                "fishprobe_models::force::MAX_SPEED",
+            ),
+            (
+                "angular_noise",
+                self.angular_noise,
+                sigma_phi,
+                "a heading noise",
+                "rad",
+                check::MAX_ANGLE_NOISE_RAD,
+                "a full turn, fishprobe_sim::params::check::MAX_ANGLE_NOISE_RAD",
+            ),
+        ] {
+            if sigma > max {
+                return Err(ConfigError::new(
+                    prefix,
+                    field,
+                    check::shown(d),
+                    &format!(
+                        "gives {what} σ of {} {unit} per frame (noise_convention = {}); it must \
+                         be at most {} ({max_name})",
+                        check::shown(sigma),
+                        // The name a settings file uses, quoted, as serde spells it.
+                        serde_json::to_string(&self.noise_convention).unwrap_or_default(),
+                        check::shown(max)
+                    ),
+                ));
+            }
         }
         for (f, v) in [
             ("wall_outward_angle_factor", self.wall_outward_angle_factor),
@@ -410,6 +417,15 @@ mod tests {
                     p.noise_convention = NoiseConvention::StdDev;
                 }),
                 "σ of 41 cm per frame (noise_convention = \"std_dev\"); it must be at most 40",
+            ),
+            (
+                "angular_noise",
+                with(|p| {
+                    p.angular_noise = 7.0;
+                    p.noise_convention = NoiseConvention::StdDev;
+                }),
+                "a heading noise σ of 7 rad per frame (noise_convention = \"std_dev\"); it must \
+                 be at most 6.2831855 (a full turn",
             ),
         ] {
             let e = bad.validate("fish").unwrap_err().to_string();
