@@ -115,13 +115,15 @@ def test_a_second_writer_is_refused(tmp_path):
 
 def test_the_paper_preset_trains_a_python_fish_at_the_published_budget(tmp_path):
     """A Python fish costs a call every frame: the `paper` preset gives its policy the
-    published 832,300 steps at 10 epochs, a rule-based fish's eight times the steps at 2."""
+    published 832,300 steps at 10 epochs, a rule-based fish's sixteen times the steps at 2;
+    both at the preset's discount of 0.99."""
     tiny = {"train_batch_size": 64, "num_envs": 16, "sgd_minibatch_size": 32, "hidden": [8]}
     for model, epochs in ((Attractor(), 10), ("Zone", 2)):
         out = tmp_path / str(epochs)
         fishprobe.train(model, out, preset="paper", steps=64, ppo=tiny, callback=None)
         ppo = json.loads((out / "params.json").read_text())["ppo"]
         assert ppo["num_sgd_iter"] == epochs, model
+        assert ppo["gamma"] == pytest.approx(0.99), model
 
 
 def test_evaluate_runs_the_clis_episodes(tmp_path, cli, smoke_policy):

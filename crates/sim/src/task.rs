@@ -137,9 +137,10 @@ crate::documented_params! {
         /// per goal and the wall penalty only). A reading of the fidelity sweep (issue 20,
         /// `progress-shaping`).
         pub progress_shaping: f32 = 0.0; "1",
-        /// Discount γ_s of the shaping potential, in (0, 1] (choice: 0.9453, the paper's PPO
-        /// γ, which the shaping must match to leave the optimal policies unchanged).
-        pub progress_shaping_gamma: f32 = 0.9453; "1",
+        /// Discount γ_s of the shaping potential, in (0, 1] (choice: 0.99, the `paper` PPO
+        /// preset's γ, which the shaping must match to leave the optimal policies unchanged;
+        /// 0.9453 with the `published` preset or `ppo_gamma = 0.9453`).
+        pub progress_shaping_gamma: f32 = 0.99; "1",
     }
 }
 

@@ -359,10 +359,13 @@ mod tests {
         // The discount: the preset's own changes nothing, another changes every training and
         // what follows it; the settings record it only when it is set.
         let mut own_gamma = paper.clone();
-        own_gamma.ppo_gamma = Some(0.9453);
-        let mut longer = paper.clone();
-        longer.ppo_gamma = Some(0.99);
-        for (a, (b, c)) in base.iter().zip(plan(own_gamma).iter().zip(&plan(longer))) {
+        own_gamma.ppo_gamma = Some(0.99);
+        let mut published_gamma = paper.clone();
+        published_gamma.ppo_gamma = Some(0.9453);
+        for (a, (b, c)) in base
+            .iter()
+            .zip(plan(own_gamma).iter().zip(&plan(published_gamma)))
+        {
             assert_eq!(a.hash, b.hash, "{}", a.id);
             let downstream = !a.id.starts_with("fit-convnet") && !a.id.starts_with("baseline-");
             assert_eq!(a.hash != c.hash, downstream, "{}", a.id);

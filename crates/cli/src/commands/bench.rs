@@ -36,7 +36,7 @@ enum StudySizeArg {
 enum BenchWhat {
     /// The trainer: single-core matrix-multiply rate, PPO-update minibatch steps/s and GFLOP/s
     /// (paper network and minibatch), and end-to-end training steps/s with the `published`
-    /// preset (100 epochs per batch) and the `paper` preset (2 epochs, eight times the steps;
+    /// preset (100 epochs per batch) and the `paper` preset (2 epochs, sixteen times the steps;
     /// for an expensive fish the published steps at 10 epochs), each projected to a full run.
     Train {
         /// Print JSON instead of text.

@@ -13,9 +13,10 @@ use super::emit;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Budget: `quick` (a complete study in minutes), `paper` (the published protocol with 10
-    /// PPO epochs per batch and a bounded log-s.d., 35-40 minutes on 2 cores), `published`
-    /// (the same with the published PPO settings, hours) or `smoke` (tiny, for tests).
+    /// Budget: `quick` (a complete study in minutes), `paper` (the published protocol with
+    /// PPO's `paper` preset, see `fishprobe train --help`; about 50 minutes on 2 cores on a
+    /// fast day), `published` (the same with the published PPO settings, hours) or `smoke`
+    /// (tiny, for tests).
     #[arg(long, default_value = "quick")]
     preset: String,
     /// Study file (TOML): overrides of the preset and extra models, e.g.

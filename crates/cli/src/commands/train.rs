@@ -25,10 +25,12 @@ pub struct TrainArgs {
     /// Run directory (params.json, progress.csv, result.json, checkpoints/, policy.safetensors).
     #[arg(long)]
     out: PathBuf,
-    /// `paper` (the published settings with eight times the steps at 2 epochs per batch
-    /// instead of 100, the policy's log-s.d. bounded at 0; an expensive fish's policy, e.g.
-    /// M_ConvNet's, 832,300 steps at 10 epochs: see docs/validation.md, "The fidelity sweep"),
-    /// `published` (exactly the published settings, 100 epochs, RLlib's unbounded log-s.d.),
+    /// `paper` (the published settings with sixteen times the steps at 2 epochs per batch
+    /// instead of 100, a discount of 0.99 instead of 0.9453, the policy's log-s.d. bounded at
+    /// 0; an expensive fish's policy, e.g. M_ConvNet's, 832,300 steps at 10 epochs: see
+    /// docs/validation.md, "The fidelity sweep" and "The `paper` preset's discount and
+    /// budget"), `published` (exactly the published settings, 100 epochs, γ = 0.9453, RLlib's
+    /// unbounded log-s.d.),
     /// `quick` (200,000 steps at 10 epochs) or `smoke` (a few thousand steps of a small
     /// network).
     #[arg(long, default_value = "paper")]
