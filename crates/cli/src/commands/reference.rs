@@ -196,10 +196,11 @@ mod tests {
     /// Whether a map of a section's fields deserialises and validates.
     type Check = Box<dyn Fn(Map<String, Value>) -> bool>;
 
-    /// A settings struct's default fields, and its [`Check`].
+    /// A settings section: its name, its struct's default fields, and its [`Check`].
     fn plain<T: Serialize + DeserializeOwned + Default>(
+        name: &'static str,
         validate: impl Fn(&T) -> bool + 'static,
-    ) -> (Map<String, Value>, Check) {
+    ) -> (&'static str, Map<String, Value>, Check) {
         let base = match serde_json::to_value(T::default()) {
             Ok(Value::Object(m)) => m,
             other => panic!("not a struct: {other:?}"),
@@ -207,7 +208,7 @@ mod tests {
         let check = move |m: Map<String, Value>| {
             serde_json::from_value::<T>(Value::Object(m)).is_ok_and(|t| validate(&t))
         };
-        (base, Box::new(check))
+        (name, base, Box::new(check))
     }
 
     /// Fields whose absurd values are accepted, each with why that is harmless.
@@ -283,76 +284,62 @@ mod tests {
         let mut found: Vec<String> = Vec::new();
         let mut sections: Vec<(&str, Map<String, Value>, Check)> = Vec::new();
         let tank = fishprobe_sim::Tank::default();
-        sections.push({
-            let (b, c) = plain::<fishprobe_sim::TankParams>(|p| p.validate("tank").is_ok());
-            ("tank", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<fishprobe_sim::RobotParams>(|p| p.validate("robot").is_ok());
-            ("robot", b, c)
-        });
-        sections.push({
-            // The episode's length is checked with the frames per action, by the environment.
-            let (b, c) = plain::<fishprobe_sim::TaskParams>(move |p| {
-                p.validate("task", &tank).is_ok()
-                    && fishprobe_sim::EnvConfig {
-                        task: p.clone(),
-                        ..fishprobe_sim::EnvConfig::default()
-                    }
-                    .validate()
-                    .is_ok()
-            });
-            ("task", b, c)
-        });
-        sections.push({
-            let (b, c) =
-                plain::<fishprobe_sim::ObservationParams>(|p| p.validate("observation").is_ok());
-            ("observation", b, c)
-        });
-        sections.push({
-            let (b, c) =
-                plain::<fishprobe_sim::script::ScriptParams>(|p| p.validate("script").is_ok());
-            ("script", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<fishprobe_learn::PpoConfig>(|p| p.validate().is_ok());
-            ("ppo", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<fishprobe_learn::bc::CloneConfig>(|p| p.validate().is_ok());
-            ("clone", b, c)
-        });
-        sections.push({
-            let (b, c) =
-                plain::<fishprobe_models::support::SupportConfig>(|p| p.validate().is_ok());
-            ("support", b, c)
-        });
-        sections.push({
-            let (b, c) =
-                plain::<fishprobe_learn::yardstick::OodYardstickConfig>(|p| p.validate().is_ok());
-            ("yardstick", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<super::super::ood_loop::OodLoopConfig>(|p| p.validate().is_ok());
-            ("ood_loop", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<fishprobe_analysis::AnalysisConfig>(|p| p.validate().is_ok());
-            ("analysis", b, c)
-        });
-        sections.push({
-            let (b, c) =
-                plain::<fishprobe_analysis::offline::OfflineConfig>(|p| p.validate().is_ok());
-            ("offline", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<fishprobe_report::ReportConfig>(|p| p.validate().is_ok());
-            ("report", b, c)
-        });
-        sections.push({
-            let (b, c) = plain::<fishprobe_live::session::LiveConfig>(|p| p.validate().is_ok());
-            ("live", b, c)
-        });
+        sections.push(plain::<fishprobe_sim::TankParams>("tank", |p| {
+            p.validate("tank").is_ok()
+        }));
+        sections.push(plain::<fishprobe_sim::RobotParams>("robot", |p| {
+            p.validate("robot").is_ok()
+        }));
+        // The episode's length is checked with the frames per action, by the environment.
+        sections.push(plain::<fishprobe_sim::TaskParams>("task", move |p| {
+            p.validate("task", &tank).is_ok()
+                && fishprobe_sim::EnvConfig {
+                    task: p.clone(),
+                    ..fishprobe_sim::EnvConfig::default()
+                }
+                .validate()
+                .is_ok()
+        }));
+        sections.push(plain::<fishprobe_sim::ObservationParams>(
+            "observation",
+            |p| p.validate("observation").is_ok(),
+        ));
+        sections.push(plain::<fishprobe_sim::script::ScriptParams>(
+            "script",
+            |p| p.validate("script").is_ok(),
+        ));
+        sections.push(plain::<fishprobe_learn::PpoConfig>("ppo", |p| {
+            p.validate().is_ok()
+        }));
+        sections.push(plain::<fishprobe_learn::bc::CloneConfig>("clone", |p| {
+            p.validate().is_ok()
+        }));
+        sections.push(plain::<fishprobe_models::support::SupportConfig>(
+            "support",
+            |p| p.validate().is_ok(),
+        ));
+        sections.push(plain::<fishprobe_learn::yardstick::OodYardstickConfig>(
+            "yardstick",
+            |p| p.validate().is_ok(),
+        ));
+        sections.push(plain::<super::super::ood_loop::OodLoopConfig>(
+            "ood_loop",
+            |p| p.validate().is_ok(),
+        ));
+        sections.push(plain::<fishprobe_analysis::AnalysisConfig>(
+            "analysis",
+            |p| p.validate().is_ok(),
+        ));
+        sections.push(plain::<fishprobe_analysis::offline::OfflineConfig>(
+            "offline",
+            |p| p.validate().is_ok(),
+        ));
+        sections.push(plain::<fishprobe_report::ReportConfig>("report", |p| {
+            p.validate().is_ok()
+        }));
+        sections.push(plain::<fishprobe_live::session::LiveConfig>("live", |p| {
+            p.validate().is_ok()
+        }));
         for model in ["Follow", "Zone", "Force", "Guppy", "Stationary", "ConvNet"] {
             let base = match serde_json::to_value(
                 serde_json::from_value::<ModelSpec>(json!({ "model": model })).unwrap(),
