@@ -67,7 +67,7 @@ fishprobe_sim::documented_params! {
         /// did so in 4 of 12 seeds (the others wait at the goal for the fish, which earns about
         /// as much within 18 s), at 0.99 with sixteen times the steps in 12 of 12, leading at
         /// 0.92-1.02 of the best scripted controller (the paper's γ with those steps: 3 of 6;
-        /// Fisher's exact p = 0.025), and the whole `paper` study so took shows the paper's
+        /// Fisher's exact p = 0.025), and the whole `paper` study so trained shows the paper's
         /// approach pattern in its report for all four probes, π_Zone in 5 of its 6 seeds
         /// (docs/validation.md, "Is it the horizon?", "Is the cost the budget?" and "The `paper`
         /// preset's discount and budget"). So in the paper's simulator fetching must pay within
