@@ -4,7 +4,8 @@
 //! docs/validation.md, "Does it learn?" and "The fidelity sweep".
 //!
 //! Opt-in, 13 minutes on 2 cores in a release build on a fast day (792 s on 2026-11-29; longer
-//! on slower days or while other work shares the cores): `cargo test --release -p fishprobe --test learns -- --ignored --nocapture`.
+//! on slower days or while other work shares the cores):
+//! `cargo test --release -p fishprobe --test learns -- --ignored --nocapture`.
 //!
 //! Each probe's goals, averaged over its two seeds, must reach at least 80 % of the best
 //! scripted controller's (issue 20's bar; issue 4's was to beat the goal-seeker, which π_Follow

@@ -133,6 +133,13 @@ impl PpoConfig {
     /// reaches 83.6 and 121.9), and quick studies stay comparable with those made before.
     pub fn preset(name: &str) -> Option<Self> {
         let paper = Self::default();
+        // `quick` and `smoke` share the published γ, set once here.
+        let quick = Self {
+            total_timesteps: 200_000,
+            num_sgd_iter: 10,
+            gamma: Self::PUBLISHED_GAMMA,
+            ..paper.clone()
+        };
         match name {
             "paper" => Some(paper),
             "published" => Some(Self {
@@ -142,12 +149,7 @@ impl PpoConfig {
                 log_std_max: None,
                 ..paper
             }),
-            "quick" => Some(Self {
-                total_timesteps: 200_000,
-                num_sgd_iter: 10,
-                gamma: Self::PUBLISHED_GAMMA,
-                ..paper
-            }),
+            "quick" => Some(quick),
             "smoke" => Some(Self {
                 total_timesteps: 4096,
                 train_batch_size: 1024,
@@ -155,9 +157,8 @@ impl PpoConfig {
                 num_sgd_iter: 2,
                 hidden: vec![32, 32],
                 num_envs: 16,
-                gamma: Self::PUBLISHED_GAMMA,
                 checkpoint_every: 1,
-                ..paper
+                ..quick
             }),
             _ => None,
         }
