@@ -63,6 +63,26 @@ impl RunSpec {
     pub fn check(&self) -> Result<(), LearnError> {
         self.ppo.validate()?;
         self.env.validate()?;
+        let t = &self.env.task;
+        // Potential-based shaping leaves the goal reward's optimal policies unchanged only
+        // when its potential is discounted as the learner discounts (Ng et al. 1999).
+        if t.progress_shaping > 0.0
+            && t.objective == Objective::Goal
+            && (t.progress_shaping_gamma - self.ppo.gamma).abs() > 1e-6
+        {
+            return Err(fishprobe_sim::ConfigError::new(
+                "env.task",
+                "progress_shaping_gamma",
+                t.progress_shaping_gamma,
+                &format!(
+                    "differs from the PPO discount gamma = {}: the progress shaping leaves the \
+                     optimal policies unchanged only when they match; set \
+                     `[env.task] progress_shaping_gamma = {}`",
+                    self.ppo.gamma, self.ppo.gamma
+                ),
+            )
+            .into());
+        }
         if self.env.task.objective == Objective::Ood {
             self.model.ood_scorer(self.env.task.ood_score)?;
         }
@@ -409,6 +429,33 @@ mod tests {
             t.iterate().unwrap();
         }
         t
+    }
+
+    #[test]
+    fn progress_shaping_must_discount_as_the_learner_does() {
+        let mut spec = RunSpec {
+            ppo: PpoConfig::preset("quick").unwrap(),
+            env: EnvConfig::default(),
+            model: ModelSpec::by_name("Zone").unwrap(),
+            seed: 0,
+            preset: "quick".into(),
+            program_version: "test".into(),
+            program_build: "test".into(),
+            trainer_revision: crate::TRAINER_REVISION,
+        };
+        // Shaping off: the shaping's discount is inert, whatever it is.
+        assert!(spec.check().is_ok());
+        spec.env.task.progress_shaping = 1.0;
+        let e = spec.check().unwrap_err().to_string();
+        assert!(
+            e.contains("`env.task.progress_shaping_gamma` = 0.99: differs from the PPO discount gamma = 0.9453")
+                && e.contains("progress_shaping_gamma = 0.9453`"),
+            "{e}"
+        );
+        spec.env.task.progress_shaping_gamma = spec.ppo.gamma;
+        assert!(spec.check().is_ok());
+        spec.ppo = PpoConfig::preset("paper").unwrap();
+        assert!(spec.check().is_err());
     }
 
     #[test]

@@ -20,7 +20,8 @@ fishprobe_sim::documented_params! {
         pub release_s: f64 = 60.0; "s",
         /// Closed-loop control after habituation (paper: 15 min).
         pub control_s: f64 = 900.0; "s",
-        /// Policy commands per second of tracking time (paper: 1 Hz).
+        /// Policy commands per second of tracking time (paper: 1 Hz); at most 100, and at
+        /// least one command period within `control_s`.
         pub command_hz: f64 = 1.0; "Hz",
         /// Tracking of robot or fish missing for this long: stop the robot (choice).
         pub stale_s: f64 = 0.5; "s",
@@ -78,6 +79,19 @@ impl LiveConfig {
                     "with habituation_s = {} makes a trial longer than {} s (a day)",
                     check::shown(self.habituation_s),
                     check::shown(day)
+                ),
+            ));
+        }
+        // A rate so low that no command period ends within the control phase would leave
+        // the robot with its first command for the whole trial: a typo, not a protocol.
+        if self.command_hz * self.control_s < 1.0 {
+            return Err(ConfigError::new(
+                "live",
+                "command_hz",
+                check::shown(self.command_hz),
+                &format!(
+                    "gives no second command within control_s = {} s (at least 1 / control_s)",
+                    check::shown(self.control_s)
                 ),
             ));
         }
@@ -826,6 +840,22 @@ mod tests {
             e.contains("`live.command_hz` = 1000: must lie in (0, 100]"),
             "{e}"
         );
+        let e = err(LiveConfig {
+            command_hz: 1e-30,
+            ..LiveConfig::default()
+        });
+        assert!(
+            e.contains(
+                "`live.command_hz` = 1e-30: gives no second command within control_s = 900 s"
+            ),
+            "{e}"
+        );
+        assert!(LiveConfig {
+            command_hz: 0.01,
+            ..LiveConfig::default()
+        }
+        .validate()
+        .is_ok());
         let e = err(LiveConfig {
             release_s: -1e30,
             ..LiveConfig::default()

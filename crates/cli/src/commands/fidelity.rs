@@ -51,17 +51,32 @@ pub struct FidelityArgs {
     jobs: Option<usize>,
 }
 
-/// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
-fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
+/// The fish model, PPO and environment settings of reading `r` for `model` under `preset`.
+fn cell_settings(
+    preset: &str,
+    r: &Combo,
+    model: &str,
+) -> Result<(ModelSpec, PpoConfig, EnvConfig)> {
     let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
     spec.validate()?;
-    let Some(base_ppo) = PpoConfig::preset_for(&a.preset, spec.is_expensive()) else {
-        bail!("unknown --preset `{}`", a.preset);
+    let Some(base_ppo) = PpoConfig::preset_for(preset, spec.is_expensive()) else {
+        bail!("unknown --preset `{preset}`");
     };
     let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)()))?;
     ppo.validate()?;
-    let env: EnvConfig = with(&EnvConfig::default(), &r.merged(|p| (p.env)()))?;
+    let mut env: EnvConfig = with(&EnvConfig::default(), &r.merged(|p| (p.env)()))?;
+    // No reading sets the shaping's discount: it follows the reading's PPO discount, as it
+    // must to leave the optimal policies unchanged (`gamma-published` with `progress-shaping`).
+    if env.task.progress_shaping > 0.0 {
+        env.task.progress_shaping_gamma = ppo.gamma;
+    }
     env.validate()?;
+    Ok((spec, ppo, env))
+}
+
+/// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
+fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
+    let (spec, ppo, env) = cell_settings(&a.preset, r, model)?;
     // A finished cell is read back only if it was made with these settings (a default that
     // changed since, or another --preset, must not pass for this reading).
     let settings = json!({"ppo": ppo, "env": env, "model": spec, "episodes": a.episodes,
@@ -436,4 +451,40 @@ fn with_finished_cells(a: &FidelityArgs, rows: &[Value]) -> Vec<Value> {
     }
     others.sort_by_key(key);
     rows.iter().cloned().chain(others).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shaping_reading_discounts_as_its_learner_does() {
+        for (readings, gamma) in [
+            ("progress-shaping", 0.99),
+            (
+                "progress-shaping+gamma-published",
+                PpoConfig::PUBLISHED_GAMMA,
+            ),
+        ] {
+            let r = Combo::parse(readings).unwrap();
+            let (spec, ppo, env) = cell_settings("paper", &r, "Zone").unwrap();
+            assert_eq!(ppo.gamma, gamma, "{readings}");
+            assert_eq!(env.task.progress_shaping_gamma, gamma, "{readings}");
+            let run = fishprobe_learn::RunSpec {
+                ppo,
+                env,
+                model: spec,
+                seed: 0,
+                preset: "paper".into(),
+                program_version: "test".into(),
+                program_build: "test".into(),
+                trainer_revision: fishprobe_learn::TRAINER_REVISION,
+            };
+            run.check().unwrap();
+        }
+        // Without the reading the shaping is off and its discount stays the default.
+        let r = Combo::parse("gamma-published").unwrap();
+        let (_, _, env) = cell_settings("paper", &r, "Zone").unwrap();
+        assert_eq!(env.task.progress_shaping_gamma, 0.99);
+    }
 }
