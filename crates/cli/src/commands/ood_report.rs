@@ -470,11 +470,13 @@ fn write_figures<'s>(
 /// the OOD reward's cap when the reward paid support scores (what the policy was trained to
 /// reach), else the support reward's default cap. A reward of the ensemble's disagreement has
 /// its cap in the disagreement's scale (e.g. 1.14 from `--ood-yardstick`), which says nothing
-/// about support scores.
+/// about support scores; nor does a support cap at or within the support's edge (1), e.g.
+/// 0.89 from `--ood-yardstick` under a short partner range: the wishlist lists views beyond
+/// 1 only, and would weigh and show every one of them as scoring the cap.
 fn support_cap(task: &fishprobe_sim::TaskParams) -> f32 {
     match task.ood_score {
-        fishprobe_sim::OodScore::Support => task.ood_score_cap,
-        fishprobe_sim::OodScore::Disagreement => fishprobe_sim::TaskParams::default().ood_score_cap,
+        fishprobe_sim::OodScore::Support if task.ood_score_cap > 1.0 => task.ood_score_cap,
+        _ => fishprobe_sim::TaskParams::default().ood_score_cap,
     }
 }
 
@@ -490,6 +492,11 @@ mod tests {
             ..TaskParams::default()
         };
         assert_eq!(support_cap(&support), 1.43);
+        let within = TaskParams {
+            ood_score_cap: 0.893,
+            ..TaskParams::default()
+        };
+        assert_eq!(support_cap(&within), TaskParams::default().ood_score_cap);
         let disagreement = TaskParams {
             ood_score: OodScore::Disagreement,
             ood_score_cap: 1.14,
