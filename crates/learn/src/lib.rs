@@ -48,7 +48,7 @@ pub use evaluate::{
     Evaluation,
 };
 pub use policy::{to_env_action, GaussianPolicy};
-pub use trainer::{IterationStats, RunSpec, Trainer};
+pub use trainer::{shaping_matches, IterationStats, RunSpec, Trainer};
 
 /// The trainer's revision: raised when a fix makes runs of earlier revisions wrong with the
 /// same settings, so that a study retrains the policies it made before (its training steps

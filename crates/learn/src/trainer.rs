@@ -63,26 +63,7 @@ impl RunSpec {
     pub fn check(&self) -> Result<(), LearnError> {
         self.ppo.validate()?;
         self.env.validate()?;
-        let t = &self.env.task;
-        // Potential-based shaping leaves the goal reward's optimal policies unchanged only
-        // when its potential is discounted as the learner discounts (Ng et al. 1999).
-        if t.progress_shaping > 0.0
-            && t.objective == Objective::Goal
-            && (t.progress_shaping_gamma - self.ppo.gamma).abs() > 1e-6
-        {
-            return Err(fishprobe_sim::ConfigError::new(
-                "env.task",
-                "progress_shaping_gamma",
-                t.progress_shaping_gamma,
-                &format!(
-                    "differs from the PPO discount gamma = {}: the progress shaping leaves the \
-                     optimal policies unchanged only when they match; set \
-                     `[env.task] progress_shaping_gamma = {}`",
-                    self.ppo.gamma, self.ppo.gamma
-                ),
-            )
-            .into());
-        }
+        shaping_matches(&self.ppo, &self.env)?;
         if self.env.task.objective == Objective::Ood {
             self.model.ood_scorer(self.env.task.ood_score)?;
         }
@@ -151,6 +132,30 @@ fn run_err(path: &Path, what: impl std::fmt::Display) -> LearnError {
     LearnError::Run(format!("{}: {what}", path.display()))
 }
 
+/// Refuses progress shaping (`task.progress_shaping` > 0, lead-to-goal task) whose discount
+/// is not the learner's: potential-based shaping leaves the goal reward's optimal policies
+/// unchanged only when its potential is discounted as the learner discounts (Ng et al. 1999).
+pub fn shaping_matches(ppo: &PpoConfig, env: &EnvConfig) -> Result<(), fishprobe_sim::ConfigError> {
+    let t = &env.task;
+    if t.progress_shaping > 0.0
+        && t.objective == Objective::Goal
+        && t.progress_shaping_gamma != ppo.gamma
+    {
+        return Err(fishprobe_sim::ConfigError::new(
+            "env.task",
+            "progress_shaping_gamma",
+            t.progress_shaping_gamma,
+            &format!(
+                "differs from the PPO discount gamma = {}: the progress shaping leaves the \
+                 optimal policies unchanged only when they match; set \
+                 `progress_shaping_gamma = {}` where the shaping is turned on",
+                ppo.gamma, ppo.gamma
+            ),
+        ));
+    }
+    Ok(())
+}
+
 impl Trainer {
     /// Starts a new run in `dir` (which must not hold one).
     pub fn create(dir: &Path, spec: RunSpec) -> Result<Self, LearnError> {
@@ -171,6 +176,7 @@ impl Trainer {
         spec.trainer_revision = crate::TRAINER_REVISION;
         spec.env.mode = TaskMode::Training;
         spec.env.validate()?;
+        shaping_matches(&spec.ppo, &spec.env)?;
         Self::ensure_new(dir)?;
         let mut t = Self::build(dir, spec, model)?;
         t.venv.reset(derive_seed(t.spec.seed, "envs", 0))?;
@@ -452,6 +458,18 @@ mod tests {
                 && e.contains("progress_shaping_gamma = 0.9453`"),
             "{e}"
         );
+        // Every way of starting a run refuses it, not only callers that check first.
+        let dir = std::env::temp_dir().join(format!("fishprobe-shaping-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let e = Trainer::create(&dir, spec.clone())
+            .err()
+            .map(|e| e.to_string());
+        assert!(
+            e.as_deref()
+                .is_some_and(|e| e.contains("progress_shaping_gamma")),
+            "{e:?}"
+        );
+        assert!(!dir.exists(), "a refused run leaves no directory");
         spec.env.task.progress_shaping_gamma = spec.ppo.gamma;
         assert!(spec.check().is_ok());
         spec.ppo = PpoConfig::preset("paper").unwrap();

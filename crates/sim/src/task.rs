@@ -140,8 +140,9 @@ crate::documented_params! {
         /// Discount γ_s of the shaping potential, in (0, 1] (choice: 0.99, the `paper` PPO
         /// preset's γ, which the shaping must match to leave the optimal policies unchanged;
         /// 0.9453 with the `published`, `quick` or `smoke` preset or `ppo_gamma = 0.9453`).
-        /// Training refuses a run whose shaping is on with a γ_s other than its PPO γ; the
-        /// fidelity sweep's `progress-shaping` reading sets it to the reading's γ.
+        /// Training, and a study before any work, refuse shaping that is on with a γ_s other
+        /// than the PPO γ; the fidelity sweep's `progress-shaping` reading sets it to the
+        /// reading's γ.
         pub progress_shaping_gamma: f32 = 0.99; "1",
     }
 }

@@ -306,7 +306,7 @@ impl StudyConfig {
             return bad("no models".into());
         }
         self.analysis_config()?;
-        self.env()?;
+        let env = self.env()?;
         for model in self.policies.keys() {
             if !self.models.iter().any(|m| &m.name == model) {
                 return bad(format!(
@@ -350,6 +350,12 @@ impl StudyConfig {
         for m in &self.models {
             if let Some(Err(e)) = self.ppo(&m.spec).map(|p| p.validate()) {
                 return bad(format!("the PPO settings of model `{}`: {e}", m.name));
+            }
+            if let Some(Err(e)) = self
+                .ppo(&m.spec)
+                .map(|p| fishprobe_learn::shaping_matches(&p, &env))
+            {
+                return bad(format!("[task] for model `{}`: {e}", m.name));
             }
         }
         for (f, v) in [
@@ -655,6 +661,20 @@ mod tests {
         let bad: Result<StudyFile, _> =
             serde_json::from_str(r#"{"expensive_fish_budget": {"train_steps": 5000}}"#);
         assert!(bad.is_err());
+    }
+
+    #[test]
+    fn progress_shaping_discounted_otherwise_than_the_ppo_is_refused_before_any_work() {
+        let e = validate_quick(r#"{"task": {"progress_shaping": 1.0}}"#).unwrap_err();
+        assert!(
+            e.contains("[task] for model `Follow`")
+                && e.contains("`env.task.progress_shaping_gamma` = 0.99: differs from the PPO discount gamma = 0.9453"),
+            "{e}"
+        );
+        validate_quick(r#"{"task": {"progress_shaping": 1.0, "progress_shaping_gamma": 0.9453}}"#)
+            .unwrap();
+        // Off, the shaping's discount is inert.
+        validate_quick(r#"{"task": {"progress_shaping_gamma": 0.5}}"#).unwrap();
     }
 
     #[test]
