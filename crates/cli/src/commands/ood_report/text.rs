@@ -138,14 +138,28 @@ fn yardstick_note(r: &OodReport) -> String {
     }
 }
 
+/// A note when the lead-to-goal policy's 95th percentile lies within the support (at most 1,
+/// e.g. 0.74 under an 8-cm partner range): time beyond it is then not yet time beyond the
+/// training data (docs/validation.md, "How long a partner range").
+fn within_support_note(goal_p95: f64) -> &'static str {
+    if goal_p95 <= 1.0 {
+        " That yardstick lies within the support (at most 1): time beyond it is time in \
+         situations rarer than the lead-to-goal policy's, not yet beyond the training data \
+         (the share beyond the support counts those)."
+    } else {
+        ""
+    }
+}
+
 pub(super) fn summary(r: &OodReport, out: &Path) -> String {
     format!(
         "{}\nThe OOD policy's fish spent {} of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}).{} Goals per episode or trial: OOD {}, \
+         policy's 95th-percentile score ({:.2}).{}{} Goals per episode or trial: OOD {}, \
          lead-to-goal {}.{}\n\nData wishlist (record these next):\n{}\nwrote {}\n",
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
+        within_support_note(r.goal_policy_p95),
         yardstick_note(r),
         goals_text(r.goals_per_episode[0]),
         goals_text(r.goals_per_episode[1]),
@@ -201,7 +215,7 @@ pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
          percentile).\n\n\
          ## Support scores\n\n{}\n\
          The OOD policy's fish spent **{}** of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}).{} Goals per episode or trial: OOD policy {}, \
+         policy's 95th-percentile score ({:.2}).{}{} Goals per episode or trial: OOD policy {}, \
          lead-to-goal policy {}.\n\n\
          ![score distributions](ood-scores.png)\n\n\
          ![example episodes](ood-trajectories.png)\n\n\
@@ -216,6 +230,7 @@ pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         distributions_table(r),
         pct(r.ood_share_beyond_goal_p95),
         r.goal_policy_p95,
+        within_support_note(r.goal_policy_p95),
         yardstick_note(r),
         goals_text(r.goals_per_episode[0]),
         goals_text(r.goals_per_episode[1]),
@@ -223,4 +238,14 @@ pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         wishlist_table(r),
         command_line(a),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_yardstick_within_the_support_is_said_to_be() {
+        assert!(super::within_support_note(0.743).contains("lies within the support"));
+        assert!(super::within_support_note(1.0).contains("lies within the support"));
+        assert_eq!(super::within_support_note(1.278), "");
+    }
 }
