@@ -348,13 +348,13 @@ impl StudyConfig {
             ));
         }
         for m in &self.models {
-            if let Some(Err(e)) = self.ppo(&m.spec).map(|p| p.validate()) {
+            let Some(ppo) = self.ppo(&m.spec) else {
+                continue;
+            };
+            if let Err(e) = ppo.validate() {
                 return bad(format!("the PPO settings of model `{}`: {e}", m.name));
             }
-            if let Some(Err(e)) = self
-                .ppo(&m.spec)
-                .map(|p| fishprobe_learn::shaping_matches(&p, &env))
-            {
+            if let Err(e) = fishprobe_learn::shaping_matches(&ppo, &env) {
                 return bad(format!("[task] for model `{}`: {e}", m.name));
             }
         }
