@@ -310,7 +310,7 @@ pub struct WishItem {
     pub situation: String,
     /// Share of the OOD policy's views in this situation and beyond the support (score > 1).
     pub ood_policy_share_beyond: f64,
-    /// Their mean score.
+    /// Their mean score (uncapped: the views' own scores; only the ranking caps them).
     pub mean_score: f64,
     /// Share of the training views in this situation (any score).
     pub training_share: f64,
@@ -331,12 +331,14 @@ pub fn wishlist(
     n: usize,
 ) -> Vec<WishItem> {
     use std::collections::BTreeMap;
-    let mut cells: BTreeMap<[&str; 4], (usize, f64)> = BTreeMap::new();
+    // Per cell: views beyond the support, their capped sum (the ranking) and their sum.
+    let mut cells: BTreeMap<[&str; 4], (usize, f64, f64)> = BTreeMap::new();
     for (score, sit) in ood.scores.iter().zip(&ood.situations) {
         if *score > 1.0 {
             let e = cells.entry(situation_cell(sit)).or_default();
             e.0 += 1;
             e.1 += f64::from(score.min(cap));
+            e.2 += f64::from(*score);
         }
     }
     let share = |src: &SourceScores, cell: &[&str; 4]| {
@@ -349,7 +351,7 @@ pub fn wishlist(
     let total = ood.scores.len().max(1) as f64;
     let mut items: Vec<WishItem> = cells
         .into_iter()
-        .map(|(cell, (count, sum))| {
+        .map(|(cell, (count, capped, sum))| {
             let describe = cell
                 .iter()
                 .filter(|c| **c != "-")
@@ -363,7 +365,7 @@ pub fn wishlist(
                 mean_score: sum / count as f64,
                 training_share: share(training, &cell),
                 goal_policy_share: goal.map(|g| share(g, &cell)),
-                priority: sum / total,
+                priority: capped / total,
             }
         })
         .collect();
@@ -549,7 +551,8 @@ mod tests {
         assert_eq!(w[0].rank, 1);
         assert!(w[0].situation.contains("partner within 3 cm"), "{w:?}");
         assert!((w[0].ood_policy_share_beyond - 0.6).abs() < 1e-12);
-        assert!((w[0].mean_score - 7.0 / 3.0).abs() < 1e-12);
+        // The mean is the views' own (13 / 3); only the ranking caps the 9.
+        assert!((w[0].mean_score - 13.0 / 3.0).abs() < 1e-12);
         assert!((w[0].priority - 7.0 / 5.0).abs() < 1e-12);
         assert!((w[0].training_share - 0.25).abs() < 1e-12);
         assert!((w[1].priority - 0.3).abs() < 1e-12);
