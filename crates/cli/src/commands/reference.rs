@@ -161,7 +161,8 @@ mod tests {
     //! Every number a settings file can hold, set to ±1e30 (or the largest integer): refused,
     //! or named below with the reason its effect stays bounded. A new field without a bound
     //! fails here until it gets one or a reason; a new settings section of [`reference`]
-    //! belongs in the test's list too (the virtual lab's `LabConfig` is not read from a file).
+    //! fails here until the test's list has it too (the virtual lab's `LabConfig` is not read
+    //! from a file).
     use serde::{de::DeserializeOwned, Serialize};
     use serde_json::{json, Map, Value};
 
@@ -284,6 +285,10 @@ mod tests {
         let mut found: Vec<String> = Vec::new();
         let mut sections: Vec<(&str, Map<String, Value>, Check)> = Vec::new();
         let tank = fishprobe_sim::Tank::default();
+        // The environment's own numbers (its sub-sections are checked one by one below).
+        sections.push(plain::<fishprobe_sim::EnvConfig>("env", |p| {
+            p.validate().is_ok()
+        }));
         sections.push(plain::<fishprobe_sim::TankParams>("tank", |p| {
             p.validate("tank").is_ok()
         }));
@@ -340,19 +345,38 @@ mod tests {
         sections.push(plain::<fishprobe_live::session::LiveConfig>("live", |p| {
             p.validate().is_ok()
         }));
-        for model in ["Follow", "Zone", "Force", "Guppy", "Stationary", "ConvNet"] {
-            let base = match serde_json::to_value(
-                serde_json::from_value::<ModelSpec>(json!({ "model": model })).unwrap(),
-            ) {
-                Ok(Value::Object(m)) => m,
-                other => panic!("{other:?}"),
+        for model in [
+            "Follow",
+            "Zone",
+            "Force",
+            "Guppy",
+            "Stationary",
+            "ConvNet",
+            "Onnx",
+        ] {
+            // An ONNX model names its file (validation does not open it).
+            let spec = match model {
+                "Onnx" => json!({ "model": model, "path": "model.onnx" }),
+                _ => json!({ "model": model }),
             };
+            let base =
+                match serde_json::to_value(serde_json::from_value::<ModelSpec>(spec).unwrap()) {
+                    Ok(Value::Object(m)) => m,
+                    other => panic!("{other:?}"),
+                };
             let check = |m: Map<String, Value>| {
                 serde_json::from_value::<ModelSpec>(Value::Object(m))
                     .is_ok_and(|s| s.validate().is_ok())
             };
             sections.push((model, base, Box::new(check)));
         }
+        // Every section of the reference is here, but the virtual lab's (not read from a file).
+        let documented = super::reference().matches("\n### ").count();
+        assert_eq!(
+            sections.len() + 1,
+            documented,
+            "the reference has a settings section this test does not check"
+        );
         for (name, base, check) in &sections {
             assert!(check(base.clone()), "{name}: the defaults are refused");
             found.extend(accepted(name, base, check.as_ref()));
