@@ -129,6 +129,16 @@ impl TankEnv {
         self.support = support;
     }
 
+    /// Draws the fish's noise from now on from streams of `seed` (label `"fish"`, one per fish)
+    /// instead of the episode's: for a planner that steps a clone of the environment to
+    /// imagine futures, so that it knows the fish's state and model but not the noise the real
+    /// episode will draw (`fishprobe-learn`'s `ood_planner` example).
+    pub fn reseed_fish_noise(&mut self, seed: u64) {
+        for (i, r) in self.fish_rngs.iter_mut().enumerate() {
+            *r = stream(seed, "fish", i as u64);
+        }
+    }
+
     /// The validated configuration.
     pub fn config(&self) -> &EnvConfig {
         &self.cfg
