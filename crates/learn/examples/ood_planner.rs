@@ -26,32 +26,13 @@
 //! for the planner. docs/validation.md, "A planner that knows the fish", cites it.
 
 use fishprobe_models::ModelSpec;
-use fishprobe_sim::{
-    derive_seed, wrap_angle, Env, EnvConfig, FishView, InputSupport, Objective, TankEnv,
-};
+use fishprobe_sim::{derive_seed, wrap_angle, Env, EnvConfig, InputSupport, Objective, TankEnv};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-/// The support, counting the views it scores and those at or beyond a threshold.
-#[derive(Debug)]
-struct Counting {
-    inner: Arc<dyn InputSupport>,
-    threshold: f32,
-    /// (views, views at or beyond the threshold)
-    counts: (AtomicU64, AtomicU64),
-}
-
-impl InputSupport for Counting {
-    fn score(&self, view: &FishView) -> f32 {
-        let s = self.inner.score(view);
-        self.counts.0.fetch_add(1, Ordering::Relaxed);
-        if s >= self.threshold {
-            self.counts.1.fetch_add(1, Ordering::Relaxed);
-        }
-        s
-    }
-}
+#[path = "common/counting.rs"]
+mod counting;
+use counting::Counting;
 
 /// The base robot: toward the point 12 cm from the fish, 1.2 rad clockwise beyond the robot's
 /// bearing from it (`ood_scripted`'s `orbit-cw-12-1.2`).
@@ -119,11 +100,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|i| -std::f32::consts::PI + i as f32 * std::f32::consts::TAU / plan.turns as f32)
         .collect();
     for planner in [false, true] {
-        let counting = Arc::new(Counting {
-            inner: support.clone(),
-            threshold: thr,
-            counts: (AtomicU64::new(0), AtomicU64::new(0)),
-        });
+        let counting = Arc::new(Counting::new(support.clone(), thr));
         let started = std::time::Instant::now();
         (0..episodes)
             .into_par_iter()
@@ -160,8 +137,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 Ok(())
             })?;
-        let views = counting.counts.0.load(Ordering::Relaxed).max(1);
-        let beyond = counting.counts.1.load(Ordering::Relaxed);
+        let (views, beyond) = counting.counts();
+        let views = views.max(1);
         println!(
             "{:>36}: views >= {thr}: {:.1} % ({views} views, {:.0} s)",
             if planner {

@@ -43,31 +43,14 @@
 
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{
-    derive_seed, stream, wrap_angle, Env, EnvConfig, FishView, InputSupport, Objective, TankEnv,
+    derive_seed, stream, wrap_angle, Env, EnvConfig, InputSupport, Objective, TankEnv,
 };
 use rand::RngExt;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-/// The model's support, counting the views it scores and those at or beyond a threshold.
-#[derive(Debug)]
-struct Counting {
-    inner: Arc<dyn InputSupport>,
-    threshold: f32,
-    /// (views, views at or beyond the threshold)
-    counts: (AtomicU64, AtomicU64),
-}
-
-impl InputSupport for Counting {
-    fn score(&self, view: &FishView) -> f32 {
-        let s = self.inner.score(view);
-        self.counts.0.fetch_add(1, Ordering::Relaxed);
-        if s >= self.threshold {
-            self.counts.1.fetch_add(1, Ordering::Relaxed);
-        }
-        s
-    }
-}
+#[path = "common/counting.rs"]
+mod counting;
+use counting::Counting;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -130,11 +113,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let pass = pair("pass-");
         let (mut n, mut hi, mut sum) = (0u64, 0u64, 0.0f64);
         let mut scores = Vec::new();
-        let counting = Arc::new(Counting {
-            inner: support.clone(),
-            threshold: thr,
-            counts: (AtomicU64::new(0), AtomicU64::new(0)),
-        });
+        let counting = Arc::new(Counting::new(support.clone(), thr));
         for ep in 0..episodes {
             let mut env = TankEnv::new(cfg.clone(), model.build()?)?;
             env.set_support(Some(counting.clone()));
@@ -200,8 +179,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         scores.sort_by(f32::total_cmp);
-        let views = counting.counts.0.load(Ordering::Relaxed).max(1);
-        let beyond = counting.counts.1.load(Ordering::Relaxed);
+        let (views, beyond) = counting.counts();
+        let views = views.max(1);
         println!(
             "{name:>16}: mean {:.2} median {:.2} p95 {:.2} seconds >= {thr}: {:.1} %, views >= {thr}: {:.1} %",
             sum / n as f64,
