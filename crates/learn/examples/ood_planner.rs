@@ -4,11 +4,11 @@
 //! with the fish model itself.
 //!
 //! ```sh
-//! cargo run --release -p fishprobe-learn --example ood_planner -- EPISODES THRESHOLD MODEL [HORIZON [TURNS [FUTURES]]]
+//! cargo run --release -p fishprobe-learn --example ood_planner -- EPISODES THRESHOLD MODEL [HORIZON [TURNS [FUTURES [SECONDS]]]]
 //! ```
 //!
 //! The episodes are `ood_scripted`'s (41-s training-task episodes, random starts; master seed 0,
-//! label "ood-scripted"), against MODEL (`convnet:FILE` with its support file beside it), every
+//! label "ood-scripted"; SECONDS sets another length, e.g. 300 as `ood-report`'s), against MODEL (`convnet:FILE` with its support file beside it), every
 //! frame scored. Each second the planner tries TURNS turns evenly spread over [-π, π) (default
 //! 12) and the base robot's own turn; for each it steps FUTURES clones of the episode
 //! (default 2) through HORIZON seconds (default 4: the tried turn, then the base robot), each
@@ -88,6 +88,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let support: Arc<dyn InputSupport> = Arc::new(model.support()?);
     let mut cfg = EnvConfig::default();
+    if let Some(seconds) = args.get(6) {
+        cfg.task.training_episode_actions = seconds.parse()?;
+    }
     cfg.task.objective = Objective::Ood;
     cfg.task.ood_score_every_frames = 1;
     // The imagined reward counts views at or beyond the threshold: 1 per view (as a share of
