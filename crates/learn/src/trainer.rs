@@ -61,12 +61,19 @@ impl RunSpec {
     /// reward scores the fish's views against it). `Trainer::create` checks the same; callers
     /// check first so that a refused run leaves no directory behind.
     pub fn check(&self) -> Result<(), LearnError> {
-        self.ppo.validate()?;
-        self.env.validate()?;
-        shaping_matches(&self.ppo, &self.env)?;
+        self.check_settings()?;
         if self.env.task.objective == Objective::Ood {
             self.model.ood_scorer(self.env.task.ood_score)?;
         }
+        Ok(())
+    }
+
+    /// The settings alone (PPO, environment, and the shaping's discount against PPO's), what
+    /// [`RunSpec::check`] and [`Trainer::create`] both check.
+    fn check_settings(&self) -> Result<(), LearnError> {
+        self.ppo.validate()?;
+        self.env.validate()?;
+        shaping_matches(&self.ppo, &self.env)?;
         Ok(())
     }
 
@@ -171,12 +178,10 @@ impl Trainer {
         mut spec: RunSpec,
         model: Arc<dyn FishModel>,
     ) -> Result<Self, LearnError> {
-        spec.ppo.validate()?;
         // A new run is always this trainer's.
         spec.trainer_revision = crate::TRAINER_REVISION;
         spec.env.mode = TaskMode::Training;
-        spec.env.validate()?;
-        shaping_matches(&spec.ppo, &spec.env)?;
+        spec.check_settings()?;
         Self::ensure_new(dir)?;
         let mut t = Self::build(dir, spec, model)?;
         t.venv.reset(derive_seed(t.spec.seed, "envs", 0))?;
