@@ -71,8 +71,11 @@ use std::path::{Path, PathBuf};
 /// the digest was ddf97a88… again). Then fbbf8f3f… until `task.progress_shaping_gamma`'s
 /// default became 0.99, the `paper` PPO preset's new discount, which every trial file records
 /// (issue 20; the smoke preset keeps the published γ, so no trial's motion changed: the
-/// report's digest, over every figure, stayed d6deac52…).
-const GOLDEN: &str = "931be0a2b89df77c";
+/// report's digest, over every figure, stayed d6deac52…). Then 931be0a2… until
+/// `observation.heading_bins` joined the recorded settings (issue 23; inert at its default:
+/// with the key left out of the config JSON the digest was 931be0a2… again, and the report's
+/// stayed d6deac52…).
+const GOLDEN: &str = "4bccb0c8491cd1e8";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…

@@ -785,6 +785,96 @@ fn a_yardstick_from_a_lead_to_goal_policy_sets_the_reward_and_the_report() {
 }
 
 #[test]
+fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_does_not() {
+    let dir = fresh_dir("ood-heading");
+    let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());
+    let good = format!("convnet:{}", s(&weights));
+    let goal_policy = seed_dir.join("policy-goal");
+    let settings = dir.join("heading.toml");
+    std::fs::write(&settings, "[env.observation]\nheading_bins = true\n").unwrap();
+    let run = dir.join("heading-run");
+    // The yardstick policy reads the paper's 180 values, the OOD policy 216: each observes as
+    // it was trained to.
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        &good,
+        "--task",
+        "ood",
+        "--preset",
+        "smoke",
+        "--steps",
+        "500",
+        "--settings",
+        s(&settings),
+        "--ood-yardstick",
+        s(&goal_policy),
+        "--ood-yardstick-episodes",
+        "1",
+        "--ood-yardstick-minutes",
+        "0.5",
+        "--out",
+        s(&run),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("policy.safetensors.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["obs_dim"], 216);
+    assert_eq!(meta["about"]["observation"]["heading_bins"], true);
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&run),
+        "--compare",
+        s(&goal_policy),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&dir.join("report")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Elsewhere a policy runs only with the settings it was trained with: evaluation names
+    // them, and the virtual lab, whose bridge does not offer the headings, refuses it.
+    let o = fishprobe(&[
+        "evaluate",
+        "--policy",
+        s(&run),
+        "--model",
+        "Zone",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&dir.join("eval")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("heading_bins = true (216 floats)"),
+        "{}",
+        stderr(&o)
+    );
+    let o = fishprobe(&[
+        "lab",
+        "--policy",
+        s(&run),
+        "--trials",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&dir.join("lab")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("heading_bins = true"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
 fn the_support_command_checks_its_estimators_and_bad_input_is_refused() {
     let dir = fresh_dir("ood-support");
     let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());

@@ -3,7 +3,7 @@
 use crate::error::LearnError;
 use crate::policy::{to_env_action, GaussianPolicy};
 use fishprobe_nn::MlpWorkspace;
-use fishprobe_sim::{ControlInput, Controller, SimRng};
+use fishprobe_sim::{ControlInput, Controller, ObservationParams, SimRng};
 use rand_distr::{Distribution, StandardNormal};
 use std::path::Path;
 
@@ -17,6 +17,9 @@ pub struct PolicyController {
     name: String,
     description: String,
     fingerprint: String,
+    /// The observation settings it was trained with (its sidecar's `about.observation`;
+    /// absent in policies trained before fishprobe recorded them).
+    observation: Option<ObservationParams>,
     ws: MlpWorkspace,
 }
 
@@ -35,6 +38,7 @@ impl PolicyController {
             stochastic,
             name,
             description,
+            observation: None,
             ws: MlpWorkspace::default(),
         }
     }
@@ -55,7 +59,19 @@ impl PolicyController {
             || dir.display().to_string(),
             |m| format!("{m} (seed {})", meta["about"]["seed"]),
         );
-        Ok(Self::new(policy, stochastic, name, description))
+        let observation = match meta["about"].get("observation") {
+            None => None,
+            Some(o) => Some(serde_json::from_value(o.clone()).map_err(|e| {
+                LearnError::Policy(format!(
+                    "{}: its about.observation is not observation settings: {e}",
+                    dir.display()
+                ))
+            })?),
+        };
+        Ok(Self {
+            observation,
+            ..Self::new(policy, stochastic, name, description)
+        })
     }
 }
 
@@ -74,6 +90,10 @@ impl Controller for PolicyController {
 
     fn check_observation(&self, dim: usize) -> Result<(), String> {
         self.policy.check_obs_dim(dim).map_err(|e| e.to_string())
+    }
+
+    fn trained_observation(&self) -> Option<ObservationParams> {
+        self.observation.clone()
     }
 
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
@@ -158,6 +178,10 @@ impl Controller for Named {
         self.inner.check_observation(dim)
     }
 
+    fn trained_observation(&self) -> Option<ObservationParams> {
+        self.inner.trained_observation()
+    }
+
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
         self.inner.act(input, rng)
     }
@@ -185,5 +209,45 @@ mod tests {
             controller("onnx:/nonexistent/policy.onnx", false),
             Err(LearnError::Policy(_)) | Ok(_)
         ));
+    }
+
+    /// A policy's sidecar records what it reads; the checks tell two 216-float blocks apart,
+    /// and a policy from before the record is taken not to observe headings.
+    #[test]
+    fn a_policy_knows_the_observation_it_was_trained_with() {
+        use fishprobe_sim::{check_controller_observation, controller_observation};
+        let dir = std::env::temp_dir().join(format!("fishprobe-ctl-obs-{}", std::process::id()));
+        let headings = ObservationParams {
+            heading_bins: true,
+            ..ObservationParams::default()
+        };
+        let centroid = ObservationParams {
+            centroid_bins: true,
+            ..ObservationParams::default()
+        };
+        let mut rng = fishprobe_sim::stream(0, "t", 0);
+        let p = GaussianPolicy::new(216, &crate::PpoConfig::default(), &mut rng);
+        let save = |about: serde_json::Value| {
+            p.save(&dir, about).unwrap();
+            PolicyController::load(&dir, false)
+        };
+        let c = save(serde_json::json!({ "observation": headings })).unwrap();
+        assert_eq!(c.trained_observation(), Some(headings.clone()));
+        assert!(check_controller_observation(&c, &headings).is_ok());
+        let e = check_controller_observation(&c, &centroid).unwrap_err();
+        assert!(e.contains("heading_bins = true (216 floats)"), "{e}");
+        assert_eq!(controller_observation(&c, &centroid), headings);
+        // No record: the length alone, and a run's headings are not this policy's.
+        let old = save(serde_json::json!({})).unwrap();
+        assert_eq!(old.trained_observation(), None);
+        assert!(check_controller_observation(&old, &centroid).is_ok());
+        assert_eq!(
+            controller_observation(&old, &headings),
+            ObservationParams::default()
+        );
+        // A record that is not observation settings is refused by name.
+        let e = save(serde_json::json!({ "observation": "216" })).unwrap_err();
+        assert!(e.to_string().contains("about.observation"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

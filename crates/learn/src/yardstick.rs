@@ -188,9 +188,12 @@ pub fn measure(
         OodScore::Disagreement => Scorer::Ensemble(model.disagreement()?),
     };
     let c = load(policy)?;
+    // The yardstick policy observes as it was trained to (the OOD run may observe headings).
+    let mut yardstick_env = env.clone();
+    yardstick_env.observation = fishprobe_sim::controller_observation(c.as_ref(), &env.observation);
     let e = Evaluation {
         model: model.clone(),
-        env: env.clone(),
+        env: yardstick_env,
         episodes: config.episodes,
         minutes: config.minutes,
         seed: config.seed,

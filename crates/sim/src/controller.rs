@@ -24,6 +24,7 @@
 
 use crate::agent::AgentState;
 use crate::geometry::wrap_angle;
+use crate::observation::ObservationParams;
 use crate::rng::SimRng;
 
 /// What a controller is given each second.
@@ -62,9 +63,55 @@ pub trait Controller: Send + Sync + ControllerClone {
         let _ = dim;
         Ok(())
     }
+    /// The observation settings the controller was trained with, where it knows them (a
+    /// policy trained by fishprobe records them); `None`: only the length can be checked.
+    /// Two opt-in blocks of the same length (`centroid_bins`, `heading_bins`) are told apart
+    /// only by these.
+    fn trained_observation(&self) -> Option<ObservationParams> {
+        None
+    }
     /// The turn for this second. `rng` is the episode's action stream, for controllers that
     /// sample.
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32;
+}
+
+/// Checks that `c` reads the observation `obs` encodes: its length, and the opt-in blocks where
+/// `c` knows what it was trained with (a 216-float policy trained with the fish's headings must
+/// not be given the group's centroid).
+pub fn check_controller_observation(
+    c: &dyn Controller,
+    obs: &ObservationParams,
+) -> Result<(), String> {
+    match c.trained_observation() {
+        Some(t) if (t.centroid_bins, t.heading_bins) != (obs.centroid_bins, obs.heading_bins) => {
+            Err(format!(
+                "{} was trained with observation.centroid_bins = {} and heading_bins = {} \
+                 ({} floats); it is given centroid_bins = {} and heading_bins = {} ({} floats): \
+                 run it with the observation settings it was trained with",
+                c.describe(),
+                t.centroid_bins,
+                t.heading_bins,
+                t.size(),
+                obs.centroid_bins,
+                obs.heading_bins,
+                obs.size()
+            ))
+        }
+        _ => c.check_observation(obs.size()),
+    }
+}
+
+/// What `c` observes in a run whose policy observes `run`: the settings `c` was trained with
+/// where it records them, else `run` without the fish's headings (a controller that records
+/// nothing, an ONNX or Python policy or one trained before fishprobe recorded its settings,
+/// cannot have been trained with that block). A lead-to-goal yardstick or comparison policy
+/// of an OOD run that observes headings is run as it was trained.
+pub fn controller_observation(c: &dyn Controller, run: &ObservationParams) -> ObservationParams {
+    c.trained_observation()
+        .unwrap_or_else(|| ObservationParams {
+            heading_bins: false,
+            ..run.clone()
+        })
 }
 
 /// A fresh copy of a controller for another episode or thread (implemented for every

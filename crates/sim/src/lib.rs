@@ -50,8 +50,8 @@ pub mod vector;
 pub use agent::AgentState;
 pub use checker::{check_env, CheckFailure, CheckReport};
 pub use controller::{
-    scripted, ControlInput, Controller, ControllerClone, FetchAndLead, FetchParams, GoalSeeker,
-    RandomTurns, SCRIPTED, SCRIPTED_ALL,
+    check_controller_observation, controller_observation, scripted, ControlInput, Controller,
+    ControllerClone, FetchAndLead, FetchParams, GoalSeeker, RandomTurns, SCRIPTED, SCRIPTED_ALL,
 };
 pub use env::{
     BoxSpace, Env, EnvConfig, EnvSnapshot, EpisodeSummary, RecordedCommand, StartPoses, StepInfo,

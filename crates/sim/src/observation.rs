@@ -24,6 +24,16 @@ crate::documented_params! {
         /// bin). A policy trained with it must be evaluated with it (a study file and the live
         /// bridge's settings have the same switch).
         pub centroid_bins: bool = false; "-",
+        /// The fish's headings (issue 23's investigation, a documented extension; choice: off,
+        /// the paper's observation): a further block of `sectors` bins, after the centroid's if
+        /// that is on, in which each fish marks the sector its heading points to, relative to
+        /// the robot's heading, with its intensity (the nearest fish per sector wins). The
+        /// paper's observation shows where the fish is, now and a second ago, not where it is
+        /// going; the OOD task's planner showed that the heading is what a robot needs to
+        /// pass the fish in the way its model has not seen. A policy trained with it must be
+        /// evaluated with it: fishprobe's own evaluation reads the run's settings; the live
+        /// bridge and the study do not offer it (they refuse such a policy by its size).
+        pub heading_bins: bool = false; "-",
     }
 }
 
@@ -46,9 +56,11 @@ impl ObservationParams {
         )
     }
 
-    /// Length of the observation vector: 5 blocks of `sectors` (6 with `centroid_bins`).
+    /// Length of the observation vector: 5 blocks of `sectors`, one more with
+    /// `centroid_bins` and one more with `heading_bins`.
     pub fn size(&self) -> usize {
-        (5 + usize::from(self.centroid_bins)) * self.sectors as usize
+        (5 + usize::from(self.centroid_bins) + usize::from(self.heading_bins))
+            * self.sectors as usize
     }
 }
 
@@ -75,6 +87,8 @@ pub struct ObservationEncoder {
     rays: Vec<[f32; 2]>,
     /// Whether a sixth block holds the fish's centroid.
     centroid: bool,
+    /// Whether a further block holds the fish's headings.
+    heading: bool,
 }
 
 impl ObservationEncoder {
@@ -94,12 +108,13 @@ impl ObservationEncoder {
             far: p.far_plane_cm,
             rays,
             centroid: p.centroid_bins,
+            heading: p.heading_bins,
         }
     }
 
     /// Observation length.
     pub fn size(&self) -> usize {
-        (5 + usize::from(self.centroid)) * self.n
+        (5 + usize::from(self.centroid) + usize::from(self.heading)) * self.n
     }
 
     /// Sectors per block.
@@ -131,7 +146,8 @@ impl ObservationEncoder {
         } = scene;
         let n = self.n;
         debug_assert_eq!(out.len(), self.size());
-        let (out, centroid_block) = out.split_at_mut(5 * n);
+        let (out, extra) = out.split_at_mut(5 * n);
+        let (centroid_block, heading_block) = extra.split_at_mut(n * usize::from(self.centroid));
         debug_assert_eq!(prev.len(), 2 * n);
         let (sin_h, cos_h) = robot.heading.sin_cos();
         let (walls, rest) = out.split_at_mut(n);
@@ -157,6 +173,16 @@ impl ObservationEncoder {
                 let k = fish.len() as f32;
                 let (sx, sy) = fish.iter().fold((0.0, 0.0), |(x, y), f| (x + f.x, y + f.y));
                 self.mark(robot, sx / k, sy / k, sin_h, cos_h, centroid_block);
+            }
+        }
+        if self.heading {
+            heading_block.fill(0.0);
+            for f in fish {
+                let i = self.sector_of(f.heading - robot.heading);
+                let v = self.intensity((f.x - robot.x).hypot(f.y - robot.y));
+                if v > heading_block[i] {
+                    heading_block[i] = v;
+                }
             }
         }
     }
@@ -256,6 +282,55 @@ mod tests {
         let mut out2 = vec![0.0; 180];
         plain.encode(scene, &mut prev2, true, &mut out2);
         assert_eq!(&out[..180], &out2[..]);
+    }
+
+    #[test]
+    fn the_heading_block_marks_where_each_fish_points_and_follows_the_centroid() {
+        let tank = Tank::default();
+        // The robot faces +y; a fish 10 cm to its right heads 5° left of the robot's heading
+        // (sector 18, [0°, 10°)), one 30 cm ahead 95° left (sector 27), and one farther away
+        // heads as the first: the nearer fish's intensity wins.
+        let robot = AgentState::at(0.0, 0.0, PI / 2.0);
+        let deg = |d: f32| d.to_radians();
+        let fish = [
+            AgentState::at(10.0, 0.0, deg(95.0)),
+            AgentState::at(0.0, 30.0, deg(185.0)),
+            AgentState::at(-40.0, 0.0, deg(95.0)),
+        ];
+        let scene = Scene {
+            tank: &tank,
+            robot: &robot,
+            fish: &fish,
+            goal: [0.0, -30.0],
+        };
+        let d = 141.421_36f32;
+        for centroid_bins in [false, true] {
+            let p = ObservationParams {
+                centroid_bins,
+                heading_bins: true,
+                ..ObservationParams::default()
+            };
+            let size = if centroid_bins { 252 } else { 216 };
+            assert_eq!(p.size(), size);
+            let enc = ObservationEncoder::new(&p);
+            assert_eq!(enc.size(), size);
+            let mut prev = vec![0.0; 72];
+            let mut out = vec![0.0; size];
+            enc.encode(scene, &mut prev, true, &mut out);
+            let heading = &out[size - 36..];
+            assert_eq!(heading.iter().filter(|&&v| v > 0.0).count(), 2);
+            assert!((heading[18] - (1.0 - 10.0 / d)).abs() < 1e-6, "{heading:?}");
+            assert!((heading[27] - (1.0 - 30.0 / d)).abs() < 1e-6, "{heading:?}");
+            // The paper's 180 values and the centroid block are unchanged by the extension.
+            let q = ObservationParams {
+                heading_bins: false,
+                ..p
+            };
+            let mut prev2 = vec![0.0; 72];
+            let mut out2 = vec![0.0; q.size()];
+            ObservationEncoder::new(&q).encode(scene, &mut prev2, true, &mut out2);
+            assert_eq!(&out[..size - 36], &out2[..]);
+        }
     }
 
     #[test]

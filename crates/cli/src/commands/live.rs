@@ -142,9 +142,11 @@ fn pilot_factory(
         centroid_bins: live.centroid_bins,
         ..fishprobe_sim::ObservationParams::default()
     };
-    c.check_observation(obs.size())
+    // The live bridge offers the paper's observation and the centroid's block, not the
+    // fish's headings (`heading_bins`): such a policy is refused here.
+    fishprobe_sim::check_controller_observation(c.as_ref(), &obs)
         .map_err(anyhow::Error::msg)
-        .context("the policy's observation size")?;
+        .context("the policy's observation")?;
     Ok(move || Ok(c.boxed_clone()))
 }
 

@@ -309,9 +309,14 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         let run = match src {
             Source::Recorded(files) => recorded_run(&support, label, files)?,
             Source::Simulated(c) => {
+                // Each policy observes as it was trained to (an opt-in block such as
+                // `heading_bins` on one side only).
+                let mut env = env.clone();
+                env.observation =
+                    fishprobe_sim::controller_observation(c.as_ref(), &env.observation);
                 let e = Evaluation {
                     model: model.clone(),
-                    env: env.clone(),
+                    env,
                     episodes: a.episodes,
                     minutes: a.minutes,
                     seed: a.seed,

@@ -35,6 +35,8 @@ impl Trainer {
             "preset": self.spec.preset,
             "iteration": self.iteration,
             "timesteps": self.timesteps,
+            // What the policy reads: evaluation, the yardstick and the live bridge check it.
+            "observation": self.spec.env.observation,
             "program_version": env!("CARGO_PKG_VERSION"),
         })
     }
