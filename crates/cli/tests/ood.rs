@@ -836,6 +836,19 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
         s(&dir.join("report")),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // The approach assay observes its still fish as the policy records.
+    let o = fishprobe(&[
+        "assay",
+        "approach",
+        "--policy",
+        s(&run),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.2",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
     // Elsewhere a policy runs only with the settings it was trained with: evaluation names
     // them, and the virtual lab, whose bridge does not offer the headings, refuses it.
     let o = fishprobe(&[

@@ -29,10 +29,11 @@ crate::documented_params! {
         /// that is on, in which each fish marks the sector its heading points to, relative to
         /// the robot's heading, with its intensity (the nearest fish per sector wins). The
         /// paper's observation shows where the fish is, now and a second ago, not where it is
-        /// going; the OOD task's planner showed that the heading is what a robot needs to
-        /// pass the fish in the way its model has not seen. A policy trained with it must be
-        /// evaluated with it: fishprobe's own evaluation reads the run's settings; the live
-        /// bridge and the study do not offer it (they refuse such a policy by its size).
+        /// going, which a robot needs to pass the fish in ways its model has not seen (the OOD
+        /// task: docs/guide/ood.md). A policy records its observation settings and is run
+        /// only with them: `evaluate` refuses others by name, an OOD run's yardstick and
+        /// `ood-report`'s comparison policy observe as they were trained, and the live bridge,
+        /// which does not offer this block, refuses such a policy.
         pub heading_bins: bool = false; "-",
     }
 }

@@ -69,15 +69,19 @@ pub fn run(a: AssayArgs) -> Result<()> {
     let c = super::policy_controller(&a.policy, a.stochastic)?;
     // The still fish is observed as the policy was trained to observe: with the group's
     // centroid bins (issue 22) when it takes those, as a study's approach step does.
-    let mut obs = fishprobe_sim::ObservationParams::default();
-    let centroid_bins = match c.check_observation(obs.size()) {
-        Ok(()) => false,
-        Err(why) => {
-            obs.centroid_bins = true;
-            if c.check_observation(obs.size()).is_err() {
-                bail!("--policy {}: {why}", a.policy);
+    // A policy that records its observation settings is given them; for one that records
+    // none (ONNX, or trained before fishprobe recorded them) the length tells.
+    let obs = match c.trained_observation() {
+        Some(t) => t,
+        None => {
+            let mut obs = fishprobe_sim::ObservationParams::default();
+            if let Err(why) = c.check_observation(obs.size()) {
+                obs.centroid_bins = true;
+                if c.check_observation(obs.size()).is_err() {
+                    bail!("--policy {}: {why}", a.policy);
+                }
             }
-            true
+            obs
         }
     };
     let temporary = a.out.is_none();
@@ -93,7 +97,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
         // Another assay's episodes there would be overwritten in part and mixed with these.
         fishprobe_learn::evaluate::check_fresh_output(&out, &e.prefix)?;
     }
-    e.env.observation.centroid_bins = centroid_bins;
+    e.env.observation = obs;
     let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
     let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
     let r = assay_files(&files, &cfg).map_err(anyhow::Error::msg)?;
