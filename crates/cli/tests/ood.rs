@@ -850,7 +850,7 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     // Elsewhere a policy runs only with the settings it was trained with: evaluation names
-    // them, and the virtual lab, whose bridge does not offer the headings, refuses it.
+    // them, and the virtual lab refuses it unless its settings give the headings.
     let o = fishprobe(&[
         "evaluate",
         "--policy",
@@ -869,22 +869,31 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
         "{}",
         stderr(&o)
     );
-    let o = fishprobe(&[
-        "lab",
-        "--policy",
-        s(&run),
-        "--trials",
-        "1",
-        "--minutes",
-        "0.1",
-        "--out",
-        s(&dir.join("lab")),
-    ]);
+    let lab = |extra: Option<&str>, out: &str| {
+        let mut args = vec![
+            "lab",
+            "--policy",
+            s(&run),
+            "--trials",
+            "1",
+            "--minutes",
+            "0.1",
+            "--out",
+        ];
+        let out = dir.join(out);
+        args.push(s(&out));
+        args.extend(extra);
+        fishprobe(&args)
+    };
+    let o = lab(None, "lab-refused");
     assert!(
         !o.status.success() && stderr(&o).contains("heading_bins = true"),
         "{}",
         stderr(&o)
     );
+    // The bridge observes the tracked headings when its settings say so.
+    let o = lab(Some("--heading-bins"), "lab");
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 #[test]

@@ -41,6 +41,11 @@ fishprobe_sim::documented_params! {
         /// `observation.centroid_bins` of the environment settings; choice: off, the paper's
         /// 180). Must match how the policy was trained.
         pub centroid_bins: bool = false; "-",
+        /// The policy's observation has the fish's headings' bins (`observation.heading_bins`
+        /// of the environment settings, issue 23's OOD task; choice: off, the paper's
+        /// observation), from the headings of the tracker's frames. Must match how the policy
+        /// was trained.
+        pub heading_bins: bool = false; "-",
     }
 }
 
@@ -213,6 +218,7 @@ impl Session {
         let tank = Tank::new(&TankParams::default());
         let encoder = ObservationEncoder::new(&ObservationParams {
             centroid_bins: cfg.centroid_bins,
+            heading_bins: cfg.heading_bins,
             ..ObservationParams::default()
         });
         let n = encoder.size();

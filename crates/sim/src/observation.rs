@@ -32,8 +32,8 @@ crate::documented_params! {
         /// going, which a robot needs to pass the fish in ways its model has not seen (the OOD
         /// task: docs/guide/ood.md). A policy records its observation settings and is run
         /// only with them: `evaluate` refuses others by name, an OOD run's yardstick and
-        /// `ood-report`'s comparison policy observe as they were trained, and the live bridge,
-        /// which does not offer this block, refuses such a policy.
+        /// `ood-report`'s comparison policy observe as they were trained, and the live bridge
+        /// runs such a policy only with its own `heading_bins` (`fishprobe lab --heading-bins`).
         pub heading_bins: bool = false; "-",
     }
 }

@@ -130,6 +130,10 @@ pub struct LabArgs {
     /// bridge only).
     #[arg(long)]
     centroid_bins: bool,
+    /// The policy was trained with `observation.heading_bins`, the fish's headings (216
+    /// values, 252 with the centroid; in-process bridge only).
+    #[arg(long)]
+    heading_bins: bool,
 }
 
 fn pilot_factory(
@@ -140,10 +144,10 @@ fn pilot_factory(
     let c = controller(policy, false).with_context(|| format!("loading policy {policy}"))?;
     let obs = fishprobe_sim::ObservationParams {
         centroid_bins: live.centroid_bins,
+        heading_bins: live.heading_bins,
         ..fishprobe_sim::ObservationParams::default()
     };
-    // The live bridge offers the paper's observation and the centroid's block, not the
-    // fish's headings (`heading_bins`): such a policy is refused here.
+    // A policy trained with other blocks than the bridge's settings give is refused by name.
     fishprobe_sim::check_controller_observation(c.as_ref(), &obs)
         .map_err(anyhow::Error::msg)
         .context("the policy's observation")?;
@@ -301,6 +305,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
     }
     live.fish_count = a.fish;
     live.centroid_bins = a.centroid_bins;
+    live.heading_bins = a.heading_bins;
     live.validate()?;
     if a.trials == 0 || a.trials > MAX_LAB_TRIALS {
         bail!(
