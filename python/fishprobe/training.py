@@ -42,7 +42,9 @@ def train(
         preset: ``"paper"``, ``"published"``, ``"quick"`` or ``"smoke"`` (see ``fishprobe train
             --help``).
         seed: master seed; the same seed gives the same policy.
-        steps: environment steps (overrides the preset's).
+        steps: environment steps (overrides the preset's). With ``resume=True``: raises the
+            run's budget to this many, so that a finished run trains on (it ends where a run
+            of this many steps from the start ends; a lower budget is refused).
         settings: environment settings dict (``env`` table of a settings file).
         ppo: PPO settings overriding the preset's, by field (``{"num_sgd_iter": 10}``).
         resume: continue the run in ``out`` from its last checkpoint (pass the same model).

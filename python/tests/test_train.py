@@ -45,6 +45,22 @@ def test_train_against_a_python_model_and_resume(tmp_path):
         fishprobe.train(Attractor(), out, resume=True, callback=None)
 
 
+def test_a_finished_run_given_more_steps_ends_as_the_longer_run(tmp_path):
+    """resume=True with steps raises a run's budget: it trains on, to the policy of a run of
+    that many steps from the start, byte for byte; a lower budget is refused."""
+    whole, short = tmp_path / "whole", tmp_path / "short"
+    fishprobe.train("Zone", whole, preset="smoke", seed=3, steps=2048, callback=None)
+    fishprobe.train("Zone", short, preset="smoke", seed=3, steps=1024, callback=None)
+    seen = []
+    fishprobe.train("Zone", short, resume=True, steps=2048, callback=seen.append)
+    assert seen and seen[0]["timesteps"] > 1024 and seen[-1]["timesteps"] >= 2048
+    assert json.loads((short / "params.json").read_text())["ppo"]["total_timesteps"] == 2048
+    assert (short / "policy.safetensors").read_bytes() == (
+        whole / "policy.safetensors").read_bytes()
+    with pytest.raises(RuntimeError, match="can only raise it"):
+        fishprobe.train("Zone", short, resume=True, steps=1024, callback=None)
+
+
 def test_interrupted_training_resumes_where_it_stopped(tmp_path):
     class Stop(Exception):
         pass

@@ -192,6 +192,65 @@ fn a_killed_run_resumes_to_the_same_result() {
 }
 
 #[test]
+fn a_finished_run_resumed_with_more_steps_trains_on_to_the_longer_runs_policy() {
+    let d = fresh_dir("raise");
+    let (long, short) = (d.join("long"), d.join("short"));
+    let train = |out: &Path, steps: &str, more: &[&str]| {
+        let mut a = vec![
+            "train", "--model", "Zone", "--preset", "smoke", "--seed", "5",
+        ];
+        a.extend(["--steps", steps, "--out", out.to_str().unwrap()]);
+        a.extend(more);
+        fishprobe(&a)
+    };
+    for (out, steps) in [(&long, "8192"), (&short, "4096")] {
+        let o = train(out, steps, &[]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let o = train(&short, "8192", &["--resume"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("raising the run's budget from 4096 to 8192 steps (params.json)")
+            && stdout(&o).contains("for 8192 steps (8 iterations)"),
+        "{}{}",
+        stderr(&o),
+        stdout(&o)
+    );
+    assert_eq!(
+        std::fs::read(long.join("policy.safetensors")).unwrap(),
+        std::fs::read(short.join("policy.safetensors")).unwrap(),
+        "4096 steps raised to 8192 differ from 8192 steps"
+    );
+    assert_eq!(
+        progress_without_times(&long),
+        progress_without_times(&short)
+    );
+    // A lower budget is refused, naming both, and leaves the run as it was.
+    let policy = std::fs::read(short.join("policy.safetensors")).unwrap();
+    let o = train(&short, "4096", &["--resume"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains(
+            "the run's budget is 8192 steps, and resuming can only raise it, not lower it to 4096"
+        ),
+        "{}",
+        stderr(&o)
+    );
+    let o = train(&short, "99999999999999", &["--resume"]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("total_timesteps"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        std::fs::read(short.join("policy.safetensors")).unwrap(),
+        policy
+    );
+    let params = std::fs::read_to_string(short.join("params.json")).unwrap();
+    assert!(params.contains("\"total_timesteps\": 8192"), "{params}");
+}
+
+#[test]
 fn evaluate_export_and_simulate_a_trained_policy() {
     let d = fresh_dir("eval");
     let run = d.join("run");

@@ -257,6 +257,54 @@ impl Trainer {
         Self::resume_spec(dir, Self::recorded_spec(dir)?, model, build)
     }
 
+    /// Raises the step budget of the run in `dir` to `total_timesteps`, in its `params.json`,
+    /// so that the next [`Trainer::resume`] trains on to it: how a finished run is given more
+    /// steps. Returns the budget it had.
+    ///
+    /// At a constant learning rate nothing a run computes depends on its budget but when it
+    /// stops, so a run raised from N to M steps ends exactly where a run of M steps from the
+    /// start ends, and `params.json`, recording M, stays true. What makes that false is
+    /// refused: a lower budget (the run may have trained past it; start a new run), a run
+    /// of another trainer revision ([`RunSpec::check_revision`]), and a learning-rate
+    /// schedule (`lr_final`), which anneals over the budget and so would have taken other
+    /// rates for the steps already done. The caller holds the directory's lock.
+    pub fn raise_budget(dir: &Path, total_timesteps: u64) -> Result<u64, LearnError> {
+        let mut spec = Self::recorded_spec(dir)?;
+        spec.check_revision(dir)?;
+        let params = dir.join("params.json");
+        let had = spec.ppo.total_timesteps;
+        if total_timesteps == had {
+            return Ok(had);
+        }
+        if total_timesteps < had {
+            return Err(run_err(
+                &params,
+                format!(
+                    "the run's budget is {had} steps, and resuming can only raise it, not lower \
+                     it to {total_timesteps} (the run may have trained past that): train a new \
+                     run with --steps {total_timesteps} instead"
+                ),
+            ));
+        }
+        if let Some(end) = spec.ppo.lr_final {
+            return Err(run_err(
+                &params,
+                format!(
+                    "the run anneals its learning rate from {} to {end} over its {had} steps \
+                     (`lr_final`), so a budget of {total_timesteps} would have given the steps \
+                     already taken other rates: train a new run with --steps {total_timesteps} \
+                     instead",
+                    spec.ppo.lr
+                ),
+            ));
+        }
+        spec.ppo.total_timesteps = total_timesteps;
+        spec.ppo.validate()?;
+        let text = serde_json::to_string_pretty(&spec).map_err(|e| run_err(&params, e))?;
+        write_atomic(&params, text.as_bytes())?;
+        Ok(had)
+    }
+
     /// The settings `dir`'s `params.json` records.
     pub fn recorded_spec(dir: &Path) -> Result<RunSpec, LearnError> {
         let params = dir.join("params.json");
@@ -547,6 +595,82 @@ mod tests {
         let params = std::fs::read_to_string(dir("constant").join("params.json")).unwrap();
         assert!(!params.contains("lr_final"), "{params}");
         for tag in ["whole", "cut", "constant"] {
+            let _ = std::fs::remove_dir_all(dir(tag));
+        }
+    }
+
+    #[test]
+    fn a_finished_run_given_more_steps_ends_where_the_longer_run_ends() {
+        let dir = |tag: &str| {
+            std::env::temp_dir().join(format!("fishprobe-raise-{tag}-{}", std::process::id()))
+        };
+        let budget =
+            |n: u64| move |p: &mut PpoConfig| p.total_timesteps = n * p.train_batch_size as u64;
+        let whole = smoke_run_with(&dir("whole"), 4, budget(4));
+        assert!(whole.done());
+        let short = smoke_run_with(&dir("short"), 2, budget(2));
+        assert!(short.done());
+        let (had, four) = (
+            short.spec().ppo.total_timesteps,
+            whole.spec().ppo.total_timesteps,
+        );
+        drop(short);
+        assert_eq!(Trainer::raise_budget(&dir("short"), four).unwrap(), had);
+        let mut raised = Trainer::resume(&dir("short"), "test").unwrap();
+        assert_eq!(
+            (raised.iteration(), raised.spec().ppo.total_timesteps),
+            (2, four)
+        );
+        while !raised.done() {
+            raised.iterate().unwrap();
+        }
+        assert_eq!(raised.policy().pi.params(), whole.policy().pi.params());
+        assert_eq!(raised.policy().vf.params(), whole.policy().vf.params());
+        assert!(raised.spec().same_run(whole.spec()));
+        drop(raised);
+        // The same budget again changes nothing; a lower one is refused and leaves the file.
+        let before = std::fs::read(dir("short").join("params.json")).unwrap();
+        assert_eq!(Trainer::raise_budget(&dir("short"), four).unwrap(), four);
+        let e = Trainer::raise_budget(&dir("short"), had)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(&format!("the run's budget is {four} steps"))
+                && e.contains(&format!("--steps {had} instead")),
+            "{e}"
+        );
+        let e = Trainer::raise_budget(&dir("short"), u64::MAX)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("total_timesteps"), "{e}");
+        assert_eq!(
+            std::fs::read(dir("short").join("params.json")).unwrap(),
+            before
+        );
+        // A schedule over the budget is refused: the steps taken would have had other rates.
+        drop(smoke_run_with(&dir("anneal"), 1, |p| {
+            budget(1)(p);
+            p.lr_final = Some(0.0);
+        }));
+        let e = Trainer::raise_budget(&dir("anneal"), four)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("anneals its learning rate") && e.contains("lr_final"),
+            "{e}"
+        );
+        // So is a run of another trainer revision, as resuming it is.
+        let params = dir("whole").join("params.json");
+        let text = std::fs::read_to_string(&params).unwrap().replace(
+            &format!("\"trainer_revision\": {}", crate::TRAINER_REVISION),
+            "\"trainer_revision\": 1",
+        );
+        std::fs::write(&params, text).unwrap();
+        let e = Trainer::raise_budget(&dir("whole"), 2 * four)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("started by trainer revision 1"), "{e}");
+        for tag in ["whole", "short", "anneal"] {
             let _ = std::fs::remove_dir_all(dir(tag));
         }
     }

@@ -168,6 +168,11 @@ fn train(
             Some(_) => resolved.model.clone(),
             None => recorded.model.build().map_err(model_err)?,
         };
+        // `steps` raises a resumed run's budget (a finished run trains on), as `train
+        // --resume --steps` does.
+        if let Some(steps) = steps {
+            Trainer::raise_budget(&out, steps).map_err(learn_err)?;
+        }
         Trainer::resume_with_model(&out, model, PY_BUILD).map_err(learn_err)?
     } else {
         // (Checked above unless the run's params.json vanished since.)

@@ -35,10 +35,12 @@ pub struct TrainArgs {
     /// network).
     #[arg(long, default_value = "paper")]
     preset: String,
-    /// Override the number of environment steps.
+    /// Override the number of environment steps. With --resume: raise the run's budget to
+    /// this many, so that a finished run trains on (it then ends where a run of this many
+    /// steps from the start ends; a lower budget is refused).
     #[arg(long)]
     steps: Option<u64>,
-    /// Continue the run in --out from its last checkpoint.
+    /// Continue the run in --out from its last checkpoint (with --steps, past its budget).
     #[arg(long)]
     resume: bool,
     /// Settings file for the environment and fish (see `fishprobe config show`).
@@ -232,13 +234,19 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let mut trainer = if resuming(&a) {
         if a.model.is_some()
             || a.settings.is_some()
-            || a.steps.is_some()
             || a.ppo.is_some()
             || a.task.is_some()
             || a.ood_goal_weight.is_some()
             || a.ood_yardstick.is_some()
         {
-            say!("note: --resume continues the run as params.json records it; --model, --settings, --steps, --ppo, --task, --ood-goal-weight and --ood-yardstick are ignored");
+            say!("note: --resume continues the run as params.json records it; --model, --settings, --ppo, --task, --ood-goal-weight and --ood-yardstick are ignored");
+        }
+        if let Some(steps) = a.steps {
+            let had = Trainer::raise_budget(&a.out, steps)
+                .with_context(|| format!("raising the budget of {}", a.out.display()))?;
+            if had != steps {
+                say!("raising the run's budget from {had} to {steps} steps (params.json)");
+            }
         }
         let t = Trainer::resume(&a.out, super::BUILD)
             .with_context(|| format!("resuming {}", a.out.display()))?;
