@@ -6,6 +6,7 @@ use fishprobe_io::{read_trial, TrialFile};
 use fishprobe_models::disagreement::Disagreement;
 use fishprobe_models::support::{Situation, SupportModel};
 use fishprobe_sim::{AgentState, Tank, TankParams};
+use rand::{Rng, RngExt};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -20,6 +21,9 @@ pub struct SourceScores {
     pub scores: Vec<f32>,
     /// Situations.
     pub situations: Vec<Situation>,
+    /// Where each trial's views end in `scores` (exclusive), one entry per trial file, in
+    /// the files' order; empty for views that are not from trials (training recordings).
+    pub episode_ends: Vec<usize>,
 }
 
 /// One scored view of a fish in a trial.
@@ -119,6 +123,7 @@ pub fn disagreement_of_trials(
         .collect::<Result<_, _>>()?;
     Ok(SourceScores {
         label: label.into(),
+        episode_ends: ends(parts.iter().map(Vec::len)),
         scores: parts.concat(),
         situations: Vec::new(),
     })
@@ -143,6 +148,7 @@ pub fn disagreement_of_views(
             .map(|i| d.score_view(&views[i * len..(i + 1) * len]))
             .collect(),
         situations: Vec::new(),
+        episode_ends: Vec::new(),
     }
 }
 
@@ -185,8 +191,18 @@ pub fn score_recorded(
             s.scores.push(v.score);
             s.situations.push(v.situation);
         }
+        s.episode_ends.push(s.scores.len());
     }
     Ok((s, goals))
+}
+
+/// Running sums of `lens`: where each part ends when the parts are concatenated.
+fn ends(lens: impl Iterator<Item = usize>) -> Vec<usize> {
+    lens.scan(0, |end, n| {
+        *end += n;
+        Some(*end)
+    })
+    .collect()
 }
 
 /// Views given as M_ConvNet inputs (`n x view_len`, e.g. a training dataset), at most `max`
@@ -209,6 +225,7 @@ pub fn score_views(support: &SupportModel, label: &str, views: &[f32], max: usiz
         label: label.into(),
         scores,
         situations,
+        episode_ends: Vec::new(),
     }
 }
 
@@ -221,6 +238,57 @@ pub fn quantile(v: &[f32], q: f64) -> f64 {
 /// Share of `v` at or above `threshold`.
 pub fn share_at_least(v: &[f32], threshold: f64) -> f64 {
     v.iter().filter(|&&x| f64::from(x) >= threshold).count() as f64 / v.len().max(1) as f64
+}
+
+/// How sure a share beyond a yardstick is: the percentile-bootstrap interval, at `level`
+/// (e.g. 0.95), of [`share_at_least`]`(ood, quantile(goal, q))` over episodes. Each of `reps`
+/// replicates draws, with replacement, as many episodes of each source as it has, measures
+/// the yardstick (the `q`-quantile) on the drawn lead-to-goal episodes and the share on the
+/// drawn OOD ones: episodes are the independent units, not views (a view is much like the
+/// next, 25 of them a second), and the yardstick is as uncertain as the share. `None` when a
+/// source has fewer than two episodes ([`SourceScores::episode_ends`]) or `reps` is 0.
+pub fn share_beyond_interval<R: Rng>(
+    ood: &SourceScores,
+    goal: &SourceScores,
+    q: f64,
+    reps: usize,
+    level: f64,
+    rng: &mut R,
+) -> Option<[f64; 2]> {
+    let episodes = |s: &SourceScores| -> Vec<Vec<f64>> {
+        let mut start = 0;
+        s.episode_ends
+            .iter()
+            .map(|&end| {
+                let mut e: Vec<f64> = s.scores[start..end].iter().map(|&x| f64::from(x)).collect();
+                e.sort_unstable_by(f64::total_cmp);
+                start = end;
+                e
+            })
+            .collect()
+    };
+    let (ood, goal) = (episodes(ood), episodes(goal));
+    if ood.len() < 2 || goal.len() < 2 || reps == 0 {
+        return None;
+    }
+    let longest = goal.iter().map(Vec::len).max().unwrap_or(0);
+    let mut pooled = Vec::with_capacity(longest * goal.len());
+    let mut shares = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        pooled.clear();
+        for _ in 0..goal.len() {
+            pooled.extend_from_slice(&goal[rng.random_range(0..goal.len())]);
+        }
+        let yardstick = fishprobe_stats::sample::quantile_in_place(&mut pooled, q);
+        let (mut at_least, mut views) = (0, 0);
+        for _ in 0..ood.len() {
+            let e = &ood[rng.random_range(0..ood.len())];
+            at_least += e.len() - e.partition_point(|&x| x < yardstick);
+            views += e.len();
+        }
+        shares.push(at_least as f64 / views.max(1) as f64);
+    }
+    Some(fishprobe_stats::sample::percentile_ci(&mut shares, level))
 }
 
 /// One source's score distribution.
@@ -499,6 +567,7 @@ mod tests {
             label: "x".into(),
             scores: v.to_vec(),
             situations: vec![Situation::default(); 4],
+            episode_ends: vec![4],
         });
         assert_eq!(d.beyond_support, 0.75);
     }
@@ -540,11 +609,13 @@ mod tests {
             // Corner: 3 views at 2 (one capped from 9 to 3); open: 1 view at 1.5, 1 in support.
             scores: vec![2.0, 2.0, 9.0, 1.5, 0.5],
             situations: vec![corner, corner, corner, open, open],
+            episode_ends: vec![5],
         };
         let training = SourceScores {
             label: "train".into(),
             scores: vec![0.0; 4],
             situations: vec![open, open, open, corner],
+            episode_ends: Vec::new(),
         };
         let w = wishlist(&ood, &training, None, 3.0, 10);
         assert_eq!(w.len(), 2);
@@ -557,5 +628,53 @@ mod tests {
         assert!((w[0].training_share - 0.25).abs() < 1e-12);
         assert!((w[1].priority - 0.3).abs() < 1e-12);
         assert_eq!(w[1].goal_policy_share, None);
+    }
+
+    #[test]
+    fn the_share_interval_resamples_episodes_and_knows_a_binomial() {
+        let source = |episodes: &[Vec<f32>]| SourceScores {
+            label: "x".into(),
+            scores: episodes.concat(),
+            situations: Vec::new(),
+            episode_ends: ends(episodes.iter().map(Vec::len)),
+        };
+        let mut rng = fishprobe_sim::stream(7, "interval-test", 0);
+        // The yardstick is 1 in every replicate; three OOD episodes lie wholly beyond it,
+        // three wholly within, so a replicate's share is Binomial(6, 1/2) / 6: its 2.5 % and
+        // 97.5 % quantiles are 1/6 and 5/6 (P(0) = 1/64 < 0.025 < P(<= 1) = 7/64).
+        let goal = source(&vec![vec![1.0_f32; 50]; 6]);
+        let mut ood: Vec<Vec<f32>> = vec![vec![2.0; 40]; 3];
+        ood.extend(vec![vec![0.0; 40]; 3]);
+        let ood = source(&ood);
+        let [lo, hi] = share_beyond_interval(&ood, &goal, 0.95, 4000, 0.95, &mut rng).unwrap();
+        assert!(
+            (lo - 1.0 / 6.0).abs() < 1e-12 && (hi - 5.0 / 6.0).abs() < 1e-12,
+            "{lo} {hi}"
+        );
+        assert_eq!(
+            share_at_least(&ood.scores, quantile(&goal.scores, 0.95)),
+            0.5
+        );
+        // Episodes all alike: no uncertainty, the interval is the point.
+        let same = source(&vec![vec![0.5, 1.5, 2.5, 3.5]; 4]);
+        let alike = source(&vec![(0..20).map(|i| i as f32 / 10.0).collect(); 3]);
+        let point = share_at_least(&same.scores, quantile(&alike.scores, 0.95));
+        let i = share_beyond_interval(&same, &alike, 0.95, 500, 0.95, &mut rng).unwrap();
+        assert_eq!(i, [point, point]);
+        // The yardstick varies with the drawn lead-to-goal episodes too: two that disagree.
+        let split = source(&[vec![0.0; 10], vec![3.0; 10]]);
+        let [lo, hi] = share_beyond_interval(&same, &split, 0.95, 2000, 0.95, &mut rng).unwrap();
+        // (Drawn twice the low episode: yardstick 0, share 1; else 3, share 1/4.)
+        assert_eq!([lo, hi], [0.25, 1.0]);
+        // One episode (or no replicate) gives no interval; the same seed, the same interval.
+        let one = source(&[vec![1.0; 10]]);
+        assert!(share_beyond_interval(&one, &goal, 0.95, 100, 0.95, &mut rng).is_none());
+        assert!(share_beyond_interval(&ood, &one, 0.95, 100, 0.95, &mut rng).is_none());
+        assert!(share_beyond_interval(&ood, &goal, 0.95, 0, 0.95, &mut rng).is_none());
+        let again = |seed| {
+            let mut r = fishprobe_sim::stream(seed, "interval-test", 0);
+            share_beyond_interval(&same, &split, 0.95, 300, 0.95, &mut r)
+        };
+        assert_eq!(again(1), again(1));
     }
 }

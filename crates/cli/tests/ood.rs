@@ -549,6 +549,12 @@ fn the_report_finds_what_the_policy_does_and_scores_recorded_trials_the_same() {
     assert_eq!(r["distributions"].as_array().unwrap().len(), 3);
     let share = r["ood_share_beyond_goal_p95"].as_f64().unwrap();
     assert!((0.0..=1.0).contains(&share), "{share}");
+    // Its interval over the (two) episodes of each policy holds it.
+    let interval: Vec<f64> = serde_json::from_value(r["ood_share_interval"].clone()).unwrap();
+    assert!(
+        interval.len() == 2 && interval[0] <= share && share <= interval[1],
+        "{interval:?} {share}"
+    );
     assert_eq!(r["recorded_trials"], serde_json::json!([null, null]));
     assert!(
         r.get("disagreement").is_none(),
@@ -589,6 +595,7 @@ fn the_report_finds_what_the_policy_does_and_scores_recorded_trials_the_same() {
     for k in [
         "goal_policy_p95",
         "ood_share_beyond_goal_p95",
+        "ood_share_interval",
         "goals_per_episode",
         "wishlist",
     ] {

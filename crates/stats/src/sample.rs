@@ -32,6 +32,21 @@ pub fn quantile_sorted(sorted: &[f64], p: f64) -> f64 {
     sorted[lo] + (h - lo as f64) * (sorted[hi] - sorted[lo])
 }
 
+/// [`quantile_sorted`] of `x` in any order, by selection (O(n); `x` is reordered): for a
+/// quantile of a sample drawn again in every replicate of a bootstrap.
+pub fn quantile_in_place(x: &mut [f64], p: f64) -> f64 {
+    if x.is_empty() {
+        return f64::NAN;
+    }
+    let h = p.clamp(0.0, 1.0) * (x.len() - 1) as f64;
+    let lo = h.floor() as usize;
+    let (_, &mut at, above) = x.select_nth_unstable_by(lo, f64::total_cmp);
+    match above.iter().copied().min_by(f64::total_cmp) {
+        Some(next) if h > lo as f64 => at + (h - lo as f64) * (next - at),
+        _ => at,
+    }
+}
+
 /// Sorts a copy (NaN last).
 pub fn sorted(x: &[f64]) -> Vec<f64> {
     let mut v = x.to_vec();
@@ -70,6 +85,25 @@ pub fn percentile_ci(boot: &mut [f64], level: f64) -> [f64; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_quantile_by_selection_is_the_sorted_ones() {
+        // numpy.quantile([4, 1, 3, 2, 10], [0, .25, .5, .95, 1]) = 1, 2, 3, 8.8, 10
+        let x = [4.0, 1.0, 3.0, 2.0, 10.0];
+        for (p, want) in [
+            (0.0, 1.0),
+            (0.25, 2.0),
+            (0.5, 3.0),
+            (0.95, 8.8),
+            (1.0, 10.0),
+        ] {
+            let got = quantile_in_place(&mut x.clone(), p);
+            assert!((got - want).abs() < 1e-12, "{p}: {got}");
+            assert_eq!(got, quantile_sorted(&sorted(&x), p));
+        }
+        assert!(quantile_in_place(&mut [], 0.5).is_nan());
+        assert_eq!(quantile_in_place(&mut [7.0], 0.95), 7.0);
+    }
 
     #[test]
     fn match_numpy() {

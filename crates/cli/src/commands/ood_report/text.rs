@@ -10,6 +10,19 @@ fn pct(v: f64) -> String {
     format!("{:.1} %", 100.0 * v)
 }
 
+/// The headline share with its interval over episodes, when there is one.
+fn share_text(r: &OodReport) -> String {
+    match r.ood_share_interval {
+        Some([lo, hi]) => format!(
+            "{} (95 % interval over the episodes: {:.1}-{:.1} %)",
+            pct(r.ood_share_beyond_goal_p95),
+            100.0 * lo,
+            100.0 * hi
+        ),
+        None => pct(r.ood_share_beyond_goal_p95),
+    }
+}
+
 /// Goals per episode or trial; "–" for recordings that do not say.
 fn goals_text(v: f64) -> String {
     if v.is_finite() {
@@ -157,7 +170,7 @@ pub(super) fn summary(r: &OodReport, out: &Path) -> String {
          policy's 95th-percentile score ({:.2}).{}{} Goals per episode or trial: OOD {}, \
          lead-to-goal {}.{}\n\nData wishlist (record these next):\n{}\nwrote {}\n",
         distributions_table(r),
-        pct(r.ood_share_beyond_goal_p95),
+        share_text(r),
         r.goal_policy_p95,
         within_support_note(r.goal_policy_p95),
         yardstick_note(r),
@@ -228,7 +241,7 @@ pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         r.goal_policy,
         sources_text(r),
         distributions_table(r),
-        pct(r.ood_share_beyond_goal_p95),
+        share_text(r),
         r.goal_policy_p95,
         within_support_note(r.goal_policy_p95),
         yardstick_note(r),
