@@ -276,6 +276,11 @@ impl Trainer {
         if total_timesteps == had {
             return Ok(had);
         }
+        // A budget no run may have (0, or past the cap) is refused as such first, so the
+        // advice below never names a command that would itself be refused.
+        let mut raised = spec.ppo.clone();
+        raised.total_timesteps = total_timesteps;
+        raised.validate()?;
         if total_timesteps < had {
             return Err(run_err(
                 &params,
@@ -298,8 +303,7 @@ impl Trainer {
                 ),
             ));
         }
-        spec.ppo.total_timesteps = total_timesteps;
-        spec.ppo.validate()?;
+        spec.ppo = raised;
         let text = serde_json::to_string_pretty(&spec).map_err(|e| run_err(&params, e))?;
         write_atomic(&params, text.as_bytes())?;
         Ok(had)
@@ -643,6 +647,14 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("total_timesteps"), "{e}");
+        // No budget at all is refused as such, not met with advice to train a run of 0 steps.
+        let e = Trainer::raise_budget(&dir("short"), 0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("total_timesteps") && e.contains("at least 1") && !e.contains("--steps 0"),
+            "{e}"
+        );
         assert_eq!(
             std::fs::read(dir("short").join("params.json")).unwrap(),
             before
