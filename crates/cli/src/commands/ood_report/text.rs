@@ -23,6 +23,31 @@ fn share_text(r: &OodReport) -> String {
     }
 }
 
+/// A note when the headline share's `interval` holds one half: the episodes then do not
+/// settle whether the OOD policy held the fish beyond the yardstick most of the time (issue
+/// 23's target), and the note says how to narrow it: more simulated episodes (`episodes`, the
+/// count of them; `None` when recorded trials were scored) or more trials. Empty otherwise.
+fn half_note(interval: Option<[f64; 2]>, episodes: Option<usize>) -> String {
+    match interval {
+        Some([lo, hi]) if lo <= 0.5 && hi >= 0.5 => {
+            let more = episodes.map_or("more trials narrow it".into(), |n| {
+                format!("more episodes (`--episodes`, here {n}) narrow it")
+            });
+            format!(
+                " The interval holds one half, so these episodes do not settle whether the \
+                 fish were beyond it most of the time: {more}."
+            )
+        }
+        _ => String::new(),
+    }
+}
+
+/// [`half_note`] of a report.
+fn report_half_note(r: &OodReport) -> String {
+    let simulated = r.recorded_trials == [None, None];
+    half_note(r.ood_share_interval, simulated.then_some(r.episodes))
+}
+
 /// Goals per episode or trial; "–" for recordings that do not say.
 fn goals_text(v: f64) -> String {
     if v.is_finite() {
@@ -167,11 +192,12 @@ fn within_support_note(goal_p95: f64) -> &'static str {
 pub(super) fn summary(r: &OodReport, out: &Path) -> String {
     format!(
         "{}\nThe OOD policy's fish spent {} of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}).{}{} Goals per episode or trial: OOD {}, \
+         policy's 95th-percentile score ({:.2}).{}{}{} Goals per episode or trial: OOD {}, \
          lead-to-goal {}.{}\n\nData wishlist (record these next):\n{}\nwrote {}\n",
         distributions_table(r),
         share_text(r),
         r.goal_policy_p95,
+        report_half_note(r),
         within_support_note(r.goal_policy_p95),
         yardstick_note(r),
         goals_text(r.goals_per_episode[0]),
@@ -228,8 +254,8 @@ pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
          percentile).\n\n\
          ## Support scores\n\n{}\n\
          The OOD policy's fish spent **{}** of their time at or beyond the lead-to-goal \
-         policy's 95th-percentile score ({:.2}).{}{} Goals per episode or trial: OOD policy {}, \
-         lead-to-goal policy {}.\n\n\
+         policy's 95th-percentile score ({:.2}).{}{}{} Goals per episode or trial: OOD policy \
+         {}, lead-to-goal policy {}.\n\n\
          ![score distributions](ood-scores.png)\n\n\
          ![example episodes](ood-trajectories.png)\n\n\
          {}## Data wishlist\n\n\
@@ -243,6 +269,7 @@ pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
         distributions_table(r),
         share_text(r),
         r.goal_policy_p95,
+        report_half_note(r),
         within_support_note(r.goal_policy_p95),
         yardstick_note(r),
         goals_text(r.goals_per_episode[0]),
@@ -260,5 +287,22 @@ mod tests {
         assert!(super::within_support_note(0.743).contains("lies within the support"));
         assert!(super::within_support_note(1.0).contains("lies within the support"));
         assert_eq!(super::within_support_note(1.278), "");
+    }
+
+    #[test]
+    fn an_interval_across_one_half_is_said_not_to_settle_most_of_the_time() {
+        use super::half_note;
+        let note = half_note(Some([0.465, 0.565]), Some(6));
+        assert!(
+            note.contains("holds one half") && note.contains("`--episodes`, here 6"),
+            "{note}"
+        );
+        assert!(half_note(Some([0.4, 0.5]), None).contains("more trials"));
+        // Most means more than half, so an interval from one half up does not settle it.
+        assert!(half_note(Some([0.5, 0.6]), Some(24)).contains("here 24"));
+        // Wholly on one side of one half, or no interval: nothing to say.
+        for interval in [Some([0.417, 0.482]), Some([0.51, 0.6]), None] {
+            assert_eq!(half_note(interval, Some(6)), "", "{interval:?}");
+        }
     }
 }
