@@ -76,6 +76,36 @@ fn imagine(env: &TankEnv, first: f32, plan: &Plan, second: u64, obs: &mut [f32])
     total
 }
 
+/// Replicates of [`interval_over_episodes`]' bootstrap, as `ood-report`'s.
+const INTERVAL_REPS: usize = 2000;
+
+/// The 95 % percentile-bootstrap interval of the share of views at or beyond the threshold,
+/// drawing whole episodes again (`(views, beyond)` each), as `ood-report` draws its episodes:
+/// so the planner's share compares with a policy's on the same footing.
+fn interval_over_episodes(per_episode: &[(u64, u64)]) -> [f64; 2] {
+    use rand::{RngExt, SeedableRng};
+    let n = per_episode.len();
+    if n == 0 {
+        return [f64::NAN; 2];
+    }
+    let mut rng =
+        rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(derive_seed(0, "ood-planner-interval", 0));
+    let mut shares: Vec<f64> = (0..INTERVAL_REPS)
+        .map(|_| {
+            let (mut v, mut b) = (0u64, 0u64);
+            for _ in 0..n {
+                let (ev, eb) = per_episode[rng.random_range(0..n)];
+                (v, b) = (v + ev, b + eb);
+            }
+            b as f64 / v.max(1) as f64
+        })
+        .collect();
+    shares.sort_by(f64::total_cmp);
+    let at =
+        |q: f64| shares[((q * (INTERVAL_REPS - 1) as f64).round() as usize).min(INTERVAL_REPS - 1)];
+    [at(0.025), at(0.975)]
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let episodes: u64 = args.first().map_or(Ok(20), |s| s.parse())?;
@@ -103,11 +133,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|i| -std::f32::consts::PI + i as f32 * std::f32::consts::TAU / plan.turns as f32)
         .collect();
     for planner in [false, true] {
-        let counting = Arc::new(Counting::new(support.clone(), thr));
         let started = std::time::Instant::now();
-        (0..episodes)
+        let per_episode = (0..episodes)
             .into_par_iter()
-            .try_for_each(|ep| -> Result<(), String> {
+            .map(|ep| -> Result<(u64, u64), String> {
+                // Each episode counts its own views, for the interval over episodes.
+                let counting = Arc::new(Counting::new(support.clone(), thr));
                 let mut env = TankEnv::new(cfg.clone(), model.build().map_err(|e| e.to_string())?)
                     .map_err(|e| e.to_string())?;
                 env.set_support(Some(support.clone()));
@@ -138,12 +169,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                         break;
                     }
                 }
-                Ok(())
-            })?;
-        let (views, beyond) = counting.counts();
+                Ok(counting.counts())
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        let (views, beyond) = per_episode
+            .iter()
+            .fold((0, 0), |(v, b), &(ev, eb)| (v + ev, b + eb));
         let views = views.max(1);
+        let [lo, hi] = interval_over_episodes(&per_episode);
         println!(
-            "{:>36}: views >= {thr}: {:.1} % ({views} views, {:.0} s)",
+            "{:>36}: views >= {thr}: {:.1} % (95 % interval over the {} episodes: {:.1}-{:.1} %; \
+             {views} views, {:.0} s)",
             if planner {
                 format!(
                     "planner (horizon {} s, {} turns, {} futures)",
@@ -153,8 +189,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "base robot (orbit-cw-12-1.2)".into()
             },
             100.0 * beyond as f64 / views as f64,
+            per_episode.len(),
+            100.0 * lo,
+            100.0 * hi,
             started.elapsed().as_secs_f64()
         );
+        let each: Vec<String> = per_episode
+            .iter()
+            .map(|&(v, b)| format!("{:.1}", 100.0 * b as f64 / v.max(1) as f64))
+            .collect();
+        println!("{:>36}  per episode (%): {}", "", each.join(" "));
     }
     Ok(())
 }
