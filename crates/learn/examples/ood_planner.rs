@@ -100,10 +100,7 @@ fn interval_over_episodes(per_episode: &[(u64, u64)]) -> [f64; 2] {
             b as f64 / v.max(1) as f64
         })
         .collect();
-    shares.sort_by(f64::total_cmp);
-    let at =
-        |q: f64| shares[((q * (INTERVAL_REPS - 1) as f64).round() as usize).min(INTERVAL_REPS - 1)];
-    [at(0.025), at(0.975)]
+    fishprobe_stats::sample::percentile_ci(&mut shares, 0.95)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
