@@ -35,7 +35,7 @@ fn half_note(interval: Option<[f64; 2]>, episodes: Option<usize>) -> String {
             });
             format!(
                 " The interval holds one half, so these episodes do not settle whether the \
-                 fish were beyond it most of the time: {more}."
+                 fish were beyond that score most of the time: {more}."
             )
         }
         _ => String::new(),
