@@ -83,13 +83,12 @@ const INTERVAL_REPS: usize = 2000;
 /// drawing whole episodes again (`(views, beyond)` each), as `ood-report` draws its episodes:
 /// so the planner's share compares with a policy's on the same footing.
 fn interval_over_episodes(per_episode: &[(u64, u64)]) -> [f64; 2] {
-    use rand::{RngExt, SeedableRng};
+    use rand::RngExt;
     let n = per_episode.len();
     if n == 0 {
         return [f64::NAN; 2];
     }
-    let mut rng =
-        rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(derive_seed(0, "ood-planner-interval", 0));
+    let mut rng = fishprobe_sim::stream(0, "ood-planner-interval", 0);
     let mut shares: Vec<f64> = (0..INTERVAL_REPS)
         .map(|_| {
             let (mut v, mut b) = (0u64, 0u64);
