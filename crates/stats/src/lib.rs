@@ -24,6 +24,7 @@ pub mod holm;
 pub mod kruskal;
 pub mod linalg;
 pub mod nb2;
+pub mod paired;
 pub mod resample;
 pub mod sample;
 pub mod special;
@@ -35,6 +36,7 @@ pub use error::StatsError;
 pub use holm::holm;
 pub use kruskal::{kruskal, Kruskal};
 pub use nb2::{fit_nb2, Nb2Fit, Wald};
+pub use paired::{paired_t, PairedT};
 pub use resample::{
     bootstrap_wasserstein, cluster_bootstrap_median, permutation_test_wasserstein, PermutationTest,
 };
