@@ -195,9 +195,15 @@ const PAIRED_LEVEL: f64 = 0.95;
 
 /// The mean paired difference `ood - goal` over the seeds with its 95 % t interval and p value
 /// ("+0.016 (95 % interval -0.020 to +0.052, p = 0.31)"); `None` with fewer than two seeds (no
-/// spread to judge it by).
+/// spread to judge it by); a gap that is not a number says so.
 fn paired_difference(ood: &[f64], goal: &[f64]) -> Option<String> {
-    let d = fishprobe_stats::paired_t(ood, goal, PAIRED_LEVEL).ok()?;
+    if ood.len() < 2 {
+        return None;
+    }
+    let d = match fishprobe_stats::paired_t(ood, goal, PAIRED_LEVEL) {
+        Ok(d) => d,
+        Err(e) => return Some(format!("undefined ({e})")),
+    };
     let p = if d.p.is_nan() {
         "no seed differs".to_string()
     } else {
@@ -262,6 +268,16 @@ mod tests {
         // The further probe swapped the two kinds of data: the difference turns sign.
         assert!(
             md.contains("| scripted:random | 0.400 | 0.398 | 0.356 | 3 of 5 | -0.042 (95 % interval -0.143 to +0.059, p = 0.31) |"),
+            "{md}"
+        );
+    }
+
+    #[test]
+    fn a_gap_that_is_not_a_number_leaves_the_difference_undefined() {
+        let r = [seed(0, 0.3, f64::NAN), seed(1, 0.3, 0.4)];
+        let md = markdown(&OodLoopConfig::default(), &r);
+        assert!(
+            md.contains("is undefined (paired_t x: sample holds a non-finite value) (paired t)."),
             "{md}"
         );
     }
