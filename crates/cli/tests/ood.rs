@@ -131,6 +131,11 @@ fn the_loop_measures_every_gap_resumes_and_refuses_other_settings() {
     let (out, cfg, text, seed) = (&lp.out, dir.join("loop.toml"), lp.table.as_str(), lp.seed());
     let loop_args = loop_args(out, &cfg);
     assert!(text.contains("| 5 |") && text.contains("seeds"), "{text}");
+    // One seed gives no spread to judge the paired difference by, and the table says so.
+    assert!(
+        text.contains("| (one seed) |") && !text.contains("p = "),
+        "{text}"
+    );
     for k in ["narrow", "after_goal_data", "after_ood_data"] {
         let g = seed[k]["metrics"].as_f64().unwrap();
         assert!(g.is_finite() && g >= 0.0, "{k}: {g}");
