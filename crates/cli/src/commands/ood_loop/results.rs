@@ -206,8 +206,12 @@ fn paired_difference(ood: &[f64], goal: &[f64]) -> Option<String> {
     };
     let p = if d.p.is_nan() {
         "no seed differs".to_string()
-    } else {
+    } else if d.p >= 0.01 {
         format!("p = {:.2}", d.p)
+    } else if d.p >= 0.001 {
+        format!("p = {:.3}", d.p)
+    } else {
+        format!("p = {:.1e}", d.p)
     };
     Some(format!(
         "{:+.3} (95 % interval {:+.3} to {:+.3}, {p})",
@@ -280,6 +284,17 @@ mod tests {
             md.contains("is undefined (paired_t x: sample holds a non-finite value) (paired t)."),
             "{md}"
         );
+    }
+
+    #[test]
+    fn a_small_p_keeps_its_first_digit() {
+        // scipy.stats.ttest_rel(x, y).pvalue: 1.036e-4, 0.002105, 0.01478
+        let d = paired_difference(&[1.0, 2.1, 3.0, 4.2], &[0.0, 1.0, 2.05, 3.1]).unwrap();
+        assert!(d.ends_with(", p = 1.0e-4)"), "{d}");
+        let d = paired_difference(&[0.5, 0.9, 0.6, 1.0, 0.8], &[0.1, 0.2, 0.3, 0.4, 0.2]).unwrap();
+        assert!(d.ends_with(", p = 0.002)"), "{d}");
+        let d = paired_difference(&[0.5, 0.9, 0.4, 1.2, 0.8], &[0.1, 0.2, 0.3, 0.4, 0.0]).unwrap();
+        assert!(d.ends_with(", p = 0.01)"), "{d}");
     }
 
     #[test]
