@@ -909,6 +909,102 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
 }
 
 #[test]
+fn an_ood_policy_that_acts_five_times_a_second_is_measured_against_a_yardstick_that_acts_once() {
+    let dir = fresh_dir("ood-rate");
+    let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());
+    let good = format!("convnet:{}", s(&weights));
+    let goal_policy = seed_dir.join("policy-goal");
+    let settings = dir.join("rate.toml");
+    std::fs::write(
+        &settings,
+        "[env]\nframes_per_action = 5\n[env.task]\ntraining_episode_actions = 205\n",
+    )
+    .unwrap();
+    let run = dir.join("rate-run");
+    // The yardstick policy was trained at the paper's 1 Hz: run every 5 frames it would be
+    // refused, so the run's success says it acted at its own rate.
+    let o = fishprobe(&[
+        "train",
+        "--model",
+        &good,
+        "--task",
+        "ood",
+        "--preset",
+        "smoke",
+        "--steps",
+        "500",
+        "--settings",
+        s(&settings),
+        "--ood-yardstick",
+        s(&goal_policy),
+        "--ood-yardstick-episodes",
+        "1",
+        "--ood-yardstick-minutes",
+        "0.5",
+        "--out",
+        s(&run),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let about = |p: &Path| -> serde_json::Value {
+        let meta: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(p.join("policy.safetensors.json")).unwrap())
+                .unwrap();
+        meta["about"].clone()
+    };
+    assert_eq!(about(&run)["frames_per_action"], 5);
+    assert_eq!(about(&goal_policy)["frames_per_action"], 25);
+    let o = fishprobe(&[
+        "ood-report",
+        "--policy",
+        s(&run),
+        "--compare",
+        s(&goal_policy),
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.5",
+        "--out",
+        s(&dir.join("report")),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Elsewhere it runs only at its rate: evaluation and the bridge name it.
+    let o = fishprobe(&[
+        "evaluate",
+        "--policy",
+        s(&run),
+        "--model",
+        "Zone",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&dir.join("eval")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("act every 5 frames"),
+        "{}",
+        stderr(&o)
+    );
+    let o = fishprobe(&[
+        "lab",
+        "--policy",
+        s(&run),
+        "--trials",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&dir.join("lab")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("set command_hz = 5"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
 fn the_support_command_checks_its_estimators_and_bad_input_is_refused() {
     let dir = fresh_dir("ood-support");
     let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());

@@ -4,8 +4,12 @@
 //! with the fish model itself.
 //!
 //! ```sh
-//! cargo run --release -p fishprobe-learn --example ood_planner -- EPISODES THRESHOLD MODEL [HORIZON [TURNS [FUTURES [SECONDS]]]]
+//! cargo run --release -p fishprobe-learn --example ood_planner -- EPISODES THRESHOLD MODEL [HORIZON [TURNS [FUTURES [SECONDS [FRAMES [LEAD]]]]]]
 //! ```
+//!
+//! FRAMES is the frames per decision (default 25, the paper's 1 Hz; 5 re-plans five times a
+//! second); HORIZON and SECONDS stay in seconds. LEAD is the base robot's orbit lead angle
+//! (default 1.2 rad, the best orbit at 1 Hz; at 5 Hz `ood_scripted`'s best is 0.5).
 //!
 //! The episodes are `ood_scripted`'s (41-s training-task episodes, random starts; master seed 0,
 //! label "ood-scripted"; SECONDS sets another length, e.g. 300 as `ood-report`'s), against MODEL (`convnet:FILE` with its support file beside it), every
@@ -34,18 +38,20 @@ use std::sync::Arc;
 mod counting;
 use counting::Counting;
 
-/// The base robot: toward the point 12 cm from the fish, 1.2 rad clockwise beyond the robot's
-/// bearing from it (`ood_scripted`'s `orbit-cw-12-1.2`).
-fn orbit(env: &TankEnv) -> f32 {
+/// The base robot: toward the point 12 cm from the fish, `lead` rad clockwise beyond the
+/// robot's bearing from it (`ood_scripted`'s `orbit-cw-12-LEAD`; 1.2 is its best at 1 Hz).
+fn orbit(env: &TankEnv, lead: f32) -> f32 {
     let r = env.robot().state;
     let f = env.fish()[0];
-    let b = (r.y - f.y).atan2(r.x - f.x) - 1.2;
+    let b = (r.y - f.y).atan2(r.x - f.x) - lead;
     let (tx, ty) = (f.x + 12.0 * b.cos(), f.y + 12.0 * b.sin());
     wrap_angle((ty - r.y).atan2(tx - r.x) - r.heading)
 }
 
 /// Settings of one run.
 struct Plan {
+    /// The base robot's orbit lead angle (rad).
+    lead: f32,
     horizon: usize,
     turns: usize,
     futures: u64,
@@ -61,7 +67,7 @@ fn imagine(env: &TankEnv, first: f32, plan: &Plan, second: u64, obs: &mut [f32])
             e.reseed_fish_noise(derive_seed(second, "ood-planner-future", k));
         }
         for h in 0..plan.horizon {
-            let a = if h == 0 { first } else { orbit(&e) };
+            let a = if h == 0 { first } else { orbit(&e, plan.lead) };
             match e.step(&[a], obs) {
                 Ok(t) => {
                     total += t.reward;
@@ -107,16 +113,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let episodes: u64 = args.first().map_or(Ok(20), |s| s.parse())?;
     let thr: f32 = args.get(1).map_or(Ok(1.28), |s| s.parse())?;
     let model = ModelSpec::by_name(args.get(2).map_or("ConvNet", String::as_str))?;
+    let frames: u32 = args.get(7).map_or(Ok(25), |s| s.parse())?;
+    let mut cfg = EnvConfig::default();
+    cfg.frames_per_action = frames;
+    // Decisions per second: the horizon and the episode are given in seconds.
+    let per_second = cfg.frame_rate_hz / frames as f32;
+    let in_decisions = |seconds: u32| ((seconds as f32 * per_second).round() as u32).max(1);
     let plan = Plan {
-        horizon: args.get(3).map_or(Ok(4), |s| s.parse())?,
+        horizon: in_decisions(args.get(3).map_or(Ok(4), |s| s.parse())?) as usize,
         turns: args.get(4).map_or(Ok(12), |s| s.parse())?,
         futures: args.get(5).map_or(Ok(2), |s| s.parse())?,
+        lead: args.get(8).map_or(Ok(1.2), |s| s.parse())?,
     };
     let support: Arc<dyn InputSupport> = Arc::new(model.support()?);
-    let mut cfg = EnvConfig::default();
-    if let Some(seconds) = args.get(6) {
-        cfg.task.training_episode_actions = seconds.parse()?;
-    }
+    let seconds: u32 = args
+        .get(6)
+        .map_or(Ok(cfg.task.training_episode_actions), |s| s.parse())?;
+    cfg.task.training_episode_actions = in_decisions(seconds);
     cfg.task.objective = Objective::Ood;
     cfg.task.ood_score_every_frames = 1;
     // The imagined reward counts views at or beyond the threshold: 1 per view (as a share of
@@ -143,7 +156,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 env.reset(Some(derive_seed(0, "ood-scripted", ep)), &mut obs)
                     .map_err(|e| e.to_string())?;
                 for second in 0u64.. {
-                    let base = orbit(&env);
+                    let base = orbit(&env, plan.lead);
                     let action = if planner {
                         let seed = derive_seed(ep, "ood-planner", second);
                         let mut best = (imagine(&env, base, &plan, seed, &mut scratch), base);
@@ -178,11 +191,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
              {views} views, {:.0} s)",
             if planner {
                 format!(
-                    "planner (horizon {} s, {} turns, {} futures)",
+                    "planner (horizon {} decisions, {} turns, {} futures, {frames} frames each)",
                     plan.horizon, plan.turns, plan.futures
                 )
             } else {
-                "base robot (orbit-cw-12-1.2)".into()
+                format!("base robot (orbit-cw-12-{})", plan.lead)
             },
             100.0 * beyond as f64 / views as f64,
             per_episode.len(),

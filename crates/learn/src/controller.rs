@@ -20,6 +20,9 @@ pub struct PolicyController {
     /// The observation settings it was trained with (its sidecar's `about.observation`;
     /// absent in policies trained before fishprobe recorded them).
     observation: Option<ObservationParams>,
+    /// The frames per action it was trained at (`about.frames_per_action`; absent in policies
+    /// trained before fishprobe recorded it).
+    frames_per_action: Option<u32>,
     ws: MlpWorkspace,
 }
 
@@ -39,6 +42,7 @@ impl PolicyController {
             name,
             description,
             observation: None,
+            frames_per_action: None,
             ws: MlpWorkspace::default(),
         }
     }
@@ -68,8 +72,23 @@ impl PolicyController {
                 ))
             })?),
         };
+        let frames_per_action = match meta["about"].get("frames_per_action") {
+            None => None,
+            Some(f) => Some(
+                f.as_u64()
+                    .and_then(|f| u32::try_from(f).ok())
+                    .filter(|&f| f > 0)
+                    .ok_or_else(|| {
+                        LearnError::Policy(format!(
+                            "{}: its about.frames_per_action is not a positive whole number: {f}",
+                            dir.display()
+                        ))
+                    })?,
+            ),
+        };
         Ok(Self {
             observation,
+            frames_per_action,
             ..Self::new(policy, stochastic, name, description)
         })
     }
@@ -94,6 +113,10 @@ impl Controller for PolicyController {
 
     fn trained_observation(&self) -> Option<ObservationParams> {
         self.observation.clone()
+    }
+
+    fn trained_frames_per_action(&self) -> Option<u32> {
+        self.frames_per_action
     }
 
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
@@ -182,6 +205,10 @@ impl Controller for Named {
         self.inner.trained_observation()
     }
 
+    fn trained_frames_per_action(&self) -> Option<u32> {
+        self.inner.trained_frames_per_action()
+    }
+
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
         self.inner.act(input, rng)
     }
@@ -248,6 +275,45 @@ mod tests {
         // A record that is not observation settings is refused by name.
         let e = save(serde_json::json!({ "observation": "216" })).unwrap_err();
         assert!(e.to_string().contains("about.observation"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A policy's sidecar records how often it acts; it is run at that rate in another run's
+    /// settings, refused at another, and one from before the record takes the run's.
+    #[test]
+    fn a_policy_knows_the_rate_it_was_trained_at() {
+        use fishprobe_sim::{check_controller_rate, controller_env, EnvConfig};
+        let dir = std::env::temp_dir().join(format!("fishprobe-ctl-rate-{}", std::process::id()));
+        let mut rng = fishprobe_sim::stream(0, "t", 0);
+        let p = GaussianPolicy::new(180, &crate::PpoConfig::default(), &mut rng);
+        let save = |about: serde_json::Value| {
+            p.save(&dir, about).unwrap();
+            PolicyController::load(&dir, false)
+        };
+        let run = EnvConfig {
+            frames_per_action: 5,
+            ..EnvConfig::default()
+        };
+        let paper = save(serde_json::json!({ "frames_per_action": 25 })).unwrap();
+        assert_eq!(paper.trained_frames_per_action(), Some(25));
+        assert_eq!(controller_env(&paper, &run).frames_per_action, 25);
+        assert!(check_controller_rate(&paper, 25).is_ok());
+        let e = check_controller_rate(&paper, 5).unwrap_err();
+        assert!(
+            e.contains("every 25 frames") && e.contains("run every 5"),
+            "{e}"
+        );
+        let old = save(serde_json::json!({})).unwrap();
+        assert_eq!(controller_env(&old, &run).frames_per_action, 5);
+        assert!(check_controller_rate(&old, 5).is_ok());
+        for bad in [
+            serde_json::json!(0),
+            serde_json::json!(-5),
+            serde_json::json!("25"),
+        ] {
+            let e = save(serde_json::json!({ "frames_per_action": bad })).unwrap_err();
+            assert!(e.to_string().contains("about.frames_per_action"), "{e}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

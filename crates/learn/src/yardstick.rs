@@ -188,12 +188,11 @@ pub fn measure(
         OodScore::Disagreement => Scorer::Ensemble(model.disagreement()?),
     };
     let c = load(policy)?;
-    // The yardstick policy observes as it was trained to (the OOD run may observe headings).
-    let mut yardstick_env = env.clone();
-    yardstick_env.observation = fishprobe_sim::controller_observation(c.as_ref(), &env.observation);
+    // The yardstick policy observes and acts as it was trained to (the OOD run may observe
+    // headings, or act more often).
     let e = Evaluation {
         model: model.clone(),
-        env: yardstick_env,
+        env: fishprobe_sim::controller_env(c.as_ref(), env),
         episodes: config.episodes,
         minutes: config.minutes,
         seed: config.seed,

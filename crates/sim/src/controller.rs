@@ -70,6 +70,12 @@ pub trait Controller: Send + Sync + ControllerClone {
     fn trained_observation(&self) -> Option<ObservationParams> {
         None
     }
+    /// The frames per action (`frames_per_action`) the controller was trained at, where it
+    /// knows them (a policy trained by fishprobe records them); `None`: it is run at the run's.
+    /// A policy that learnt to act five times a second is not the same robot once a second.
+    fn trained_frames_per_action(&self) -> Option<u32> {
+        None
+    }
     /// The turn for this second. `rng` is the episode's action stream, for controllers that
     /// sample.
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32;
@@ -112,6 +118,32 @@ pub fn controller_observation(c: &dyn Controller, run: &ObservationParams) -> Ob
             heading_bins: false,
             ..run.clone()
         })
+}
+
+/// Checks that `c` is run at the action rate it was trained at, where it records one.
+pub fn check_controller_rate(c: &dyn Controller, frames_per_action: u32) -> Result<(), String> {
+    match c.trained_frames_per_action() {
+        Some(t) if t != frames_per_action => Err(format!(
+            "{} was trained to act every {t} frames (frames_per_action = {t}); it is run every \
+             {frames_per_action}: run it at the rate it was trained at",
+            c.describe()
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// The settings under which `c` runs in a run of settings `run`: its own observation
+/// ([`controller_observation`]) and its own action rate where it records one. A lead-to-goal
+/// yardstick or comparison policy of an OOD run that observes headings, or acts five times a
+/// second, is run as it was trained.
+pub fn controller_env(c: &dyn Controller, run: &crate::EnvConfig) -> crate::EnvConfig {
+    crate::EnvConfig {
+        observation: controller_observation(c, &run.observation),
+        frames_per_action: c
+            .trained_frames_per_action()
+            .unwrap_or(run.frames_per_action),
+        ..run.clone()
+    }
 }
 
 /// A fresh copy of a controller for another episode or thread (implemented for every

@@ -151,6 +151,19 @@ fn pilot_factory(
     fishprobe_sim::check_controller_observation(c.as_ref(), &obs)
         .map_err(anyhow::Error::msg)
         .context("the policy's observation")?;
+    // A policy trained to act more often than once a second is run at its rate: its frames
+    // are the simulator's, at the tracking rate (SPEC §2: 25 Hz).
+    if let Some(frames) = c.trained_frames_per_action() {
+        let hz = f64::from(fishprobe_sim::EnvConfig::default().frame_rate_hz) / f64::from(frames);
+        if (hz - live.command_hz).abs() > 1e-6 * hz {
+            bail!(
+                "the policy {policy} was trained to act every {frames} frames, {hz} times a \
+                 second; the bridge commands {} times a second: set command_hz = {hz} in the \
+                 bridge's settings",
+                live.command_hz
+            );
+        }
+    }
     Ok(move || Ok(c.boxed_clone()))
 }
 

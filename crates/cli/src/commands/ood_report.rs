@@ -326,14 +326,11 @@ pub fn run(a: OodReportArgs) -> Result<()> {
         let run = match src {
             Source::Recorded(files) => recorded_run(&support, label, files)?,
             Source::Simulated(c) => {
-                // Each policy observes as it was trained to (an opt-in block such as
-                // `heading_bins` on one side only).
-                let mut env = env.clone();
-                env.observation =
-                    fishprobe_sim::controller_observation(c.as_ref(), &env.observation);
+                // Each policy observes and acts as it was trained to (an opt-in block such
+                // as `heading_bins`, or five actions a second, on one side only).
                 let e = Evaluation {
                     model: model.clone(),
-                    env,
+                    env: fishprobe_sim::controller_env(c.as_ref(), &env),
                     episodes: a.episodes,
                     minutes: a.minutes,
                     seed: a.seed,

@@ -37,6 +37,8 @@ impl Trainer {
             "timesteps": self.timesteps,
             // What the policy reads: evaluation, the yardstick and the live bridge check it.
             "observation": self.spec.env.observation,
+            // and how often it acts: a policy of five actions a second is run at five.
+            "frames_per_action": self.spec.env.frames_per_action,
             "program_version": env!("CARGO_PKG_VERSION"),
         })
     }

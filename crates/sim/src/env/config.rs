@@ -7,7 +7,12 @@ crate::documented_params! {
     pub struct EnvConfig {
         /// Simulation (and tracking) frame rate (paper: 25 Hz).
         pub frame_rate_hz: f32 = 25.0; "Hz",
-        /// Frames per policy action (paper: the policy acts at 1 Hz, so 25).
+        /// Frames per policy action (paper: the policy acts at 1 Hz, so 25). A policy
+        /// records the rate it was trained at and is run only at it: `evaluate` refuses
+        /// another by name, an OOD run's yardstick and `ood-report`'s comparison policy act
+        /// at their own, and the live bridge asks for `command_hz` = `frame_rate_hz` / this.
+        /// `training_episode_actions` and `evaluation_episode_actions` count actions, so a
+        /// faster policy's 41-s episode is 41 · 25 / this of them.
         pub frames_per_action: u32 = 25; "frames",
         /// Number of fish, 1 to `MAX_FISH` = 16, the robot not counted (paper: 1). With
         /// more than one, `task.group_goal` says when the group has reached a goal.
