@@ -114,8 +114,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let thr: f32 = args.get(1).map_or(Ok(1.28), |s| s.parse())?;
     let model = ModelSpec::by_name(args.get(2).map_or("ConvNet", String::as_str))?;
     let frames: u32 = args.get(7).map_or(Ok(25), |s| s.parse())?;
-    let mut cfg = EnvConfig::default();
-    cfg.frames_per_action = frames;
+    let mut cfg = EnvConfig {
+        frames_per_action: frames,
+        ..EnvConfig::default()
+    };
     // Decisions per second: the horizon and the episode are given in seconds.
     let per_second = cfg.frame_rate_hz / frames as f32;
     let in_decisions = |seconds: u32| ((seconds as f32 * per_second).round() as u32).max(1);
