@@ -796,17 +796,16 @@ fn a_yardstick_from_a_lead_to_goal_policy_sets_the_reward_and_the_report() {
     assert!(!bad_report.join("episodes").exists());
 }
 
-#[test]
-fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_does_not() {
-    let dir = fresh_dir("ood-heading");
+/// An OOD run of the smoke preset under the settings `settings` (a settings file's text), its
+/// reward's yardstick the one-round loop's lead-to-goal policy; it must succeed. Returns the
+/// run and that policy.
+fn ood_run(dir: &Path, settings: &str) -> (PathBuf, PathBuf) {
     let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());
     let good = format!("convnet:{}", s(&weights));
     let goal_policy = seed_dir.join("policy-goal");
-    let settings = dir.join("heading.toml");
-    std::fs::write(&settings, "[env.observation]\nheading_bins = true\n").unwrap();
-    let run = dir.join("heading-run");
-    // The yardstick policy reads the paper's 180 values, the OOD policy 216: each observes as
-    // it was trained to.
+    let file = dir.join("settings.toml");
+    std::fs::write(&file, settings).unwrap();
+    let run = dir.join("run");
     let o = fishprobe(&[
         "train",
         "--model",
@@ -818,7 +817,7 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
         "--steps",
         "500",
         "--settings",
-        s(&settings),
+        s(&file),
         "--ood-yardstick",
         s(&goal_policy),
         "--ood-yardstick-episodes",
@@ -829,17 +828,17 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
         s(&run),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let meta: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(run.join("policy.safetensors.json")).unwrap())
-            .unwrap();
-    assert_eq!(meta["obs_dim"], 216);
-    assert_eq!(meta["about"]["observation"]["heading_bins"], true);
+    (run, goal_policy)
+}
+
+/// `ood-report` of `run` against `goal_policy`, one short episode; it must succeed.
+fn ood_report(dir: &Path, run: &Path, goal_policy: &Path) {
     let o = fishprobe(&[
         "ood-report",
         "--policy",
-        s(&run),
+        s(run),
         "--compare",
-        s(&goal_policy),
+        s(goal_policy),
         "--episodes",
         "1",
         "--minutes",
@@ -848,6 +847,37 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
         s(&dir.join("report")),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// `evaluate` of `run` on M_Zone under the default settings.
+fn evaluate_on_zone(dir: &Path, run: &Path) -> std::process::Output {
+    fishprobe(&[
+        "evaluate",
+        "--policy",
+        s(run),
+        "--model",
+        "Zone",
+        "--episodes",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&dir.join("eval")),
+    ])
+}
+
+#[test]
+fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_does_not() {
+    let dir = fresh_dir("ood-heading");
+    // The yardstick policy reads the paper's 180 values, the OOD policy 216: each observes as
+    // it was trained to.
+    let (run, goal_policy) = ood_run(&dir, "[env.observation]\nheading_bins = true\n");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("policy.safetensors.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["obs_dim"], 216);
+    assert_eq!(meta["about"]["observation"]["heading_bins"], true);
+    ood_report(&dir, &run, &goal_policy);
     // The approach assay observes its still fish as the policy records.
     let o = fishprobe(&[
         "assay",
@@ -863,19 +893,7 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
     assert!(o.status.success(), "{}", stderr(&o));
     // Elsewhere a policy runs only with the settings it was trained with: evaluation names
     // them, and the virtual lab refuses it unless its settings give the headings.
-    let o = fishprobe(&[
-        "evaluate",
-        "--policy",
-        s(&run),
-        "--model",
-        "Zone",
-        "--episodes",
-        "1",
-        "--minutes",
-        "0.1",
-        "--out",
-        s(&dir.join("eval")),
-    ]);
+    let o = evaluate_on_zone(&dir, &run);
     assert!(
         !o.status.success() && stderr(&o).contains("heading_bins = true (216 floats)"),
         "{}",
@@ -911,40 +929,12 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
 #[test]
 fn an_ood_policy_that_acts_five_times_a_second_is_measured_against_a_yardstick_that_acts_once() {
     let dir = fresh_dir("ood-rate");
-    let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());
-    let good = format!("convnet:{}", s(&weights));
-    let goal_policy = seed_dir.join("policy-goal");
-    let settings = dir.join("rate.toml");
-    std::fs::write(
-        &settings,
-        "[env]\nframes_per_action = 5\n[env.task]\ntraining_episode_actions = 205\n",
-    )
-    .unwrap();
-    let run = dir.join("rate-run");
     // The yardstick policy was trained at the paper's 1 Hz: run every 5 frames it would be
     // refused, so the run's success says it acted at its own rate.
-    let o = fishprobe(&[
-        "train",
-        "--model",
-        &good,
-        "--task",
-        "ood",
-        "--preset",
-        "smoke",
-        "--steps",
-        "500",
-        "--settings",
-        s(&settings),
-        "--ood-yardstick",
-        s(&goal_policy),
-        "--ood-yardstick-episodes",
-        "1",
-        "--ood-yardstick-minutes",
-        "0.5",
-        "--out",
-        s(&run),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let (run, goal_policy) = ood_run(
+        &dir,
+        "[env]\nframes_per_action = 5\n[env.task]\ntraining_episode_actions = 205\n",
+    );
     let about = |p: &Path| -> serde_json::Value {
         let meta: serde_json::Value =
             serde_json::from_slice(&std::fs::read(p.join("policy.safetensors.json")).unwrap())
@@ -953,34 +943,9 @@ fn an_ood_policy_that_acts_five_times_a_second_is_measured_against_a_yardstick_t
     };
     assert_eq!(about(&run)["frames_per_action"], 5);
     assert_eq!(about(&goal_policy)["frames_per_action"], 25);
-    let o = fishprobe(&[
-        "ood-report",
-        "--policy",
-        s(&run),
-        "--compare",
-        s(&goal_policy),
-        "--episodes",
-        "1",
-        "--minutes",
-        "0.5",
-        "--out",
-        s(&dir.join("report")),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    ood_report(&dir, &run, &goal_policy);
     // Elsewhere it runs only at its rate: evaluation and the bridge name it.
-    let o = fishprobe(&[
-        "evaluate",
-        "--policy",
-        s(&run),
-        "--model",
-        "Zone",
-        "--episodes",
-        "1",
-        "--minutes",
-        "0.1",
-        "--out",
-        s(&dir.join("eval")),
-    ]);
+    let o = evaluate_on_zone(&dir, &run);
     assert!(
         !o.status.success() && stderr(&o).contains("act every 5 frames"),
         "{}",
