@@ -75,8 +75,11 @@ use std::path::{Path, PathBuf};
 /// `observation.heading_bins` joined the recorded settings (issue 23; inert at its default:
 /// with the key left out of the config JSON the digest was 931be0a2… again, and the report's
 /// stayed d6deac52…). Then 4bccb0c8… until `live.heading_bins` joined the config of
-/// virtual-lab trial files (with the key left out of the text: 4bccb0c8… again).
-const GOLDEN: &str = "58b5dd6c4792fb60";
+/// virtual-lab trial files (with the key left out of the text: 4bccb0c8… again). Then
+/// 58b5dd6c… until `observation.previous_block_actions` joined the recorded settings (issue
+/// 23; inert at its default, SPEC §5's previous step: with the key not serialised the digest
+/// was 58b5dd6c… again, and the report's stayed d6deac52…).
+const GOLDEN: &str = "70a961c2393164f4";
 
 /// Digest of the smoke study's report (every figure, `index.html` and `summary.md` with the
 /// study's path replaced by `STUDY`). History: 535e3f1d… at the session start; cd7735f1…

@@ -970,6 +970,46 @@ fn an_ood_policy_that_acts_five_times_a_second_is_measured_against_a_yardstick_t
 }
 
 #[test]
+fn an_ood_policy_that_looks_further_back_is_measured_against_a_yardstick_that_looks_one_back() {
+    let dir = fresh_dir("ood-back");
+    let (run, goal_policy) = ood_run(&dir, "[env.observation]\nprevious_block_actions = 3\n");
+    let back = |p: &Path| -> serde_json::Value {
+        let meta: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(p.join("policy.safetensors.json")).unwrap())
+                .unwrap();
+        meta["about"]["observation"]["previous_block_actions"].clone()
+    };
+    assert_eq!((back(&run), back(&goal_policy)), (3.into(), 1.into()));
+    // Both observations are 180 floats: only the record tells them apart, and the yardstick
+    // and the comparison policy look back as they were trained.
+    ood_report(&dir, &run, &goal_policy);
+    // Elsewhere it runs only as it was trained: evaluation names the setting, and the bridge,
+    // which looks one action back, refuses it.
+    let o = evaluate_on_zone(&dir, &run);
+    assert!(
+        !o.status.success() && stderr(&o).contains("previous_block_actions = 3"),
+        "{}",
+        stderr(&o)
+    );
+    let o = fishprobe(&[
+        "lab",
+        "--policy",
+        s(&run),
+        "--trials",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&dir.join("lab")),
+    ]);
+    assert!(
+        !o.status.success() && stderr(&o).contains("previous_block_actions = 3"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
 fn the_support_command_checks_its_estimators_and_bad_input_is_refused() {
     let dir = fresh_dir("ood-support");
     let (seed_dir, weights) = (one_round().seed_dir(), one_round().weights());

@@ -272,6 +272,27 @@ mod tests {
             controller_observation(&old, &headings),
             ObservationParams::default()
         );
+        // A record from before the look-back was recorded looks one action back (SPEC §5);
+        // one that looks five back is refused one, and a run that looks back five does not
+        // lend that to a policy that records nothing.
+        let before = serde_json::json!({ "observation": {
+            "sectors": 36, "far_plane_cm": 141.42136, "centroid_bins": false, "heading_bins": true
+        } });
+        let c = save(before).unwrap();
+        assert_eq!(c.trained_observation(), Some(headings.clone()));
+        let back5 = ObservationParams {
+            previous_block_actions: 5,
+            ..headings.clone()
+        };
+        let e = check_controller_observation(&c, &back5).unwrap_err();
+        assert!(e.contains("previous_block_actions = 1"), "{e}");
+        let c = save(serde_json::json!({ "observation": back5 })).unwrap();
+        assert!(check_controller_observation(&c, &back5).is_ok());
+        assert!(check_controller_observation(&c, &headings).is_err());
+        assert_eq!(
+            controller_observation(&old, &back5),
+            ObservationParams::default()
+        );
         // A record that is not observation settings is refused by name.
         let e = save(serde_json::json!({ "observation": "216" })).unwrap_err();
         assert!(e.to_string().contains("about.observation"), "{e}");

@@ -236,7 +236,7 @@ impl Session {
             pilot,
             rng: stream(0, "live-actions", 0),
             tank,
-            prev: vec![0.0; 2 * encoder.sectors()],
+            prev: vec![0.0; encoder.history_len()],
             obs: vec![0.0; n],
             encoder,
             first_obs: true,

@@ -103,19 +103,30 @@ pub fn check_controller_observation(
                 obs.size()
             ))
         }
+        Some(t) if t.previous_block_actions != obs.previous_block_actions => Err(format!(
+            "{} was trained with observation.previous_block_actions = {} (its motion blocks \
+             look back {} actions); it is given {}: run it with the observation settings it \
+             was trained with",
+            c.describe(),
+            t.previous_block_actions,
+            t.previous_block_actions,
+            obs.previous_block_actions
+        )),
         _ => c.check_observation(obs.size()),
     }
 }
 
 /// What `c` observes in a run whose policy observes `run`: the settings `c` was trained with
-/// where it records them, else `run` without the fish's headings (a controller that records
-/// nothing, an ONNX or Python policy or one trained before fishprobe recorded its settings,
-/// cannot have been trained with that block). A lead-to-goal yardstick or comparison policy
-/// of an OOD run that observes headings is run as it was trained.
+/// where it records them, else `run` without the fish's headings and with SPEC §5's previous
+/// step (a controller that records nothing, an ONNX or Python policy or one trained before
+/// fishprobe recorded its settings, cannot have been trained with that block or that look
+/// back). A lead-to-goal yardstick or comparison policy of an OOD run that observes headings,
+/// or looks back further, is run as it was trained.
 pub fn controller_observation(c: &dyn Controller, run: &ObservationParams) -> ObservationParams {
     c.trained_observation()
         .unwrap_or_else(|| ObservationParams {
             heading_bins: false,
+            previous_block_actions: 1,
             ..run.clone()
         })
 }

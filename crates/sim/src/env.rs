@@ -93,7 +93,7 @@ impl TankEnv {
             dt: 1.0 / cfg.frame_rate_hz,
             obs_space: BoxSpace::uniform(encoder.size(), 0.0, 1.0),
             act_space: BoxSpace::uniform(1, -PI, PI),
-            prev_bins: vec![0.0; 2 * encoder.sectors()],
+            prev_bins: vec![0.0; encoder.history_len()],
             encoder,
             model,
             robot: Robot::default(),
