@@ -112,6 +112,14 @@ class Policy:
         #: as ``trial.fishprobe["config"]["policy_sha256"]``, so that trials of a policy
         #: retrained under the same name are told apart.
         self.sha256: str = self._policy.sha256
+        #: The environment settings it was trained with, where it records them (a policy that
+        #: ``fishprobe train`` or ``fishprobe.train`` made): ``{"frames_per_action": ...,
+        #: "observation": {...}}``, to merge into an environment's ``settings=`` so that it
+        #: acts as often and sees what it was trained to (``None`` for an ONNX file, which
+        #: records neither). The CLI refuses other settings by name; an environment cannot
+        #: know which policy will act in it, so here the caller merges them.
+        t = self._policy.trained_settings
+        self.settings: dict | None = json.loads(t) if t is not None else None
 
     def act(self, obs) -> np.ndarray:
         o = np.asarray(obs, dtype=np.float32)

@@ -43,6 +43,22 @@ impl Policy {
         self.ctrl.fingerprint()
     }
 
+    /// The environment settings the policy was trained with, where it records them, as JSON:
+    /// `frames_per_action` and `observation` (an ONNX policy, or one trained before fishprobe
+    /// recorded them, records neither: `None`).
+    #[getter]
+    fn trained_settings(&self) -> PyResult<Option<String>> {
+        let mut table = serde_json::Map::new();
+        if let Some(f) = self.ctrl.trained_frames_per_action() {
+            table.insert("frames_per_action".into(), f.into());
+        }
+        if let Some(o) = self.ctrl.trained_observation() {
+            let o = serde_json::to_value(o).map_err(|e| PyValueError::new_err(e.to_string()))?;
+            table.insert("observation".into(), o);
+        }
+        Ok((!table.is_empty()).then(|| serde_json::Value::Object(table).to_string()))
+    }
+
     /// Turns (rad) for a batch of observations, shape (n, obs_dim) -> (n,).
     fn act<'py>(
         &mut self,
