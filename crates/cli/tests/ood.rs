@@ -866,6 +866,41 @@ fn evaluate_on_zone(dir: &Path, run: &Path) -> std::process::Output {
     ])
 }
 
+/// The `about` record beside a trained policy's weights.
+fn policy_about(policy: &Path) -> serde_json::Value {
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(policy.join("policy.safetensors.json")).unwrap())
+            .unwrap();
+    meta["about"].clone()
+}
+
+/// One short virtual-lab trial of `policy` into `dir/out`, with `extra` arguments.
+fn lab_trial(dir: &Path, policy: &Path, out: &str, extra: &[&str]) -> std::process::Output {
+    let out = dir.join(out);
+    let mut args = vec![
+        "lab",
+        "--policy",
+        s(policy),
+        "--trials",
+        "1",
+        "--minutes",
+        "0.1",
+        "--out",
+        s(&out),
+    ];
+    args.extend(extra);
+    fishprobe(&args)
+}
+
+/// Asserts that a command failed with a message that holds `needle`.
+fn assert_refused(o: &std::process::Output, needle: &str) {
+    assert!(
+        !o.status.success() && stderr(o).contains(needle),
+        "expected a refusal naming {needle:?}: {}",
+        stderr(o)
+    );
+}
+
 #[test]
 fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_does_not() {
     let dir = fresh_dir("ood-heading");
@@ -876,7 +911,7 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
         serde_json::from_slice(&std::fs::read(run.join("policy.safetensors.json")).unwrap())
             .unwrap();
     assert_eq!(meta["obs_dim"], 216);
-    assert_eq!(meta["about"]["observation"]["heading_bins"], true);
+    assert_eq!(policy_about(&run)["observation"]["heading_bins"], true);
     ood_report(&dir, &run, &goal_policy);
     // The approach assay observes its still fish as the policy records.
     let o = fishprobe(&[
@@ -893,36 +928,16 @@ fn an_ood_policy_that_observes_headings_is_measured_against_a_yardstick_that_doe
     assert!(o.status.success(), "{}", stderr(&o));
     // Elsewhere a policy runs only with the settings it was trained with: evaluation names
     // them, and the virtual lab refuses it unless its settings give the headings.
-    let o = evaluate_on_zone(&dir, &run);
-    assert!(
-        !o.status.success() && stderr(&o).contains("heading_bins = true (216 floats)"),
-        "{}",
-        stderr(&o)
+    assert_refused(
+        &evaluate_on_zone(&dir, &run),
+        "heading_bins = true (216 floats)",
     );
-    let lab = |extra: Option<&str>, out: &str| {
-        let mut args = vec![
-            "lab",
-            "--policy",
-            s(&run),
-            "--trials",
-            "1",
-            "--minutes",
-            "0.1",
-            "--out",
-        ];
-        let out = dir.join(out);
-        args.push(s(&out));
-        args.extend(extra);
-        fishprobe(&args)
-    };
-    let o = lab(None, "lab-refused");
-    assert!(
-        !o.status.success() && stderr(&o).contains("heading_bins = true"),
-        "{}",
-        stderr(&o)
+    assert_refused(
+        &lab_trial(&dir, &run, "lab-refused", &[]),
+        "heading_bins = true",
     );
     // The bridge observes the tracked headings when its settings say so.
-    let o = lab(Some("--heading-bins"), "lab");
+    let o = lab_trial(&dir, &run, "lab", &["--heading-bins"]);
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
@@ -935,77 +950,29 @@ fn an_ood_policy_that_acts_five_times_a_second_is_measured_against_a_yardstick_t
         &dir,
         "[env]\nframes_per_action = 5\n[env.task]\ntraining_episode_actions = 205\n",
     );
-    let about = |p: &Path| -> serde_json::Value {
-        let meta: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(p.join("policy.safetensors.json")).unwrap())
-                .unwrap();
-        meta["about"].clone()
-    };
-    assert_eq!(about(&run)["frames_per_action"], 5);
-    assert_eq!(about(&goal_policy)["frames_per_action"], 25);
+    assert_eq!(policy_about(&run)["frames_per_action"], 5);
+    assert_eq!(policy_about(&goal_policy)["frames_per_action"], 25);
     ood_report(&dir, &run, &goal_policy);
     // Elsewhere it runs only at its rate: evaluation and the bridge name it.
-    let o = evaluate_on_zone(&dir, &run);
-    assert!(
-        !o.status.success() && stderr(&o).contains("act every 5 frames"),
-        "{}",
-        stderr(&o)
-    );
-    let o = fishprobe(&[
-        "lab",
-        "--policy",
-        s(&run),
-        "--trials",
-        "1",
-        "--minutes",
-        "0.1",
-        "--out",
-        s(&dir.join("lab")),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("set command_hz = 5"),
-        "{}",
-        stderr(&o)
-    );
+    assert_refused(&evaluate_on_zone(&dir, &run), "act every 5 frames");
+    assert_refused(&lab_trial(&dir, &run, "lab", &[]), "set command_hz = 5");
 }
 
 #[test]
 fn an_ood_policy_that_looks_further_back_is_measured_against_a_yardstick_that_looks_one_back() {
     let dir = fresh_dir("ood-back");
     let (run, goal_policy) = ood_run(&dir, "[env.observation]\nprevious_block_actions = 3\n");
-    let back = |p: &Path| -> serde_json::Value {
-        let meta: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(p.join("policy.safetensors.json")).unwrap())
-                .unwrap();
-        meta["about"]["observation"]["previous_block_actions"].clone()
-    };
+    let back = |p: &Path| policy_about(p)["observation"]["previous_block_actions"].clone();
     assert_eq!((back(&run), back(&goal_policy)), (3.into(), 1.into()));
     // Both observations are 180 floats: only the record tells them apart, and the yardstick
     // and the comparison policy look back as they were trained.
     ood_report(&dir, &run, &goal_policy);
     // Elsewhere it runs only as it was trained: evaluation names the setting, and the bridge,
     // which looks one action back, refuses it.
-    let o = evaluate_on_zone(&dir, &run);
-    assert!(
-        !o.status.success() && stderr(&o).contains("previous_block_actions = 3"),
-        "{}",
-        stderr(&o)
-    );
-    let o = fishprobe(&[
-        "lab",
-        "--policy",
-        s(&run),
-        "--trials",
-        "1",
-        "--minutes",
-        "0.1",
-        "--out",
-        s(&dir.join("lab")),
-    ]);
-    assert!(
-        !o.status.success() && stderr(&o).contains("previous_block_actions = 3"),
-        "{}",
-        stderr(&o)
+    assert_refused(&evaluate_on_zone(&dir, &run), "previous_block_actions = 3");
+    assert_refused(
+        &lab_trial(&dir, &run, "lab", &[]),
+        "previous_block_actions = 3",
     );
 }
 
