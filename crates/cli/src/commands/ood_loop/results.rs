@@ -214,9 +214,22 @@ fn paired_difference(ood: &[f64], goal: &[f64]) -> Option<String> {
         format!("p = {:.1e}", d.p)
     };
     Some(format!(
-        "{:+.3} (95 % interval {:+.3} to {:+.3}, {p})",
-        d.mean_difference, d.ci[0], d.ci[1]
+        "{} (95 % interval {} to {}, {p})",
+        signed(d.mean_difference),
+        signed(d.ci[0]),
+        signed(d.ci[1])
     ))
+}
+
+/// A signed number to three decimals; one that would print as "+0.000" or "-0.000" without being
+/// zero keeps its first two significant digits instead ("-2.1e-4"), so that an interval which
+/// only just holds zero reads so and does not end at a negative zero.
+fn signed(x: f64) -> String {
+    if x != 0.0 && x.abs() < 0.0005 {
+        format!("{x:+.1e}")
+    } else {
+        format!("{x:+.3}")
+    }
 }
 
 #[cfg(test)]
@@ -295,6 +308,16 @@ mod tests {
         assert!(d.ends_with(", p = 0.002)"), "{d}");
         let d = paired_difference(&[0.5, 0.9, 0.4, 1.2, 0.8], &[0.1, 0.2, 0.3, 0.4, 0.0]).unwrap();
         assert!(d.ends_with(", p = 0.01)"), "{d}");
+    }
+
+    #[test]
+    fn an_interval_that_only_just_holds_zero_does_not_end_at_negative_zero() {
+        // scipy.stats.ttest_rel([1.0, 0.85405], [0, 0]).confidence_interval(): -2.103e-4 to
+        // 1.85426, p = 0.050011
+        let d = paired_difference(&[1.0, 0.85405], &[0.0, 0.0]).unwrap();
+        assert_eq!(d, "+0.927 (95 % interval -2.1e-4 to +1.854, p = 0.05)");
+        assert_eq!(signed(0.0), "+0.000");
+        assert_eq!(signed(-0.0123), "-0.012");
     }
 
     #[test]
