@@ -114,7 +114,7 @@ class Policy:
         self.sha256: str = self._policy.sha256
         #: The environment settings it was trained with, where it records them (a policy that
         #: ``fishprobe train`` or ``fishprobe.train`` made): ``{"frames_per_action": ...,
-        #: "observation": {...}}``, to merge into an environment's ``settings=`` so that it
+        #: "frame_rate_hz": ..., "observation": {...}}``, to merge into an environment's ``settings=`` so that it
         #: acts as often and sees what it was trained to (``None`` for an ONNX file, which
         #: records neither). The CLI refuses other settings by name; an environment cannot
         #: know which policy will act in it, so here the caller merges them.

@@ -111,11 +111,13 @@ def test_policy_acts_on_batches_like_the_cli_policy(smoke_policy, tmp_path, cli)
 def test_a_policy_says_what_it_was_trained_with(smoke_policy, tmp_path, cli):
     p = fishprobe.Policy(smoke_policy)
     assert p.settings["frames_per_action"] == 25
+    assert p.settings["frame_rate_hz"] == 25.0
     assert p.settings["observation"]["heading_bins"] is False
     assert p.settings["observation"]["previous_block_actions"] == 1
     # Merged into an environment's settings, the environment shows it what it was trained on.
     env = fishprobe.LeadToGoalEnv(model="Zone", settings={"task": {"objective": "goal"}, **p.settings})
     assert env.settings["frames_per_action"] == 25
+    assert env.settings["frame_rate_hz"] == 25.0
     assert env.settings["observation"] == pytest.approx(p.settings["observation"])
     obs, _ = env.reset(seed=0)
     assert p.act(obs).shape == (1,)

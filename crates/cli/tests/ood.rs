@@ -952,10 +952,33 @@ fn an_ood_policy_that_acts_five_times_a_second_is_measured_against_a_yardstick_t
     );
     assert_eq!(policy_about(&run)["frames_per_action"], 5);
     assert_eq!(policy_about(&goal_policy)["frames_per_action"], 25);
+    assert_eq!(policy_about(&run)["frame_rate_hz"], 25.0);
     ood_report(&dir, &run, &goal_policy);
     // Elsewhere it runs only at its rate: evaluation and the bridge name it.
     assert_refused(&evaluate_on_zone(&dir, &run), "act every 5 frames");
     assert_refused(&lab_trial(&dir, &run, "lab", &[]), "set command_hz = 5");
+    // The same policy had it been trained at 50 Hz acts ten times a second, and the bridge
+    // asks for that rate: its frames are the frame rate it records, not SPEC's 25 Hz.
+    let fast = dir.join("fast");
+    std::fs::create_dir_all(&fast).unwrap();
+    std::fs::copy(
+        run.join("policy.safetensors"),
+        fast.join("policy.safetensors"),
+    )
+    .unwrap();
+    let mut meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("policy.safetensors.json")).unwrap())
+            .unwrap();
+    meta["about"]["frame_rate_hz"] = serde_json::json!(50.0);
+    std::fs::write(
+        fast.join("policy.safetensors.json"),
+        serde_json::to_vec(&meta).unwrap(),
+    )
+    .unwrap();
+    assert_refused(
+        &lab_trial(&dir, &fast, "lab-fast", &[]),
+        "set command_hz = 10",
+    );
 }
 
 #[test]

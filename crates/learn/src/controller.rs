@@ -23,6 +23,9 @@ pub struct PolicyController {
     /// The frames per action it was trained at (`about.frames_per_action`; absent in policies
     /// trained before fishprobe recorded it).
     frames_per_action: Option<u32>,
+    /// The simulator's frame rate it was trained at (`about.frame_rate_hz`; absent in
+    /// policies trained before fishprobe recorded it).
+    frame_rate_hz: Option<f32>,
     ws: MlpWorkspace,
 }
 
@@ -43,6 +46,7 @@ impl PolicyController {
             description,
             observation: None,
             frames_per_action: None,
+            frame_rate_hz: None,
             ws: MlpWorkspace::default(),
         }
     }
@@ -86,9 +90,24 @@ impl PolicyController {
                     })?,
             ),
         };
+        let frame_rate_hz = match meta["about"].get("frame_rate_hz") {
+            None => None,
+            Some(f) => Some(
+                f.as_f64()
+                    .map(|f| f as f32)
+                    .filter(|f| f.is_finite() && *f > 0.0)
+                    .ok_or_else(|| {
+                        LearnError::Policy(format!(
+                            "{}: its about.frame_rate_hz is not a positive number: {f}",
+                            dir.display()
+                        ))
+                    })?,
+            ),
+        };
         Ok(Self {
             observation,
             frames_per_action,
+            frame_rate_hz,
             ..Self::new(policy, stochastic, name, description)
         })
     }
@@ -117,6 +136,10 @@ impl Controller for PolicyController {
 
     fn trained_frames_per_action(&self) -> Option<u32> {
         self.frames_per_action
+    }
+
+    fn trained_frame_rate_hz(&self) -> Option<f32> {
+        self.frame_rate_hz
     }
 
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
@@ -207,6 +230,10 @@ impl Controller for Named {
 
     fn trained_frames_per_action(&self) -> Option<u32> {
         self.inner.trained_frames_per_action()
+    }
+
+    fn trained_frame_rate_hz(&self) -> Option<f32> {
+        self.inner.trained_frame_rate_hz()
     }
 
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32 {
@@ -316,17 +343,58 @@ mod tests {
             ..EnvConfig::default()
         };
         let paper = save(serde_json::json!({ "frames_per_action": 25 })).unwrap();
+        let at = |frames_per_action, frame_rate_hz| EnvConfig {
+            frames_per_action,
+            frame_rate_hz,
+            ..EnvConfig::default()
+        };
         assert_eq!(paper.trained_frames_per_action(), Some(25));
         assert_eq!(controller_env(&paper, &run).frames_per_action, 25);
-        assert!(check_controller_rate(&paper, 25).is_ok());
-        let e = check_controller_rate(&paper, 5).unwrap_err();
+        assert!(check_controller_rate(&paper, &at(25, 25.0)).is_ok());
+        let e = check_controller_rate(&paper, &at(5, 25.0)).unwrap_err();
         assert!(
             e.contains("every 25 frames") && e.contains("run every 5"),
             "{e}"
         );
         let old = save(serde_json::json!({})).unwrap();
         assert_eq!(controller_env(&old, &run).frames_per_action, 5);
-        assert!(check_controller_rate(&old, 5).is_ok());
+        assert!(check_controller_rate(&old, &at(5, 25.0)).is_ok());
+        assert_eq!(
+            fishprobe_sim::controller_actions_per_second(&old, 25.0),
+            None
+        );
+        // A policy from before the frame rate was recorded acts at the run's frame rate.
+        assert_eq!(paper.trained_frame_rate_hz(), None);
+        assert!(check_controller_rate(&paper, &at(25, 50.0)).is_ok());
+        assert_eq!(
+            fishprobe_sim::controller_actions_per_second(&paper, 25.0),
+            Some(1.0)
+        );
+        // One that records it is run at it, and refused at another: 25 frames at 50 Hz are
+        // two actions a second, not one.
+        let fast =
+            save(serde_json::json!({ "frames_per_action": 25, "frame_rate_hz": 50.0 })).unwrap();
+        assert_eq!(fast.trained_frame_rate_hz(), Some(50.0));
+        assert_eq!(controller_env(&fast, &run).frame_rate_hz, 50.0);
+        assert!(check_controller_rate(&fast, &at(25, 50.0)).is_ok());
+        let e = check_controller_rate(&fast, &at(25, 25.0)).unwrap_err();
+        assert!(
+            e.contains("frame_rate_hz = 50") && e.contains("run at 25"),
+            "{e}"
+        );
+        assert_eq!(
+            fishprobe_sim::controller_actions_per_second(&fast, 25.0),
+            Some(2.0)
+        );
+        for bad in [
+            serde_json::json!(0),
+            serde_json::json!(-25.0),
+            serde_json::json!("25"),
+            serde_json::json!(null),
+        ] {
+            let e = save(serde_json::json!({ "frame_rate_hz": bad })).unwrap_err();
+            assert!(e.to_string().contains("about.frame_rate_hz"), "{e}");
+        }
         for bad in [
             serde_json::json!(0),
             serde_json::json!(-5),

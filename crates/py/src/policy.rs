@@ -44,13 +44,16 @@ impl Policy {
     }
 
     /// The environment settings the policy was trained with, where it records them, as JSON:
-    /// `frames_per_action` and `observation` (an ONNX policy, or one trained before fishprobe
+    /// `frames_per_action`, `frame_rate_hz` and `observation` (an ONNX policy, or one trained before fishprobe
     /// recorded them, records neither: `None`).
     #[getter]
     fn trained_settings(&self) -> PyResult<Option<String>> {
         let mut table = serde_json::Map::new();
         if let Some(f) = self.ctrl.trained_frames_per_action() {
             table.insert("frames_per_action".into(), f.into());
+        }
+        if let Some(hz) = self.ctrl.trained_frame_rate_hz() {
+            table.insert("frame_rate_hz".into(), hz.into());
         }
         if let Some(o) = self.ctrl.trained_observation() {
             let o = serde_json::to_value(o).map_err(|e| PyValueError::new_err(e.to_string()))?;

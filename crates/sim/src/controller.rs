@@ -76,6 +76,13 @@ pub trait Controller: Send + Sync + ControllerClone {
     fn trained_frames_per_action(&self) -> Option<u32> {
         None
     }
+    /// The simulator's frame rate (`frame_rate_hz`) the controller was trained at, where it
+    /// records one (policies trained by fishprobe since it recorded the rate); `None`: it is
+    /// run at the run's. With `trained_frames_per_action` it fixes how often the robot acts:
+    /// 25 frames at 50 Hz are half a second, not one.
+    fn trained_frame_rate_hz(&self) -> Option<f32> {
+        None
+    }
     /// The turn for this second. `rng` is the episode's action stream, for controllers that
     /// sample.
     fn act(&mut self, input: &ControlInput<'_>, rng: &mut SimRng) -> f32;
@@ -131,28 +138,46 @@ pub fn controller_observation(c: &dyn Controller, run: &ObservationParams) -> Ob
         })
 }
 
-/// Checks that `c` is run at the action rate it was trained at, where it records one.
-pub fn check_controller_rate(c: &dyn Controller, frames_per_action: u32) -> Result<(), String> {
-    match c.trained_frames_per_action() {
-        Some(t) if t != frames_per_action => Err(format!(
+/// Checks that `c` is run at the action rate it was trained at, where it records one: the same
+/// frames per action at the same frame rate.
+pub fn check_controller_rate(c: &dyn Controller, run: &crate::EnvConfig) -> Result<(), String> {
+    let frames_per_action = run.frames_per_action;
+    match (c.trained_frames_per_action(), c.trained_frame_rate_hz()) {
+        (Some(t), _) if t != frames_per_action => Err(format!(
             "{} was trained to act every {t} frames (frames_per_action = {t}); it is run every \
              {frames_per_action}: run it at the rate it was trained at",
             c.describe()
+        )),
+        (_, Some(hz)) if hz != run.frame_rate_hz => Err(format!(
+            "{} was trained at frame_rate_hz = {hz}; it is run at {}: run it at the frame rate \
+             it was trained at",
+            c.describe(),
+            run.frame_rate_hz
         )),
         _ => Ok(()),
     }
 }
 
+/// How many times a second `c` acts where it records its rate: its frame rate (the run's
+/// `default_hz` for a policy that records only its frames per action) over its frames per
+/// action; `None` for a controller that records neither.
+pub fn controller_actions_per_second(c: &dyn Controller, default_hz: f32) -> Option<f64> {
+    let frames = c.trained_frames_per_action()?;
+    let hz = c.trained_frame_rate_hz().unwrap_or(default_hz);
+    Some(f64::from(hz) / f64::from(frames))
+}
+
 /// The settings under which `c` runs in a run of settings `run`: its own observation
-/// ([`controller_observation`]) and its own action rate where it records one. A lead-to-goal
-/// yardstick or comparison policy of an OOD run that observes headings, or acts five times a
-/// second, is run as it was trained.
+/// ([`controller_observation`]) and its own action rate (frames per action and frame rate)
+/// where it records one. A lead-to-goal yardstick or comparison policy of an OOD run that
+/// observes headings, or acts five times a second, is run as it was trained.
 pub fn controller_env(c: &dyn Controller, run: &crate::EnvConfig) -> crate::EnvConfig {
     crate::EnvConfig {
         observation: controller_observation(c, &run.observation),
         frames_per_action: c
             .trained_frames_per_action()
             .unwrap_or(run.frames_per_action),
+        frame_rate_hz: c.trained_frame_rate_hz().unwrap_or(run.frame_rate_hz),
         ..run.clone()
     }
 }

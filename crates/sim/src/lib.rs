@@ -50,9 +50,9 @@ pub mod vector;
 pub use agent::AgentState;
 pub use checker::{check_env, CheckFailure, CheckReport};
 pub use controller::{
-    check_controller_observation, check_controller_rate, controller_env, controller_observation,
-    scripted, ControlInput, Controller, ControllerClone, FetchAndLead, FetchParams, GoalSeeker,
-    RandomTurns, SCRIPTED, SCRIPTED_ALL,
+    check_controller_observation, check_controller_rate, controller_actions_per_second,
+    controller_env, controller_observation, scripted, ControlInput, Controller, ControllerClone,
+    FetchAndLead, FetchParams, GoalSeeker, RandomTurns, SCRIPTED, SCRIPTED_ALL,
 };
 pub use env::{
     BoxSpace, Env, EnvConfig, EnvSnapshot, EpisodeSummary, RecordedCommand, StartPoses, StepInfo,

@@ -152,14 +152,17 @@ fn pilot_factory(
         .map_err(anyhow::Error::msg)
         .context("the policy's observation")?;
     // A policy trained to act more often than once a second is run at its rate: its frames
-    // are the simulator's, at the tracking rate (SPEC §2: 25 Hz).
-    if let Some(frames) = c.trained_frames_per_action() {
-        let hz = f64::from(fishprobe_sim::EnvConfig::default().frame_rate_hz) / f64::from(frames);
+    // are the simulator's, at the frame rate it records (one from before fishprobe recorded
+    // it: the tracking rate of SPEC §2, 25 Hz).
+    let default_hz = fishprobe_sim::EnvConfig::default().frame_rate_hz;
+    if let Some(hz) = fishprobe_sim::controller_actions_per_second(c.as_ref(), default_hz) {
         if (hz - live.command_hz).abs() > 1e-6 * hz {
             bail!(
-                "the policy {policy} was trained to act every {frames} frames, {hz} times a \
-                 second; the bridge commands {} times a second: set command_hz = {hz} in the \
+                "the policy {policy} was trained to act every {} frames at {} Hz, {hz} times \
+                 a second; the bridge commands {} times a second: set command_hz = {hz} in the \
                  bridge's settings",
+                c.trained_frames_per_action().unwrap_or_default(),
+                c.trained_frame_rate_hz().unwrap_or(default_hz),
                 live.command_hz
             );
         }

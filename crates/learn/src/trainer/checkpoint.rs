@@ -39,6 +39,8 @@ impl Trainer {
             "observation": self.spec.env.observation,
             // and how often it acts: a policy of five actions a second is run at five.
             "frames_per_action": self.spec.env.frames_per_action,
+            // at this frame rate: 25 frames at 50 Hz are half a second.
+            "frame_rate_hz": self.spec.env.frame_rate_hz,
             "program_version": env!("CARGO_PKG_VERSION"),
         })
     }

@@ -5,7 +5,10 @@ use super::*;
 crate::documented_params! {
     /// Everything that defines an environment except the fish model.
     pub struct EnvConfig {
-        /// Simulation (and tracking) frame rate (paper: 25 Hz).
+        /// Simulation (and tracking) frame rate (paper: 25 Hz). A policy records the frame
+        /// rate it was trained at, as it records `frames_per_action`, and is run only at it:
+        /// 25 frames at 50 Hz are half a second (policies trained before fishprobe recorded
+        /// it run at the run's).
         pub frame_rate_hz: f32 = 25.0; "Hz",
         /// Frames per policy action (paper: the policy acts at 1 Hz, so 25). A policy
         /// records the rate it was trained at and is run only at it: `evaluate` refuses
