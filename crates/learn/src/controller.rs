@@ -386,6 +386,10 @@ mod tests {
             fishprobe_sim::controller_actions_per_second(&fast, 25.0),
             Some(2.0)
         );
+        // An absurd record is shown as people write it, not in thirty digits.
+        let absurd = save(serde_json::json!({ "frame_rate_hz": 1e30 })).unwrap();
+        let e = check_controller_rate(&absurd, &at(25, 25.0)).unwrap_err();
+        assert!(e.contains("frame_rate_hz = 1e30"), "{e}");
         for bad in [
             serde_json::json!(0),
             serde_json::json!(-25.0),

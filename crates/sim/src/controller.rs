@@ -149,10 +149,11 @@ pub fn check_controller_rate(c: &dyn Controller, run: &crate::EnvConfig) -> Resu
             c.describe()
         )),
         (_, Some(hz)) if hz != run.frame_rate_hz => Err(format!(
-            "{} was trained at frame_rate_hz = {hz}; it is run at {}: run it at the frame rate \
+            "{} was trained at frame_rate_hz = {}; it is run at {}: run it at the frame rate \
              it was trained at",
             c.describe(),
-            run.frame_rate_hz
+            crate::params::check::shown(hz),
+            crate::params::check::shown(run.frame_rate_hz)
         )),
         _ => Ok(()),
     }
