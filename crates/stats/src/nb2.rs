@@ -6,14 +6,27 @@
 //! G/(G-1) · (N-1)/(N-K), K = number of parameters including α; Wald intervals and p-values
 //! from the normal distribution.
 //!
-//! When the dispersion's maximum-likelihood estimate lies on its boundary α = 0 (counts no
-//! more variable than Poisson), NB2 reduces to the Poisson model: that is fitted instead and
-//! α is reported as 0 with an undefined standard error. statsmodels' `NegativeBinomial` ends
-//! there at a tiny α (1e-8 to 1e-5) with the same coefficients and keeps α among the
-//! parameters, so its small-sample factor has K = k + 1; fishprobe follows that convention
-//! (the Poisson sandwich over β, with K = k + 1 in (N-1)/(N-K)), which matches its standard
-//! errors to about 1e-5 (known-answer test on an under-dispersed sample). statsmodels'
-//! `Poisson` would use K = k.
+//! Near the boundary α = 0 the fit decides by the score of α there. At the Poisson fit β̂,
+//! dℓ/dα at α = 0⁺ is ½ Σ [(y - μ)² - y] (Cameron and Trivedi's overdispersion score):
+//! - **Not positive:** the likelihood falls as α leaves 0, so the maximum is on the boundary
+//!   and NB2 reduces to the Poisson model. That is fitted instead, and α is reported as 0 with
+//!   an undefined standard error. statsmodels' `NegativeBinomial` keeps α among the parameters,
+//!   so its small-sample factor has K = k + 1; fishprobe follows that convention (the Poisson
+//!   sandwich over β, with K = k + 1 in (N-1)/(N-K)). statsmodels itself does not converge
+//!   there: its BFGS stops at some tiny α (1e-8 to 1e-5, `converged = False`) where the score
+//!   of α is far from zero, and its p-values move by several per cent from run to run; the
+//!   known-answer tests compare with statsmodels' converged `Poisson` fit instead.
+//! - **Positive:** the maximum is inside, at a small α (1e-5 is typical of counts barely more
+//!   variable than Poisson). When the first Newton path heads for the boundary, or stalls on
+//!   the way (far from the maximum its direction in (β, ln α) need not rise), Newton's method
+//!   starts again from β̂ and the moment estimate α = Σ [(y - μ)² - y] / Σ μ², which lies near
+//!   that maximum.
+//!
+//! At α below 1e-4 the count's terms lnΓ(y + 1/α) - lnΓ(1/α) and its digamma and trigamma
+//! differences are summed over the count (Σ ln(1/α + j), ...) instead of taken as differences,
+//! whose rounding reaches the few 1e-8 by which the likelihood changes there. The known-answer
+//! tests hold fits at α = 1.1e-5 and 0.0054 to values computed in 50-digit arithmetic
+//! (`tests/nb2_reference.py`) to 1e-6, and to statsmodels' own fit to 2e-3 in p.
 //!
 //! Per observation, with μ = exp(xβ) and r = 1/α:
 //! ℓ = lnΓ(y+r) - lnΓ(r) - lnΓ(y+1) + r ln(r/(r+μ)) + y ln(μ/(r+μ)).
@@ -79,6 +92,39 @@ impl Nb2Fit {
     }
 }
 
+/// Above this r = 1/α (α below 1e-4) the count's terms lnΓ(y + r) - lnΓ(r), ψ(y + r) - ψ(r) and
+/// ψ'(y + r) - ψ'(r) are summed over the count instead of taken as differences: lnΓ(r) is about
+/// r ln r, and its rounding (r ln r · 2e-16 per observation) reaches the few 1e-8 by which the
+/// likelihood changes over a tiny α. Below it the differences are exact enough and cheaper.
+const SUMMED_ABOVE_R: f64 = 1e4;
+
+/// The largest count whose terms are summed (a longer sum costs more than it saves).
+const SUMMED_UP_TO_Y: f64 = 1e4;
+
+/// The terms of one count `y` at r = 1/α: lnΓ(y + r) - lnΓ(r), ψ(y + r) - ψ(r),
+/// ψ'(y + r) - ψ'(r), ln(r / (r + μ)) and 1/r - 1/(r + μ).
+fn count_terms(y: f64, r: f64, mu: f64) -> [f64; 5] {
+    if r >= SUMMED_ABOVE_R && y <= SUMMED_UP_TO_Y {
+        let (mut lg, mut dg, mut tg) = (0.0, 0.0, 0.0);
+        let mut j = 0.0;
+        while j < y {
+            lg += (r + j).ln();
+            dg += 1.0 / (r + j);
+            tg -= 1.0 / ((r + j) * (r + j));
+            j += 1.0;
+        }
+        [lg, dg, tg, -(mu / r).ln_1p(), mu / (r * (r + mu))]
+    } else {
+        [
+            ln_gamma(y + r) - ln_gamma(r),
+            digamma(y + r) - digamma(r),
+            trigamma(y + r) - trigamma(r),
+            (r / (r + mu)).ln(),
+            1.0 / r - 1.0 / (r + mu),
+        ]
+    }
+}
+
 fn obs_terms(
     y: f64,
     xrow: &[f64],
@@ -93,14 +139,13 @@ fn obs_terms(
     let eta: f64 = xrow.iter().zip(beta).map(|(x, b)| x * b).sum();
     let mu = eta.exp();
     let r = 1.0 / alpha;
-    let ll = ln_gamma(y + r) - ln_gamma(r) - ln_gamma(y + 1.0)
-        + r * (r / (r + mu)).ln()
-        + y * (mu / (r + mu)).ln();
+    let [lg, dg, tg, ln_q, inv_diff] = count_terms(y, r, mu);
+    let ll = lg - ln_gamma(y + 1.0) + r * ln_q + y * (mu / (r + mu)).ln();
     let am = 1.0 + alpha * mu;
     // dℓ/dβ = (y - μ)/(1 + αμ) x
     let gb = (y - mu) / am;
     // dℓ/dr = ψ(y+r) - ψ(r) + ln(r/(r+μ)) + (μ - y)/(r+μ); dℓ/dα = -r² dℓ/dr
-    let g_r = digamma(y + r) - digamma(r) + (r / (r + mu)).ln() + (mu - y) / (r + mu);
+    let g_r = dg + ln_q + (mu - y) / (r + mu);
     let ga = -r * r * g_r;
     for j in 0..k {
         grad[j] = gb * xrow[j];
@@ -112,9 +157,7 @@ fn obs_terms(
         // d²ℓ/dβdα = -(y - μ) μ /(1 + αμ)² x
         let hba = -(y - mu) * mu / (am * am);
         // d²ℓ/dα² = 2r³ g_r + r⁴ g_r'
-        let gpr = trigamma(y + r) - trigamma(r) + 1.0 / r
-            - 1.0 / (r + mu)
-            - (mu - y) / ((r + mu) * (r + mu));
+        let gpr = tg + inv_diff - (mu - y) / ((r + mu) * (r + mu));
         let haa = 2.0 * r * r * r * g_r + r * r * r * r * gpr;
         for i in 0..k {
             for j in 0..k {
@@ -172,12 +215,15 @@ fn poisson_totals(y: &[f64], x: &[f64], beta: &[f64]) -> Objective {
 }
 
 /// Newton's method with step halving (the objective never decreases), from `theta` until the
-/// step is negligible, no step improves, or `stop` says so. Returns θ, the objective there and
-/// the iterations used.
+/// step is negligible, no step improves, or `stop` says so; where `flat(θ)` holds, also once an
+/// accepted step did not raise the objective (near a maximum as flat in one direction as ln α
+/// at a tiny α, Newton's step there is rounding noise and never gets small). Returns θ, the
+/// objective there and the iterations used.
 fn maximize(
     mut theta: Vec<f64>,
     eval: impl Fn(&[f64]) -> Objective,
     stop: impl Fn(&[f64]) -> bool,
+    flat: impl Fn(&[f64]) -> bool,
 ) -> Result<(Vec<f64>, Objective, usize), StatsError> {
     let p = theta.len();
     let mut cur = eval(&theta);
@@ -194,10 +240,12 @@ fn maximize(
             .collect();
         let mut t = 1.0;
         let mut accepted = false;
+        let mut gained = false;
         for _ in 0..40 {
             let next: Vec<f64> = theta.iter().zip(&step).map(|(a, s)| a + t * s).collect();
             let cand = eval(&next);
             if cand.0.is_finite() && cand.0 >= cur.0 - 1e-12 * cur.0.abs() {
+                gained = cand.0 > cur.0;
                 theta = next;
                 cur = cand;
                 accepted = true;
@@ -206,7 +254,7 @@ fn maximize(
             t *= 0.5;
         }
         let max_step = step.iter().fold(0.0f64, |m, s| m.max((t * s).abs()));
-        if !accepted || max_step < 1e-10 || stop(&theta) {
+        if !accepted || (!gained && flat(&theta)) || max_step < 1e-10 || stop(&theta) {
             break;
         }
     }
@@ -282,8 +330,14 @@ fn covariance(
     }
 }
 
-/// Below this the dispersion is taken to be at its boundary, 0.
+/// Below this the first Newton path is taken to be heading for the boundary α = 0, where the
+/// score at α = 0 decides (module docs).
 const ALPHA_BOUNDARY: f64 = 1e-6;
+
+/// Below this a search for an interior maximum has found none: the dispersion is 0 to within
+/// what lnΓ(1/α) resolves in double precision (its cancellation error reaches the likelihood's
+/// differences there).
+const ALPHA_FLOOR: f64 = 1e-10;
 
 /// Starting coefficients: the intercept at ln(mean y) when the first column is constant.
 fn start_beta(x: &[f64], k: usize, ybar: f64) -> Vec<f64> {
@@ -305,6 +359,7 @@ fn fit_poisson(
     let (beta, (llf, _, h), iterations) = maximize(
         start_beta(x, k, ybar),
         |b| poisson_totals(y, x, b),
+        |_| false,
         |_| false,
     )?;
     // K = k + 1: α stays a parameter, as in statsmodels' NegativeBinomial (module docs).
@@ -370,13 +425,71 @@ pub fn fit_nb2(
         h[k * p + k] = alpha * alpha * h[k * p + k] + alpha * ga;
         (ll, g, h)
     };
-    let (theta, _, iterations) = maximize(theta0, in_log_alpha, |t| t[k].exp() < ALPHA_BOUNDARY)
+    let (theta, _, iterations) = maximize(
+        theta0,
+        in_log_alpha,
+        |t| t[k].exp() < ALPHA_BOUNDARY,
+        |t| t[k].exp() * SUMMED_ABOVE_R <= 1.0,
+    )
+    .map_err(|e| StatsError::NoConvergence(format!("nb2: {e}")))?;
+    let first = (theta[k].exp() >= ALPHA_BOUNDARY)
+        .then(|| interior_fit(y, x, k, clusters, &theta, iterations));
+    let stalled = match first {
+        Some(Ok(fit)) => return Ok(fit),
+        Some(Err(e)) => Some(e),
+        None => None,
+    };
+    // The path went for the boundary, or stalled on the way (far from the maximum Newton's
+    // direction in (β, ln α) need not rise): the score of α at 0 says where the maximum is, and
+    // the moment estimate at the Poisson fit starts near it.
+    let poisson = match fit_poisson(y, x, k, clusters) {
+        Ok(poisson) => poisson,
+        Err(e) => return Err(stalled.unwrap_or(e)),
+    };
+    let Some(alpha_small) = overdispersion_moment(y, x, &poisson.params[..k]) else {
+        // The maximum is on the boundary; a path that stalled inside found no other.
+        return match stalled {
+            Some(e) => Err(e),
+            None => Ok(poisson),
+        };
+    };
+    let mut start = poisson.params[..k].to_vec();
+    start.push(alpha_small.ln());
+    let (theta, _, more) = maximize(start, in_log_alpha, |t| t[k].exp() < ALPHA_FLOOR, |_| true)
         .map_err(|e| StatsError::NoConvergence(format!("nb2: {e}")))?;
-    let (beta, alpha) = (&theta[..k], theta[k].exp());
-    if alpha < ALPHA_BOUNDARY {
-        return fit_poisson(y, x, k, clusters);
+    if theta[k].exp() < ALPHA_FLOOR {
+        return Ok(poisson);
     }
-    // Back in (β, α): the gradient must vanish there too.
+    interior_fit(y, x, k, clusters, &theta, iterations + more)
+}
+
+/// The moment estimate Σ [(y - μ)² - y] / Σ μ² of α at the Poisson fit `beta`, when the score
+/// of α at 0, ½ Σ [(y - μ)² - y], is positive (the maximum is inside); `None` when it is not
+/// (the maximum is on the boundary).
+fn overdispersion_moment(y: &[f64], x: &[f64], beta: &[f64]) -> Option<f64> {
+    let k = beta.len();
+    let (mut excess, mut mu2) = (0.0, 0.0);
+    for (i, &yi) in y.iter().enumerate() {
+        let row = &x[i * k..(i + 1) * k];
+        let mu = row.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>().exp();
+        excess += (yi - mu) * (yi - mu) - yi;
+        mu2 += mu * mu;
+    }
+    (excess > 0.0 && mu2 > 0.0).then(|| (excess / mu2).max(ALPHA_FLOOR))
+}
+
+/// The NB2 fit at an interior optimum `theta` = (β, ln α): checks that the gradient vanishes in
+/// (β, α) and computes the covariance there.
+fn interior_fit(
+    y: &[f64],
+    x: &[f64],
+    k: usize,
+    clusters: Option<&[usize]>,
+    theta: &[f64],
+    iterations: usize,
+) -> Result<Nb2Fit, StatsError> {
+    let (n, p) = (y.len(), k + 1);
+    let (beta, alpha) = (&theta[..k], theta[k].exp());
     let (llf, g, h) = nb2_totals(y, x, beta, alpha);
     let gmax = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     if gmax.is_nan() || gmax >= 1e-4 * n as f64 {

@@ -152,17 +152,24 @@ fn nb2_at_the_dispersion_boundary_is_poisson_with_statsmodels_nb_errors() {
 }
 
 /// Goals per minute as under-dispersed as a good policy's (variance 0.61 at mean 4.28), with a
-/// decline: 6 trials x 15 minutes. Known answers from statsmodels 0.15.0:
+/// decline: 6 trials x 15 minutes. The score of α at 0 is ½ Σ [(y - μ)² - y] = -173.6, so the
+/// maximum is on the boundary α = 0 and the fit is Poisson's.
+///
+/// statsmodels 0.15.0's `NegativeBinomial(y, X, loglike_method="nb2").fit(cov_type="cluster",
+/// cov_kwds={"groups": trial}, disp=0, maxiter=200)` does not converge here: it reports
+/// `converged = False` and stops at α = 9.6e-9 (another run of the same version stopped at
+/// 2.3e-8), where the score of α is -97, not 0; its lnΓ(y + 1/α) - lnΓ(1/α) loses about 1e-6 of
+/// the likelihood per observation to cancellation, more than the differences its BFGS compares.
+/// Its slope's p-value was 5.06e-82 in one run and 4.80e-82 in the other. The exact answer is
+/// statsmodels' converged Poisson fit with α counted in the small-sample factor:
 ///
 /// ```python
-/// m = NegativeBinomial(y, sm.add_constant(minute), loglike_method="nb2")
-/// r = m.fit(cov_type="cluster", cov_kwds={"groups": trial}, disp=0, maxiter=200)
+/// r = Poisson(y, sm.add_constant(minute)).fit(cov_type="cluster", cov_kwds={"groups": trial},
+///                                            method="newton", tol=1e-14, disp=0)
+/// se = r.bse * np.sqrt((90 - 2) / (90 - 3)); p = 2 * scipy.stats.norm.sf(abs(r.params / se))
 /// ```
-///
-/// Before fishprobe counted α in K at the boundary, its standard errors were 0.57 % smaller
-/// and the slope's p-value was off by a factor of three (z = -19).
 #[test]
-fn nb2_temporal_fit_of_an_under_dispersed_policy_matches_statsmodels() {
+fn nb2_temporal_fit_of_an_under_dispersed_policy_is_the_converged_poisson_fit() {
     let y: [f64; 90] = [
         5., 5., 4., 5., 5., 4., 4., 5., 4., 4., 4., 4., 3., 4., 4., 6., 5., 5., 5., 6., 5., 5., 4.,
         5., 5., 4., 5., 4., 4., 4., 4., 4., 4., 4., 3., 4., 4., 4., 3., 4., 3., 3., 4., 3., 3., 5.,
@@ -172,25 +179,129 @@ fn nb2_temporal_fit_of_an_under_dispersed_policy_matches_statsmodels() {
     let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
     let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
     let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
-    let params = [1.6104470699667255, -0.023144160586165027];
-    let bse = [0.056619728930776485, 0.0012064484798776584];
-    let ci_slope = [-0.025508756155928333, -0.02077956501640172];
+    let params = [1.610453240856613, -0.02314489727595962];
+    let bse = [0.05661939465208497, 0.00120642778848474];
+    let pvalues = [5.865654986998659e-178, 4.972590106197667e-82];
     for j in 0..2 {
         assert!(
-            rel(fit.params[j], params[j]) < 1e-4,
-            "param {j}: {}",
-            fit.params[j]
+            rel(fit.params[j], params[j]) < 1e-6,
+            "param {j}: {} vs {}",
+            fit.params[j],
+            params[j]
         );
         assert!(
-            rel(fit.se[j], bse[j]) < 1e-4,
+            rel(fit.se[j], bse[j]) < 1e-6,
+            "se {j}: {} vs {}",
+            fit.se[j],
+            bse[j]
+        );
+        // z = -19.2 for the slope: p moves by 19.2² times the s.e.'s relative error.
+        let p = fit.wald(j).p;
+        assert!(rel(p, pvalues[j]) < 2e-3, "p {j}: {p} vs {}", pvalues[j]);
+    }
+    assert_eq!(fit.params[2], 0.0);
+    // statsmodels' non-converged NegativeBinomial fit (above) ends lower.
+    assert!(fit.llf > -153.5823, "llf {}", fit.llf);
+}
+
+/// Counts barely more variable than Poisson (6 trials x 15 minutes, drawn with
+/// `numpy.random.default_rng(1525).poisson(exp(1.5 - 0.02 * minute))`): the score of α at 0
+/// is +0.0085, so the maximum is inside, at α = 1.1e-5. Known answers in 50-digit arithmetic
+/// (`nb2_reference.py` beside this file: the maximum and statsmodels' cluster sandwich there),
+/// and statsmodels 0.15.0's own fit, `NegativeBinomial(y, X, loglike_method="nb2").fit(
+/// cov_type="cluster", cov_kwds={"groups": trial}, disp=0, maxiter=200)`, which stops at
+/// α = 8.2e-5 with the slope's p = 0.024032219. The Poisson fit (α = 0) would give p = 0.02347,
+/// 2.4 % off; lnΓ(y + 1/α) - lnΓ(1/α) taken as a difference in double precision left α at
+/// 1.05e-5 and p 0.3 % off.
+#[test]
+fn nb2_with_a_tiny_interior_dispersion_matches_the_50_digit_maximum_and_statsmodels() {
+    let y: [f64; 90] = [
+        3., 3., 5., 3., 3., 6., 2., 9., 5., 1., 4., 2., 4., 3., 5., 2., 5., 1., 3., 8., 5., 6., 6.,
+        4., 4., 1., 6., 4., 5., 2., 3., 2., 5., 9., 7., 3., 3., 2., 5., 8., 5., 2., 4., 3., 1., 2.,
+        1., 9., 4., 2., 7., 5., 2., 3., 5., 4., 4., 1., 3., 3., 4., 1., 5., 4., 4., 3., 4., 8., 4.,
+        2., 2., 5., 5., 4., 1., 7., 4., 6., 7., 2., 3., 9., 4., 3., 6., 5., 5., 2., 3., 4.,
+    ];
+    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
+    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
+    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let params = [
+        1.5019117711586394,
+        -0.01565797319211985,
+        1.1076301593496772e-05,
+    ];
+    let bse = [
+        0.07451188503424423,
+        0.006938718990952817,
+        0.017076285565583067,
+    ];
+    let pvalues = [2.3516874195569803e-90, 0.024032540316973473];
+    let ci_slope = [-0.02925761251323148, -0.0020583338710082207];
+    for j in 0..3 {
+        assert!(
+            rel(fit.params[j], params[j]) < 1e-6,
+            "param {j}: {} vs {}",
+            fit.params[j],
+            params[j]
+        );
+        assert!(
+            rel(fit.se[j], bse[j]) < 1e-6,
             "se {j}: {} vs {}",
             fit.se[j],
             bse[j]
         );
     }
+    for (j, want) in pvalues.iter().enumerate() {
+        let p = fit.wald(j).p;
+        assert!(rel(p, *want) < 1e-5, "p {j}: {p} vs {want}");
+    }
     let w = fit.wald(1);
-    assert!(rel(w.ci[0], ci_slope[0]) < 1e-4 && rel(w.ci[1], ci_slope[1]) < 1e-4);
-    // z = -19.2: p is 5.06e-82; a relative error of 1e-5 in the s.e. moves it by about 0.4 %.
-    assert!(rel(w.p, 5.063288174501792e-82) < 2e-2, "p {}", w.p);
-    assert_eq!(fit.params[2], 0.0);
+    assert!(rel(w.ci[0], ci_slope[0]) < 1e-6 && rel(w.ci[1], ci_slope[1]) < 1e-6);
+    assert!(rel(fit.llf, -186.49927591778347) < 1e-12, "llf {}", fit.llf);
+    // statsmodels' own fit: its slope and p agree to 2e-3 and better.
+    assert!(rel(fit.params[1], -0.01565842458713857) < 1e-4);
+    assert!(rel(w.p, 0.024032219235493212) < 2e-3, "p {}", w.p);
+}
+
+/// Counts with a small interior dispersion (α = 0.0054; drawn with
+/// `numpy.random.default_rng(1299).poisson(exp(1.0 - 0.02 * minute))`, 6 trials x 15 minutes)
+/// on which Newton's method from the usual start (α = 0.05) stalls: far from the maximum its
+/// direction in (β, ln α) need not rise. The fit then starts again from the Poisson fit and the
+/// moment estimate of α. Known answers: the 50-digit maximum (`nb2_reference.py`) and
+/// statsmodels 0.15.0's fit (converged, α = 0.00553).
+#[test]
+fn nb2_whose_first_newton_path_stalls_finds_the_maximum() {
+    let y: [f64; 90] = [
+        4., 2., 5., 2., 4., 0., 5., 2., 3., 2., 3., 0., 1., 1., 0., 0., 6., 1., 1., 1., 3., 4., 0.,
+        2., 2., 3., 1., 2., 1., 2., 2., 3., 4., 3., 1., 2., 1., 1., 1., 5., 1., 2., 3., 0., 1., 3.,
+        5., 2., 1., 2., 2., 2., 1., 1., 1., 1., 0., 1., 1., 0., 3., 1., 3., 2., 3., 3., 1., 2., 1.,
+        2., 5., 4., 2., 3., 2., 5., 2., 2., 1., 0., 0., 5., 0., 5., 4., 1., 0., 2., 0., 2.,
+    ];
+    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
+    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
+    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let params = [
+        1.0414871046992018,
+        -0.05173472930856267,
+        0.005449833649374451,
+    ];
+    let bse = [
+        0.11637320118442385,
+        0.02370805398247987,
+        0.08516793072730706,
+    ];
+    for j in 0..3 {
+        assert!(
+            rel(fit.params[j], params[j]) < 1e-6,
+            "param {j}: {} vs {}",
+            fit.params[j],
+            params[j]
+        );
+        assert!(rel(fit.se[j], bse[j]) < 1e-6, "se {j}: {}", fit.se[j]);
+    }
+    let w = fit.wald(1);
+    assert!(rel(w.p, 0.02909784381665266) < 1e-6, "p {}", w.p);
+    // statsmodels' fit, which stops a little short of the maximum (α 1.5 % off).
+    assert!(rel(w.p, 0.029100618754995297) < 2e-3, "p {}", w.p);
+    assert!(rel(w.ci[0], -0.09820132967528451) < 1e-4 && rel(w.ci[1], -0.00526693572473849) < 1e-3);
+    assert!(rel(fit.llf, -153.2313445288132) < 1e-12, "llf {}", fit.llf);
 }
