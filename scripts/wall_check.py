@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """How fish meet the walls: live guppy pairs (legacy files) next to simulated trial files.
 
-A cross-check outside fishprobe (h5py and numpy; fishprobe itself never needs Python), made for
-issue 20, item 4 (M_ConvNet at the walls); docs/validation.md, "M_ConvNet at the walls", shows
-its output. For each source it prints
+A cross-check outside fishprobe (h5py and numpy; fishprobe itself never needs Python) of how
+M_ConvNet meets the walls; docs/validation.md, "M_ConvNet and the virtual guppy against
+held-back real pairs", shows its output. For each source it prints
   - the heading's change over 1, 5, 25 and 75 frames (median |Δθ| in rad): tracking jitter
     shows as a large 1-frame change that does not add up over 5 frames;
   - where the fish is: the share of frames 0-1.5, 1.5-3 and 3-6 cm from the nearest wall, the

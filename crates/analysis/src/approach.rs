@@ -78,7 +78,7 @@ pub fn approach(
                                 what: f.display().to_string(),
                                 reason: format!(
                                     "{}: not counted in {policy}'s approach assay",
-                                    crate::compare::driven_by_other(own, sha)
+                                    crate::conditions::driven_by_other(own, sha)
                                 ),
                             });
                             continue;

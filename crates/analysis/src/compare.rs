@@ -12,9 +12,7 @@ use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 
-mod conditions;
-pub(crate) use conditions::driven_by_other;
-use conditions::{fish_counts, groups_check, mixed_policies, other_weights, weights_of};
+use crate::conditions::{fish_counts, groups_check, mixed_policies, other_weights, weights_of};
 
 /// Trials by file; failed loads carry the reason.
 type Loaded = HashMap<PathBuf, Result<TrialData, String>>;

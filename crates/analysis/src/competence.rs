@@ -1,4 +1,4 @@
-//! Probe competence (issue 20): how well each policy leads the fish of its own model, next to
+//! Probe competence: how well each policy leads the fish of its own model, next to
 //! fishprobe's scripted controllers on the same evaluation episodes. A probe that reaches far
 //! fewer goals than a simple script has not found what its model allows, so its behaviour
 //! (the approach assay, the sim-to-sim matrix) says as much about the optimiser as about the

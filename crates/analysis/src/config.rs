@@ -34,14 +34,14 @@ fishprobe_sim::documented_params! {
         pub approach_goal: [f32; 2] = [20.0, -20.0]; "cm",
         /// Probe competence: a policy reaching fewer goals on its own model than this
         /// fraction of the best scripted controller's is flagged as a weak probe, whose
-        /// strategy reflects the optimiser as much as the model (choice, issue 20: 0.8).
+        /// strategy reflects the optimiser as much as the model (choice: 0.8).
         pub competence_threshold: f64 = 0.8; "1",
         /// Approach assay, per training seed: a policy goes to the still fish when it comes
-        /// at least this close to it (choice, issue 20's reading of the paper's pattern:
+        /// at least this close to it (choice, a reading of the paper's pattern:
         /// π_Zone came within 4 cm, π_Force within 0.35 cm, π_Follow not at all; 10 cm) ...
         pub approach_closest_cm: f64 = 10.0; "cm",
         /// ... and is nearer the fish than the goal in at least this fraction of the frames
-        /// (choice, issue 20: 0.1; the paper's π_Zone 22.3 %, π_Force 56.1 %, π_ConvNet 4.6 %).
+        /// (choice: 0.1; the paper's π_Zone 22.3 %, π_Force 56.1 %, π_ConvNet 4.6 %).
         pub approach_nearer_share: f64 = 0.1; "1",
         /// A fish this close to the robot counts as within its reach: for the group metric
         /// `fish_near_robot`, and for the time a probe takes to reach its fish (probe

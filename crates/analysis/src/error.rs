@@ -17,6 +17,15 @@ pub enum AnalysisError {
     /// A configuration value is out of range.
     #[error(transparent)]
     Config(#[from] fishprobe_sim::ConfigError),
+    /// A fish model of a synthetic study.
+    #[error(transparent)]
+    Model(#[from] fishprobe_models::ModelError),
+    /// The simulation of a synthetic study.
+    #[error(transparent)]
+    Sim(#[from] fishprobe_sim::SimError),
+    /// Writing a synthetic study's trial file.
+    #[error(transparent)]
+    Trial(#[from] fishprobe_io::IoError),
     /// Writing results failed.
     #[error("{}: cannot write: {what}", path.display())]
     Write {

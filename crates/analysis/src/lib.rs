@@ -17,6 +17,7 @@
 pub mod approach;
 pub mod compare;
 pub mod competence;
+mod conditions;
 pub mod config;
 pub mod error;
 pub mod offline;
@@ -24,6 +25,7 @@ pub mod ood;
 pub mod results;
 pub mod seeds;
 pub mod study;
+pub mod synth;
 pub mod trial;
 
 pub use compare::analyze;

@@ -1,4 +1,4 @@
-//! What an OOD policy finds (issue 23): the support scores of the fish's views in trial
+//! What an OOD policy finds: the support scores of the fish's views in trial
 //! files, their distribution next to the training data's and a lead-to-goal policy's, and a
 //! ranked "data wishlist" of the situations the data lacks that the policy drove the fish into.
 

@@ -1,4 +1,4 @@
-//! Every training seed of a probe (issue 20). A study trains each model's policy with several
+//! Every training seed of a probe. A study trains each model's policy with several
 //! seeds (the policy and the retraining-stability seeds); the report's competence and approach
 //! sections show the policy, seed 0, and a strategy one seed happens to find (or miss) is that
 //! seed's, not its model's. Per seed: how well it leads its own model's fish (its stability

@@ -2,7 +2,7 @@
 //! `fishprobe bench stats` and of the end-to-end tests of `analyze`. They exercise every
 //! section of the analysis; their numbers mean nothing about real fish.
 
-use anyhow::Result;
+use crate::AnalysisError;
 use fishprobe_io::{write_trial, TrialFile, TrialKind, TrialMeta};
 use fishprobe_models::{ForceParams, ModelSpec, ZoneConvention, ZoneParams};
 use fishprobe_sim::{
@@ -82,7 +82,7 @@ struct Job {
     approach: bool,
 }
 
-fn run_job(j: &Job) -> Result<()> {
+fn run_job(j: &Job) -> Result<(), AnalysisError> {
     let mut cfg = EnvConfig {
         mode: TaskMode::Evaluation,
         ..EnvConfig::default()
@@ -123,7 +123,7 @@ fn run_job(j: &Job) -> Result<()> {
     };
     let t = env
         .trajectory()
-        .ok_or_else(|| anyhow::anyhow!("recording is on"))?;
+        .expect("recording was switched on before the episode");
     write_trial(
         &j.path,
         &TrialFile::from_trajectory(t, env.summary(), &meta, [100.0, 100.0]),
@@ -132,7 +132,7 @@ fn run_job(j: &Job) -> Result<()> {
 }
 
 /// Writes a synthetic study under `dir`; returns the number of trial files.
-pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize> {
+pub fn generate(dir: &Path, size: StudySize, seed: u64) -> Result<usize, AnalysisError> {
     let all = models();
     let used = &all[..size.policies.clamp(1, all.len())];
     let mut jobs = Vec::new();

@@ -1,7 +1,7 @@
 //! One trial's numbers: goal events, time to goal, goals per minute, and the nine per-frame
 //! metrics of SPEC §8 over the control phase.
 //!
-//! A trial with a group of fish (issue 22) gives the nine pair metrics of every fish with the
+//! A trial with a group of fish gives the nine pair metrics of every fish with the
 //! robot, pooled (so "per fish" distributions), plus the six group metrics of
 //! [`GROUP_METRICS`] per frame; a fish not tracked in a frame is left out of that frame's
 //! values (and a frame with fewer than two tracked fish has no group values).

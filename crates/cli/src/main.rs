@@ -14,7 +14,6 @@
 
 mod commands;
 
-use clap::Parser;
 use std::process::ExitCode;
 
 // A user's ONNX file cannot make the engine allocate gigabytes (fishprobe_onnx::CappedAlloc).
@@ -22,7 +21,7 @@ use std::process::ExitCode;
 static ALLOC: fishprobe_onnx::CappedAlloc = fishprobe_onnx::CappedAlloc;
 
 fn main() -> ExitCode {
-    let cli = commands::Cli::parse();
+    let cli = commands::parse();
     match commands::run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -386,7 +386,7 @@ fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest(
     // Against M_Force the turn rate, alignment and inter-individual distance go to M_Force:
     // the recordings' per-frame turn rate holds the tracker's frame-to-frame jitter, which
     // M_ConvNet, fitted on headings smoothed over 0.2 s, does not imitate (docs/validation.md,
-    // "M_ConvNet at the walls"). Where a fish is in the tank and how fast it swims are
+    // "M_ConvNet and the virtual guppy against held-back real pairs"). Where a fish is in the tank and how fast it swims are
     // M_ConvNet's, against every model.
     assert!(
         closer("Force") >= 3,
@@ -407,7 +407,7 @@ fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest(
 
 #[test]
 fn the_virtual_guppy_matches_validation_pairs_better_than_zone_and_force() {
-    // Calibrated on the training pairs only; checked here on the validation pairs (issue 8).
+    // Calibrated on the training pairs only; checked here on the validation pairs.
     let Some(p) = pairs() else { return };
     let d = dir("guppy-offline");
     let o = fishprobe(&[

@@ -83,7 +83,11 @@ fn the_readmes_runnable_blocks_run_as_written() {
 fn user_docs() -> Vec<std::path::PathBuf> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let root = root.canonicalize().unwrap();
-    let mut files = vec![root.join("README.md"), root.join("python/README.md")];
+    let mut files = vec![
+        root.join("README.md"),
+        root.join("python/README.md"),
+        root.join("ARCHITECTURE.md"),
+    ];
     let mut dirs = vec![root.join("docs")];
     while let Some(dir) = dirs.pop() {
         for entry in std::fs::read_dir(&dir).unwrap() {
@@ -117,16 +121,108 @@ fn help_of<'a>(
     })
 }
 
-/// The subcommands a help text lists under `Commands:`.
+/// The subcommands a help text lists under `Commands:` and, at the top, under the research
+/// commands' heading.
 fn subcommands(help: &str) -> Vec<&str> {
-    let Some((_, rest)) = help.split_once("Commands:\n") else {
-        return Vec::new();
+    let listed = |heading: &str| -> Vec<&str> {
+        let Some((_, rest)) = help.split_once(heading) else {
+            return Vec::new();
+        };
+        rest.lines()
+            .take_while(|l| !l.trim().is_empty())
+            .filter(|l| l.starts_with("  ") && !l.starts_with("   "))
+            .filter_map(|l| l.split_whitespace().next())
+            .collect()
     };
-    rest.lines()
-        .take_while(|l| !l.trim().is_empty())
-        .filter(|l| l.starts_with("  ") && !l.starts_with("   "))
-        .filter_map(|l| l.split_whitespace().next())
+    let mut all = listed("Commands:\n");
+    all.extend(listed(
+        "Research commands (checks of the method and the paper's outlook):\n",
+    ));
+    all
+}
+
+/// Every command path of the binary (the top level included), found through `--help`.
+fn every_command(cache: &mut std::collections::HashMap<Vec<String>, String>) -> Vec<Vec<String>> {
+    let (mut found, mut todo) = (Vec::new(), vec![Vec::new()]);
+    while let Some(path) = todo.pop() {
+        for sub in subcommands(help_of(cache, &path)) {
+            if sub != "help" {
+                let mut next = path.clone();
+                next.push(sub.to_string());
+                todo.push(next);
+            }
+        }
+        found.push(path);
+    }
+    found
+}
+
+/// Where a text speaks of the work's own bookkeeping ("issue 20"), which a user cannot see.
+fn development_vocabulary(text: &str) -> Vec<String> {
+    let lower = text.to_lowercase();
+    lower
+        .match_indices("issue ")
+        .filter(|(i, m)| {
+            lower[i + m.len()..]
+                .chars()
+                .next()
+                .is_some_and(|c| c.is_ascii_digit())
+        })
+        .map(|(i, _)| {
+            let line = lower[..i].matches('\n').count() + 1;
+            let end = (i + 20).min(text.len());
+            format!("line {line}: {}", text.get(i..end).unwrap_or("?"))
+        })
         .collect()
+}
+
+/// The README is a newcomer's path, not a manual: at most 200 lines.
+#[test]
+fn the_readme_is_short() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../README.md");
+    let lines = std::fs::read_to_string(path).unwrap().lines().count();
+    assert!(
+        lines <= 200,
+        "README.md has {lines} lines; move detail into docs/"
+    );
+}
+
+/// No help text, no generated reference and no page a user reads names an issue: say what the
+/// thing is instead.
+#[test]
+fn no_help_text_or_user_doc_names_an_issue() {
+    assert_eq!(
+        development_vocabulary("see Issue 20."),
+        ["line 1: Issue 20."]
+    );
+    assert!(development_vocabulary("no issue here; issues 2").is_empty());
+    let mut cache = std::collections::HashMap::new();
+    let commands = every_command(&mut cache);
+    assert!(
+        commands.len() > 25,
+        "only {} commands found",
+        commands.len()
+    );
+    assert!(
+        commands.iter().any(|c| c == &["ood-loop"]),
+        "the research commands are listed"
+    );
+    let mut found = Vec::new();
+    for path in &commands {
+        for hit in development_vocabulary(help_of(&mut cache, path)) {
+            found.push(format!("fishprobe {} --help, {hit}", path.join(" ")));
+        }
+    }
+    for file in user_docs() {
+        for hit in development_vocabulary(&std::fs::read_to_string(&file).unwrap()) {
+            found.push(format!("{}, {hit}", file.display()));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "issue numbers shown to users:\n{}",
+        found.join("\n")
+    );
 }
 
 /// The command lines a Markdown line holds: each `fishprobe` followed by a space, up to the
@@ -200,4 +296,71 @@ fn every_command_the_docs_show_has_its_flags() {
         stale.join("\n")
     );
     assert!(checked > 300, "only {checked} flags found in the docs");
+}
+
+/// The crates of ours a manifest (`crates/DIR/Cargo.toml`) depends on, by directory name
+/// (`fishprobe-sim` is `sim`), from its `[dependencies]` table.
+fn manifest_dependencies(manifest: &str) -> std::collections::BTreeSet<String> {
+    let mut in_deps = false;
+    let mut deps = std::collections::BTreeSet::new();
+    for line in manifest.lines() {
+        let line = line.trim();
+        if line.starts_with('[') {
+            in_deps = line == "[dependencies]";
+        } else if in_deps {
+            if let Some(name) = line.strip_prefix("fishprobe-") {
+                let name: String = name
+                    .chars()
+                    .take_while(|c| c.is_ascii_alphanumeric())
+                    .collect();
+                deps.insert(name);
+            }
+        }
+    }
+    deps
+}
+
+/// ARCHITECTURE.md's picture names, for every crate, exactly the crates of ours its manifest
+/// depends on.
+#[test]
+fn the_architecture_picture_matches_the_manifests() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
+    let picture = text
+        .split("```")
+        .nth(1)
+        .expect("ARCHITECTURE.md opens with the dependency picture");
+    let mut drawn = std::collections::BTreeMap::new();
+    for line in picture.lines().filter(|l| l.contains('►')) {
+        let (name, deps) = line.split_once('►').unwrap();
+        let name = name.trim_end_matches(['─', ' ']).trim().to_string();
+        // "(nothing of ours)" and other remarks in parentheses name no crate.
+        let deps = deps.split('(').next().unwrap_or_default();
+        let deps: std::collections::BTreeSet<String> = deps
+            .split_whitespace()
+            .filter(|w| w.chars().all(|c| c.is_ascii_lowercase()))
+            .map(str::to_string)
+            .collect();
+        drawn.insert(name, deps);
+    }
+    let mut crates = Vec::new();
+    for entry in std::fs::read_dir(root.join("crates")).unwrap() {
+        let dir = entry.unwrap().path();
+        let manifest = std::fs::read_to_string(dir.join("Cargo.toml")).unwrap();
+        let name = dir.file_name().unwrap().to_string_lossy().to_string();
+        let Some(deps) = drawn.get(&name) else {
+            panic!("crates/{name} is not in ARCHITECTURE.md's picture");
+        };
+        assert_eq!(
+            deps,
+            &manifest_dependencies(&manifest),
+            "ARCHITECTURE.md's line for {name} against crates/{name}/Cargo.toml"
+        );
+        crates.push(name);
+    }
+    assert_eq!(
+        crates.len(),
+        drawn.len(),
+        "the picture names crates that do not exist"
+    );
 }

@@ -1,4 +1,4 @@
-//! `fishprobe fidelity`: the sweep of issue 20, with a tiny budget.
+//! `fishprobe fidelity`: the fidelity sweep, with a tiny budget.
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 

@@ -1,4 +1,4 @@
-//! Groups from the command line (issue 22): Couzin's phase picture, M_Force's order over
+//! Groups from the command line: Couzin's phase picture, M_Force's order over
 //! alignment, the simulation benchmark with a group, and their refusals.
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure

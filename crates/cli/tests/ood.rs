@@ -1,4 +1,4 @@
-//! The OOD objective from the command line (issue 23): the in-silico loop with tiny budgets
+//! The OOD objective from the command line: the in-silico loop with tiny budgets
 //! (narrow virtual-guppy data, M_ConvNet and its support, an OOD and a lead-to-goal policy,
 //! refits, gaps), in one and two rounds and with an ensemble's disagreement; the report of what
 //! the OOD policy finds; a reward measured against a lead-to-goal policy's yardstick; the

@@ -53,6 +53,12 @@ pub enum LockError {
         /// Empty when the blocker is the output itself, else " (on the way to OUT)".
         on_the_way: String,
     },
+    /// An output file's lock was asked for a path that names no file (`/`, `..`).
+    #[error("{}: not a file path", path.display())]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+    },
     /// The lock file cannot be created or locked.
     #[error("{}: cannot lock: {reason}", path.display())]
     Io {
@@ -74,6 +80,20 @@ impl DirLock {
     /// Creates `dir` if needed and locks it for the command `what`.
     pub fn acquire(dir: &Path, what: &str) -> Result<Self, LockError> {
         Self::acquire_file(dir, &dir.join(LOCK_FILE), what)
+    }
+
+    /// The one-writer lock of an output *file* (`fit-convnet --out convnet.safetensors`): a
+    /// hidden `.<name>.lock` beside it, so two commands writing the same file exclude each
+    /// other and commands writing other files in the same directory do not.
+    pub fn for_file(file: &Path, what: &str) -> Result<Self, LockError> {
+        let name = file
+            .file_name()
+            .ok_or_else(|| LockError::NotAFile {
+                path: file.to_path_buf(),
+            })?
+            .to_string_lossy();
+        let lock = file.with_file_name(format!(".{name}.lock"));
+        Self::acquire_file(file, &lock, what)
     }
 
     /// Locks the file `lock` (creating it and its directory), on behalf of `dir` in messages

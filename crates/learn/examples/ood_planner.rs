@@ -1,4 +1,4 @@
-//! A ceiling check for the OOD objective with a planner (issue 23): how much of the time can a
+//! A ceiling check for the OOD objective with a planner: how much of the time can a
 //! robot that *knows* the fish hold its views at or beyond a score? `ood_scripted` asks this of
 //! simple strategies; this asks it of a planner that, each second, imagines the next seconds
 //! with the fish model itself.
@@ -27,7 +27,7 @@
 //! a policy's observation holds (the fish's heading, its exact position, its model).
 //!
 //! Prints the share of the episodes' views at or beyond THRESHOLD for the base robot alone and
-//! for the planner. docs/validation.md, "A planner that knows the fish", cites it.
+//! for the planner. docs/validation.md, "Probes that seek what the data lacks", cites it.
 
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{derive_seed, wrap_angle, Env, EnvConfig, InputSupport, Objective, TankEnv};

@@ -1,7 +1,7 @@
-//! How far out of M_ConvNet's training support can a *scripted* robot drive the fish (issue 23)?
+//! How far out of M_ConvNet's training support can a *scripted* robot drive the fish?
 //! A ceiling check for the OOD objective: if no simple strategy keeps the fish's views beyond a
 //! score, a trained OOD policy that does not either may be limited by the fish, not by PPO.
-//! docs/validation.md, "The OOD objective", cites it.
+//! docs/validation.md, "Probes that seek what the data lacks", cites it.
 //!
 //! ```sh
 //! cargo run --release -p fishprobe-learn --example ood_scripted -- EPISODES THRESHOLD [MODEL [PREFIX [FRAMES_PER_ACTION]]]

@@ -1,5 +1,5 @@
 //! How close does a trained policy come to scripted controllers on the task it was trained on
-//! (random goals, 41-second episodes; SPEC §4)? docs/validation.md, "Does it learn?", cites this for
+//! (random goals, 41-second episodes; SPEC §4)? docs/validation.md, "Does PPO learn?", cites this for
 //! π_Follow. Every controller meets the same episodes: start poses, goal sequence and fish noise
 //! come from seeds derived from master seed 0 (label "training-task"), one per episode.
 //!
@@ -10,13 +10,13 @@
 //!
 //! With `--evaluation` the same controllers meet evaluation episodes instead (15 minutes, the
 //! two corner goals; SPEC §4), where a study measures probe competence against the goal-seeker
-//! and fetch-and-lead (docs/validation.md, "What the policy's view of the goal costs").
+//! and fetch-and-lead (docs/validation.md, "Are the probes competent?").
 //!
 //! Prints, per controller, goals per episode (mean ± standard error), the mean return (goals
 //! minus the wall penalties) and the robot's wall-contact frames per episode. For a policy's
 //! mean action it adds what the policy does in the seconds when the goal lies more than 120°
 //! off its heading: its s.d. there and how often its mean action turns by less than 90°, i.e.
-//! drives on instead of turning toward the goal (docs/validation.md, "Does it learn?", the log-s.d. bound). The scripted
+//! drives on instead of turning toward the goal (docs/validation.md, "Does PPO learn?", the log-s.d. bound). The scripted
 //! controllers, each turning every second toward a target point:
 //! - `goal-seeker`: the goal's centre (the baseline of `fishprobe evaluate`);
 //! - `goal-seeker, 10° sectors`: the centre of the goal's observation sector, i.e. only what

@@ -17,9 +17,9 @@ fishprobe_sim::documented_params! {
         /// keeps 832,300 at 100). Sixteen times since the discount became 0.99
         /// ([`PpoConfig::gamma`]), whose longer horizon learns to lead more slowly: at eight
         /// times its π_Zone seeds reached 0.74-0.92 of the best scripted controller, at sixteen
-        /// 0.92-1.02 (docs/validation.md, "Is the cost the budget?"). Eight times, the budget
+        /// 0.92-1.02 (docs/validation.md, "The approach pattern over seeds"). Eight times, the budget
         /// before, was chosen thus. A probe must find what its model allows before its strategy
-        /// says anything about the model (issue 20). In the fidelity sweep (docs/validation.md,
+        /// says anything about the model. In the fidelity sweep (docs/validation.md,
         /// "The fidelity sweep", rows `budget-8x+epochs-2`) this budget gave π_Force more goals
         /// than the best scripted controller (1.18 and 1.17 of it, seeds 0 and 1) and the paper's
         /// approach pattern (closest 0.1 and 0.3 cm, half the time nearer the fish than the goal;
@@ -27,7 +27,7 @@ fishprobe_sim::documented_params! {
         /// where the published steps at 10 epochs gave π_Zone 0.48, π_Force 0.74 and no pattern;
         /// in the paper study every seed-0 rule-based policy reached 0.88-1.14 and over six
         /// seeds 0.82-1.19, π_Force found the pattern in five of six seeds and π_Zone in two
-        /// (docs/validation.md, "The paper's protocol on this machine"; before the log-s.d.
+        /// (docs/validation.md, "The paper's results side by side"; before the log-s.d.
         /// bound was fixed, [`PpoConfig::log_std_max`], π_Zone's seeds gave 0.18-0.88).
         /// Eight times costs 1.6 times the update work of 832,300 steps at 10 epochs, sixteen
         /// times 3.2 times; a rule-based fish's steps are cheap (about 4 minutes per policy on a
@@ -42,7 +42,7 @@ fishprobe_sim::documented_params! {
         /// Passes over each batch. **Decision: 2, where the paper publishes 100** (the
         /// `published` preset keeps 100). In this simulator 100 epochs overfit the value
         /// network to each batch, the advantages become noise, and π_Zone and π_Force do not
-        /// learn; with 10 they do (docs/validation.md, "Does it learn?"), and more data with
+        /// learn; with 10 they do (docs/validation.md, "Does PPO learn?"), and more data with
         /// fewer passes does better still: at the same update work, four times the steps at 3
         /// epochs did about as well as four times at 10, and eight times at 2 (the default
         /// then; sixteen times since, see [`PpoConfig::total_timesteps`]) did best (docs/validation.md, "The fidelity
@@ -57,7 +57,7 @@ fishprobe_sim::documented_params! {
         /// Stable-Baselines3's linear schedule; each iteration takes the rate of the steps
         /// done before it). `None`: `lr` throughout, as the paper, which lists one rate (and
         /// RLlib 2.0.1's default): falling to 0 left π_ConvNet where the constant rate does
-        /// (docs/validation.md, "A falling learning rate for π_ConvNet?"). Written to
+        /// (docs/validation.md, "Are the probes competent?"). Written to
         /// `params.json` only when set, so runs and studies of the default stay what they were.
         #[serde(skip_serializing_if = "Option::is_none")]
         pub lr_final: Option<f32> = None; "1",
@@ -69,7 +69,7 @@ fishprobe_sim::documented_params! {
         /// 0.92-1.02 of the best scripted controller (the paper's γ with those steps: 3 of 6;
         /// Fisher's exact p = 0.025), and the whole `paper` study so trained shows the paper's
         /// approach pattern in its report for all four probes, π_Zone in 5 of its 6 seeds
-        /// (docs/validation.md, "Is it the horizon?", "Is the cost the budget?" and "The `paper`
+        /// (docs/validation.md, "The approach pattern over seeds", "The approach pattern over seeds" and "The `paper`
         /// preset's discount and budget"). So in the paper's simulator fetching must pay within
         /// 18 s; in ours it pays over the whole episode.
         pub gamma: f32 = 0.99; "1",
@@ -101,7 +101,7 @@ fishprobe_sim::documented_params! {
         /// with the bound the mean carries the turn. Above the bound only a gradient that
         /// lowers the log-s.d. reaches the network (a plain clamp, which passes none, held
         /// π_Zone's seed 0 at the widest Gaussian for a whole run). In a `--ppo` file, `null` (JSON) or `inf` (TOML) means no bound.
-        /// The measurements: the validation record (docs/validation.md, "Does it learn?").
+        /// The measurements: the validation record (docs/validation.md, "Does PPO learn?").
         pub log_std_max: Option<f32> = Some(0.0); "ln(normalised action units)",
         /// Hidden layers of the policy and the (separate) value network (RLlib default
         /// [256, 256], `vf_share_layers` false).
@@ -126,7 +126,7 @@ impl PpoConfig {
     /// [`PpoConfig::total_timesteps`], [`PpoConfig::num_sgd_iter`], [`PpoConfig::gamma`] and
     /// [`PpoConfig::log_std_max`]), `published` (exactly the published settings, 832,300 steps
     /// at 100 epochs per batch, γ = 0.9453, with RLlib's unbounded log-s.d.), `quick` (200,000
-    /// steps at 10 epochs and the published γ, as before issue 20 changed the `paper` preset's
+    /// steps at 10 epochs and the published γ, as before the fidelity sweep changed the `paper` preset's
     /// budget and discount, for a first look in minutes), `smoke` (a few thousand steps of a
     /// small network, for tests, with the published γ as `quick`).
     ///
@@ -189,8 +189,8 @@ impl PpoConfig {
 
     /// Steps and epochs per batch of the `paper` preset for an expensive fish's policy
     /// ([`PpoConfig::preset_for`]). **Decision: the published 832,300 steps at 10 epochs**,
-    /// the `paper` preset's budget before issue 20's sweep, under which π_ConvNet reaches 0.87
-    /// of the best scripted controller's goals (docs/validation.md, "The fidelity sweep"). Eight
+    /// the `paper` preset's budget before the fidelity sweep, under which π_ConvNet reaches 0.87
+    /// of the best scripted controller's goals (docs/validation.md, "Departures from the paper"). Eight
     /// times the steps would take 20 minutes per π_ConvNet on two cores, and the paper
     /// study's six π_ConvNet runs alone past its hour.
     /// It keeps the `paper` preset's discount of 0.99: the paper study so trained gave π_ConvNet

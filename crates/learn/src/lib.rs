@@ -56,5 +56,5 @@ pub use trainer::{shaping_matches, IterationStats, RunSpec, Trainer};
 /// over), and `train --resume` refuses to continue a run another revision started
 /// ([`RunSpec::trainer_revision`]). 2: above the log-s.d. bound a gradient that lowers
 /// the log-s.d. passes (`ppo`); under revision 1 a run could stay at the widest Gaussian for
-/// good (docs/validation.md, "The log-s.d. bound was a trap").
+/// good (docs/validation.md, "What did not work").
 pub const TRAINER_REVISION: u32 = 2;

@@ -426,7 +426,7 @@ fn policy_step(
 /// the bound could never come back, and the policy would keep its widest Gaussian for the rest
 /// of training (it happened: `fishprobe train --model Zone --seed 0` spent all 813 iterations at
 /// entropy 1.4189, σ = π rad, and reached 0.2 goals per training episode; docs/validation.md,
-/// "The log-s.d. bound was a trap"). So a gradient that would lower the log-s.d. passes
+/// "What did not work"). So a gradient that would lower the log-s.d. passes
 /// (gradient descent lowers the output when `d > 0`), one that would raise it further does not:
 /// the bound caps the Gaussian's width and never holds it there.
 #[inline]

@@ -1,4 +1,4 @@
-//! The OOD reward's yardstick (issue 23): a lead-to-goal policy's percentile of the OOD score
+//! The OOD reward's yardstick: a lead-to-goal policy's percentile of the OOD score
 //! (the support score, or the ensemble's disagreement with `ood_score = "disagreement"`),
 //! measured on its episodes before training, so that the OOD reward counts the time beyond it
 //! instead of a threshold copied by hand from an `ood-report`.
@@ -26,7 +26,7 @@ fishprobe_sim::documented_params! {
     /// How `train --ood-yardstick` measures its yardstick and shapes the reward from it.
     pub struct OodYardstickConfig {
         /// The percentile of the yardstick policy's scores that the reward counts time
-        /// beyond (choice: 0.95, issue 23's target: "at least as far out as the 95th percentile
+        /// beyond (choice: 0.95, the OOD target: "at least as far out as the 95th percentile
         /// of the lead-to-goal policy's").
         pub quantile: f64 = 0.95; "1",
         /// Width of the reward's ramp above the yardstick: floor `T`, cap `T + band`, weight

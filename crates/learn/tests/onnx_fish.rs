@@ -1,5 +1,5 @@
 //! M_ConvNet exported in fishprobe's fish-model contract and loaded back as an ONNX model
-//! gives the native network's logits on real views (issue 18: max |Δ| ≤ 1e-4 over 10,000
+//! gives the native network's logits on real views (the bar: max |Δ| ≤ 1e-4 over 10,000
 //! views of the shared guppy-pair recordings), and the same fish in the simulator.
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure

@@ -42,7 +42,7 @@ fishprobe_sim::documented_params! {
         /// 180). Must match how the policy was trained.
         pub centroid_bins: bool = false; "-",
         /// The policy's observation has the fish's headings' bins (`observation.heading_bins`
-        /// of the environment settings, issue 23's OOD task; choice: off, the paper's
+        /// of the environment settings, for the OOD task; choice: off, the paper's
         /// observation), from the headings of the tracker's frames. Must match how the policy
         /// was trained.
         pub heading_bins: bool = false; "-",

@@ -1,5 +1,5 @@
 //! The bridge against peers that try to blind or block it, and against a disk that fails:
-//! one test per way issue 21 found to defeat it (all over loopback, bounded in time).
+//! one test per way found to defeat it (all over loopback, bounded in time).
 
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 

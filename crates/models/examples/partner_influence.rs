@@ -1,6 +1,6 @@
 //! How much does the shipped M_ConvNet's motion depend on its partner, by the partner's
-//! distance? The evidence for the support model's partner range (issue 23; docs/validation.md,
-//! "A partner range for the support").
+//! distance? The evidence for the support model's partner range (docs/validation.md,
+//! "Probes that seek what the data lacks").
 //!
 //! ```sh
 //! cargo run --release -p fishprobe-models --example partner_influence -- [POSES]

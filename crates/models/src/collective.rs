@@ -1,6 +1,5 @@
 //! Collective states of a free group: many model fish in open water, no robot and no walls,
-//! as in Couzin et al. (2002). This validates the group versions of M_Zone and M_Force
-//! (issue 22): swept over Couzin's zone widths, M_Zone must show his four collective states
+//! as in Couzin et al. (2002). This validates the group versions of M_Zone and M_Force: swept over Couzin's zone widths, M_Zone must show his four collective states
 //! (swarm, torus, dynamic parallel, highly parallel), and M_Force must order into a polarised
 //! group when alignment is strong and stay disordered without it (Klamser et al. 2021).
 //!
@@ -18,7 +17,7 @@ use rand::RngExt;
 fishprobe_sim::documented_params! {
     /// How a free group is run and measured.
     pub struct CollectiveParams {
-        /// Fish in the group (choice: 50; Couzin used 100, the issue asks for 30 or more).
+        /// Fish in the group (choice: 50; Couzin used 100, a phase picture needs 30 or more).
         pub fish: u32 = 50; "1",
         /// Frame rate (the paper's 25 Hz).
         pub frame_rate_hz: f32 = 25.0; "Hz",

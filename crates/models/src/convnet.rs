@@ -262,8 +262,8 @@ fishprobe_sim::documented_params! {
         /// wall, and there, nose to the glass at the margin (a view the recordings hardly
         /// hold), its network answered with slow, small turns that kept it there for up to
         /// 16 s: 12 % of its frames alone were clipped, where live guppies are within 1 cm of
-        /// a wall in 0.4 % of frames (issue 20, item 4). The redraws leave the network and
-        /// its likelihood as they are. The measurements: docs/validation.md, "M_ConvNet at the walls".
+        /// a wall in 0.4 % of frames. The redraws leave the network and
+        /// its likelihood as they are. The measurements: docs/validation.md, "M_ConvNet and the virtual guppy against held-back real pairs".
         pub wall_redraws: u32 = 16; "draws",
     }
 }

@@ -1,9 +1,9 @@
-//! An OOD score from the model's own uncertainty (issue 23): the disagreement of an ensemble
+//! An OOD score from the model's own uncertainty: the disagreement of an ensemble
 //! of M_ConvNet fits.
 //!
 //! The support score ([`crate::support`]) measures how *rare* a view was in the training
 //! recordings. A rare view need not be one the model gets wrong: the in-silico loop
-//! (docs/validation.md, "The loop with three gap probes, five seeds and two rounds") found the
+//! (docs/validation.md, "Probes that seek what the data lacks") found the
 //! OOD robot's rare situations to be ones the fish answers simply. An ensemble of networks
 //! fitted on the same data from different initialisations and shuffles agrees where the data
 //! pins the answer down and disagrees where each network had to extrapolate (deep ensembles,
@@ -398,7 +398,7 @@ impl InputSupport for Disagreement {
     }
 
     /// All `views` through each member at once: the score of a view is the same bits as
-    /// alone, at a fraction of the cost per view (docs/validation.md, "Scoring in batches").
+    /// alone, at a fraction of the cost per view (docs/validation.md, "Probes that seek what the data lacks").
     fn score_batch(&self, views: &[FishView], out: &mut [f32]) {
         let mut guard = crate::convnet::free_slot(&self.scratch);
         let s = &mut *guard;

@@ -8,7 +8,7 @@ fishprobe_sim::documented_params! {
     /// Parameters of M_Follow (SPEC §6).
     pub struct FollowParams {
         /// Constant swimming speed. The paper does not publish it; choice from the fidelity
-        /// sweep (issue 20, docs/validation.md "The fidelity sweep"): at 4 cm/s the paper-preset
+        /// sweep (docs/validation.md "Departures from the paper"): at 4 cm/s the paper-preset
         /// π_Follow reaches 61.4 goals per 15 min in 14.5 s per goal, the paper's about 60 and
         /// about 15 s; at the earlier choice, M_Zone's 6.3 cm/s, it reached 85.2 in 10.5 s
         /// (`fishprobe fidelity --readings baseline,follow-6.3cm-s --models Follow`).

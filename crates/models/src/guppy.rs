@@ -10,7 +10,7 @@
 //! over a long trial. Each
 //! episode draws an individual — sociability, boldness, speed — from population distributions
 //! (`begin_episode`). The defaults were calibrated against the real pair recordings of the
-//! training split (docs/validation.md, "The virtual guppy").
+//! training split (docs/validation.md, "M_ConvNet and the virtual guppy against held-back real pairs").
 
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{wrap_angle, AgentState, FishMind, FishModel, FishMotion, FishView, SimRng};

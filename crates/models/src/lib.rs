@@ -113,7 +113,7 @@ pub enum ModelError {
         /// The model's class.
         class: String,
     },
-    /// A support model that cannot be used (issue 23).
+    /// A support model that cannot be used.
     #[error(transparent)]
     Support(#[from] support::SupportError),
     /// The OOD objective asked of a model without training data.

@@ -203,7 +203,7 @@ mod tests {
 
     #[test]
     fn the_convnet_fish_stays_off_the_walls_and_the_plain_sampling_does_not() {
-        // Issue 20, item 4: with the plain sampling of SPEC §6 the shipped M_ConvNet clipped
+        // the wall refit of M_ConvNet: with the plain sampling of SPEC §6 the shipped M_ConvNet clipped
         // at a wall in about 12 % of its frames alone; with the redraws it slides along the
         // glass instead, and it still spends time near the walls as live guppies do.
         let spec = ModelSpec::by_name("ConvNet").unwrap();

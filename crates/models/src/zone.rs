@@ -59,8 +59,8 @@ fishprobe_sim::documented_params! {
         /// Strength of the pull back to a wall the fish heads away from (1: a unit vector
         /// like the social direction). **Decision: 0, no pull**, the wall module the paper
         /// publishes (its M_Zone lists wall repulsion parameters only); SPEC §6 added the pull
-        /// as a choice, to make the fish follow walls as real guppies do. Issue 20's fidelity
-        /// sweep (docs/validation.md, "M_Zone without the wall pull") found that without it
+        /// as a choice, to make the fish follow walls as real guppies do. The fidelity
+        /// sweep (docs/validation.md, "Departures from the paper") found that without it
         /// π_Zone goes to the still fish, the paper's pattern, in 6 of 17 training seeds (both
         /// fidelity seeds: closest 1.0 and 3.7 cm, 20.8 and 29.1 % of the time nearer the fish
         /// than the goal, the paper 4 cm and 22.3 %; 3 of 9 `train` seeds; 1 of the paper

@@ -1,4 +1,4 @@
-//! Groups (issue 22): every model drives a group of fish in the tank and in a vector
+//! Groups: every model drives a group of fish in the tank and in a vector
 //! environment, the group size is checked, and a school of M_Zone fish stays together.
 
 use fishprobe_models::ModelSpec;

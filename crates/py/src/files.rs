@@ -21,8 +21,7 @@ fn read_any_trial(path: &std::path::Path) -> PyResult<TrialFile> {
     }
 }
 
-/// The support scores of the fish's views in a trial file against `model`'s training support
-/// (issue 23), from the start of closed-loop control, one entry per fish and tracked frame:
+/// The support scores of the fish's views in a trial file against `model`'s training support, from the start of closed-loop control, one entry per fish and tracked frame:
 /// `frame`, `fish` (int64), `score` (float32), `position` ((n, 2) cm). The views `fishprobe
 /// ood-report --trials` scores.
 #[pyfunction]

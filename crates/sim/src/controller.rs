@@ -254,7 +254,7 @@ impl FetchParams {
 /// The scripted baseline that leads: each second, if the fish (the centroid of the fish) is
 /// farther than `fetch_radius_cm`, turn toward it; otherwise turn toward the point
 /// `lead_distance_cm` ahead of it on its line to the active goal. A probe policy that leads its
-/// model's fish worse than this has not found what its model allows (issue 20).
+/// model's fish worse than this has not found what its model allows.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct FetchAndLead {
     /// Its settings.

@@ -11,8 +11,8 @@ use crate::agent::AgentState;
 use crate::geometry::Tank;
 use crate::rng::SimRng;
 
-/// The largest number of fish in one tank (`EnvConfig::fish_count`; issue 22 asks for at
-/// least 8). A fish's view is a fixed array (no allocation per frame, and views are copied
+/// The largest number of fish in one tank (`EnvConfig::fish_count`; groups of
+/// at least 8 must fit). A fish's view is a fixed array (no allocation per frame, and views are copied
 /// into batches for batched inference), so this bounds its size.
 pub const MAX_FISH: usize = 16;
 
@@ -169,7 +169,7 @@ pub trait FishModel: Send + Sync + std::fmt::Debug {
     /// environment then asks it once per frame for all its fish, on one thread, and evaluation
     /// runs its episodes one after another, because threads taking turns at a lock run slower
     /// than one thread alone (two threads ran a Python fish at about a third of one thread's
-    /// speed: docs/validation.md, "A fish behind a lock"). Results do not depend on it.
+    /// speed: docs/validation.md, "Speed"). Results do not depend on it.
     fn concurrent_inference(&self) -> bool {
         true
     }

@@ -1,4 +1,4 @@
-//! Order parameters of a group of fish (issue 22): polarisation and milling (Couzin et al.
+//! Order parameters of a group of fish: polarisation and milling (Couzin et al.
 //! 2002), nearest-neighbour distance and spread, and the robot's relation to the group.
 //!
 //! Every function takes one frame's poses and skips fish whose pose is not finite (untracked

@@ -19,7 +19,7 @@ crate::documented_params! {
         /// Far plane D of the intensity 1 - d/D (choice, the lab's convention: the tank
         /// diagonal, 141.42 cm).
         pub far_plane_cm: f32 = 141.421_36; "cm",
-        /// Groups (issue 22, a documented extension; choice: off, the paper's 180 values): a
+        /// Groups (a documented extension; choice: off, the paper's 180 values): a
         /// sixth block of `sectors` bins holding the centroid of the fish (its intensity in the
         /// sector that holds it), after the five blocks of SPEC §5. The fish bins already hold
         /// the nearest fish per sector; with the centroid a policy sees where the group is, and
@@ -27,7 +27,7 @@ crate::documented_params! {
         /// bin). A policy trained with it must be evaluated with it (a study file and the live
         /// bridge's settings have the same switch).
         pub centroid_bins: bool = false; "-",
-        /// The fish's headings (issue 23's investigation, a documented extension; choice: off,
+        /// The fish's headings (a documented extension for the OOD task; choice: off,
         /// the paper's observation): a further block of `sectors` bins, after the centroid's if
         /// that is on, in which each fish marks the sector its heading points to, relative to
         /// the robot's heading, with its intensity (the nearest fish per sector wins). The
@@ -42,8 +42,8 @@ crate::documented_params! {
         /// "previous step"; at the paper's one action a second, a second ago). At five actions
         /// a second (`frames_per_action = 5`) one action back is a fifth of a second, in which
         /// a guppy moves about a centimetre, less than a 10° sector at most distances; 5 keeps
-        /// the paper's second. Measured on the OOD task at 5 Hz it did not help (issue 23's
-        /// investigation, docs/validation.md "Five decisions a second"). The observation's
+        /// the paper's second. Measured on the OOD task at 5 Hz it did not help (docs/validation.md,
+        /// "Probes that seek what the data lacks"). The observation's
         /// length and layout do not change. A policy records it and is run only with it:
         /// `evaluate` refuses others by name, an OOD run's yardstick and `ood-report`'s
         /// comparison policy look back as they were trained, and the live bridge, which looks

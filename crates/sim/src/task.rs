@@ -35,7 +35,7 @@ crate::documented_params! {
         /// evaluation's goals (`evaluation_goals`), alternating as in evaluation, the first of
         /// an episode drawn from the two (the other when a fish starts inside it). **Choice:
         /// `random`, the paper's training task.** `evaluation` is a reading of the fidelity
-        /// sweep (issue 20, `evaluation-goals`): on the 41-s random-goal task, leading
+        /// sweep (`evaluation-goals`): on the 41-s random-goal task, leading
         /// M_ConvNet pays nothing over waiting at the goal (the goal-seeker reaches 1.15 goals
         /// per episode, fetching and leading 0.7-1.1), while on the evaluation's corner goals
         /// the fetch-and-lead robot reaches 1.2 times the goal-seeker's goals.
@@ -52,7 +52,7 @@ crate::documented_params! {
         /// corner (one drawn per fish), within `lab_start_spread_cm` of the corner's start
         /// point; headings uniform; or `mixed`: each episode lab-style with probability
         /// `lab_start_share`, else random. **Decision: `random`** (the paper does not say where
-        /// its training episodes start). Issue 20's fidelity sweep (docs/validation.md, "Mixed
+        /// its training episodes start). the fidelity sweep (docs/validation.md, "Mixed
         /// starts, with the fixed trainer") found no start that is better in every seed: mixed
         /// starts gave π_Zone 0.92 and 0.89 of the best script and the paper's approach to a
         /// still fish in two fidelity seeds, but `train --seed 0` 0.74 and no approach, and
@@ -73,12 +73,11 @@ crate::documented_params! {
         /// Who reaching a *training* goal counts (and re-draws it): `fish` (choice: the task is
         /// to bring the fish there, and evaluation counts only the fish), `robot` (the paper's
         /// methods: "each time the robot reached it") or `either`. Evaluation always counts the
-        /// fish. A reading of the fidelity sweep (issue 20).
+        /// fish. A reading of the fidelity sweep.
         pub training_goal_reached_by: GoalReacher = GoalReacher::Fish; "-",
         /// When a *group* (`fish_count` > 1) has reached a goal: `any` fish inside it (choice,
         /// and what one fish means), the group's `centroid` inside it, or a `fraction` of the
-        /// fish (`group_goal_fraction`, rounded up) inside it at once. The paper has pairs only
-        /// (issue 22); with one fish the three are the same.
+        /// fish (`group_goal_fraction`, rounded up) inside it at once. The paper has pairs only; with one fish the three are the same.
         pub group_goal: GroupGoal = GroupGoal::Any; "-",
         /// With `group_goal = fraction`: the share of the fish that must be inside the goal at
         /// once, in (0, 1] (choice: 0.5, a majority for odd groups).
@@ -90,7 +89,7 @@ crate::documented_params! {
         /// the tank's half-width.
         pub wall_penalty_distance_cm: f32 = 3.0; "cm",
         /// What the robot is rewarded for: `goal` (the paper's lead-to-goal task) or `ood`
-        /// (issue 23, the paper's outlook): each second, by how far out of the fish model's
+        /// (the paper's outlook): each second, by how far out of the fish model's
         /// training support the fish's views were (the model's support file, written by
         /// `fit-convnet`), plus the wall penalty. Goals are drawn and counted in both.
         pub objective: Objective = Objective::Goal; "-",
@@ -121,7 +120,7 @@ crate::documented_params! {
         /// the mutual information of their predictions; the ensemble `fit-convnet --members K`
         /// writes). Both are calibrated alike (0 at the training views' median, 1 at their
         /// 95th percentile), so the floor, cap and weight mean the same. Rarity is not error:
-        /// docs/validation.md, "Rarity or uncertainty: an ensemble's disagreement".
+        /// docs/validation.md, "Probes that seek what the data lacks".
         pub ood_score: OodScore = OodScore::Support; "-",
         /// OOD task: weight of the goal reward added to the OOD reward, in [0, 10] (choice: 0,
         /// the pure OOD objective; e.g. 1 for a robot that also keeps leading).
@@ -134,8 +133,8 @@ crate::documented_params! {
         /// distance). Potential-based, so it
         /// leaves the optimal policies of the goal reward unchanged while paying for progress
         /// the sparse goal reward pays only at the end. **Choice: 0, the paper's reward** (+1
-        /// per goal and the wall penalty only). A reading of the fidelity sweep (issue 20,
-        /// `progress-shaping`).
+        /// per goal and the wall penalty only). A reading of the fidelity sweep
+        /// (`progress-shaping`).
         pub progress_shaping: f32 = 0.0; "1",
         /// Discount γ_s of the shaping potential, in (0, 1] (choice: 0.99, the `paper` PPO
         /// preset's γ, which the shaping must match to leave the optimal policies unchanged;

@@ -1,4 +1,4 @@
-//! The OOD objective (issue 23): the reward is the capped mean support score of the fish's
+//! The OOD objective: the reward is the capped mean support score of the fish's
 //! views over the action's frames (above a floor), plus the goal reward's share, minus the wall penalty; an
 //! OOD environment without a support model refuses to step.
 

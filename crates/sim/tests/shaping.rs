@@ -1,4 +1,4 @@
-//! The progress shaping of training episodes (issue 20's fidelity sweep, reading
+//! The progress shaping of training episodes (the fidelity sweep, reading
 //! `progress-shaping`): each action adds w · (d − γ_s · d′) / L, d and d′ the distance of the
 //! fish nearest the goal before and after the action, d′ = 0 when a goal was reached, L the
 //! tank's side. Known answers with fish whose motion is known.

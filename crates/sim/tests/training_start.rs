@@ -1,4 +1,4 @@
-//! Where training episodes start (issue 20's fidelity sweep): `lab` puts the robot near the
+//! Where training episodes start (the fidelity sweep): `lab` puts the robot near the
 //! centre and each fish in a corner, as a live trial after habituation; evaluation episodes
 //! start at random poses whatever the setting.
 

@@ -41,7 +41,7 @@ pub struct StudyConfig {
     /// `paper`, the published 0.9453 for the others; see
     /// `fishprobe_learn::PpoConfig::gamma` for why they differ). `ppo_gamma = 0.9453` trains
     /// the `paper` preset's budget at the paper's discount, under which π_Zone waits at the
-    /// goal for its fish in most seeds (docs/validation.md, "Is it the horizon?").
+    /// goal for its fish in most seeds (docs/validation.md, "The approach pattern over seeds").
     /// Written to the study's settings only when set.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ppo_gamma: Option<f32>,
@@ -82,7 +82,7 @@ pub struct StudyConfig {
     #[serde(default)]
     pub policies: std::collections::BTreeMap<String, String>,
     /// Fish per tank in training, evaluation, stability, baselines and the virtual lab (paper:
-    /// 1; groups: issue 22, 1 to 16). The approach assay keeps its one motionless fish.
+    /// 1; groups: 1 to 16). The approach assay keeps its one motionless fish.
     #[serde(default = "one_fish")]
     pub fish_count: u32,
     /// When a group has reached a goal (`task.group_goal`: any, centroid or fraction, with
@@ -90,7 +90,7 @@ pub struct StudyConfig {
     #[serde(default)]
     pub group_goal: fishprobe_sim::GroupGoal,
     /// The policies observe the group's centroid too (`observation.centroid_bins`: 216 values
-    /// instead of the paper's 180; groups, issue 22).
+    /// instead of the paper's 180; groups).
     #[serde(default)]
     pub centroid_bins: bool,
     /// Analysis settings replaced by the study file's `[analysis]` table, by field name of
@@ -100,7 +100,7 @@ pub struct StudyConfig {
     pub analysis: serde_json::Map<String, serde_json::Value>,
     /// Task settings replaced by the study file's `[task]` table, by field name of
     /// `fishprobe_sim::TaskParams` (e.g. `training_start = "mixed"`,
-    /// `training_goal_reached_by = "robot"`, the fidelity sweep's readings, issue 20), for
+    /// `training_goal_reached_by = "robot"`, the fidelity sweep's readings), for
     /// every training and trial of the study. Refused: `group_goal` (set at the top),
     /// `objective` (a study measures the lead-to-goal task; `fishprobe train --task ood`) and
     /// `evaluation_episode_actions` (set `episode_minutes`). The approach assay keeps its own

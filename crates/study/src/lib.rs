@@ -40,6 +40,8 @@ pub mod config;
 mod error;
 mod manifest;
 pub mod plan;
+pub mod reference;
+pub mod research;
 mod scheduler;
 pub mod slurm;
 mod steps;

@@ -24,7 +24,7 @@ pub enum StepKind {
         m: usize,
     },
     /// The scripted baselines on the evaluation episodes of model `m`'s own policy (probe
-    /// competence, issue 20).
+    /// competence).
     Baseline {
         /// Model index.
         m: usize,
@@ -98,7 +98,7 @@ impl StepKind {
             StepKind::Stability { m, k: 0 } => Some(*m),
             _ => None,
         };
-        // Groups (issue 22): only a study with groups records them, so pair studies resume.
+        // Groups: only a study with groups records them, so pair studies resume.
         let c = &study.cfg;
         if (c.fish_count, c.group_goal) != (1, fishprobe_sim::GroupGoal::Any) {
             v["groups"] =

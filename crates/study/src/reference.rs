@@ -1,4 +1,4 @@
-//! `fishprobe config reference`: every documented setting, generated from the parameter structs
+//! The settings reference (`fishprobe config reference`): every documented setting, generated from the parameter structs
 //! themselves (their field docs, units and defaults), so the settings reference in
 //! `docs/settings.md` cannot drift: a test regenerates it and fails when the file is stale.
 
@@ -116,7 +116,7 @@ pub fn reference() -> String {
         "How the lead-to-goal policy's percentile is measured and the reward shaped from it; \
          each field has a `--ood-yardstick-*` flag except `seed`.",
     );
-    section::<super::ood_loop::OodLoopConfig>(
+    section::<crate::research::ood_loop::OodLoopConfig>(
         &mut o,
         "The in-silico OOD loop (`fishprobe ood-loop --config FILE`)",
         "Budget and design of the closed loop with the virtual guppy as the real fish.",
@@ -327,7 +327,7 @@ mod tests {
             "yardstick",
             |p| p.validate().is_ok(),
         ));
-        sections.push(plain::<super::super::ood_loop::OodLoopConfig>(
+        sections.push(plain::<crate::research::ood_loop::OodLoopConfig>(
             "ood_loop",
             |p| p.validate().is_ok(),
         ));

@@ -39,30 +39,6 @@ fn log<'a>(
     }
 }
 
-fn files_in(d: &Path) -> usize {
-    fishprobe_io::trial_files(d).len()
-}
-
-/// Whether a step's output is there (a marker alone is not enough).
-pub(crate) fn output_valid(study: &Study, s: &Step) -> bool {
-    let out = study.output(&s.kind);
-    let c = &study.cfg;
-    match &s.kind {
-        StepKind::FitConvnet => out.join("convnet.safetensors").is_file(),
-        StepKind::Train { .. } => out.join("policy.safetensors").is_file(),
-        StepKind::Eval { p, m } => files_in(&out) == study.eval_episodes(*p, *m),
-        StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
-        StepKind::Baseline { m } => fishprobe_sim::SCRIPTED.iter().all(|name| {
-            fishprobe_sim::scripted(name)
-                .is_some_and(|b| files_in(&out.join(b.name())) == study.eval_episodes(*m, *m))
-        }),
-        StepKind::Stability { .. } => files_in(&out) == c.stability_episodes,
-        StepKind::Reality { .. } => files_in(&out) > 0,
-        StepKind::Analyze => StudyLayout::results_in(&out).is_file(),
-        StepKind::Report => out.join("index.html").is_file(),
-    }
-}
-
 /// The evaluation episodes of policy `p` on model `m`, written to `out` (the scripted baselines
 /// of model `m` run on those of `m`'s own policy: the same starts and fish).
 fn eval_episodes(study: &Study, p: usize, m: usize, out: PathBuf) -> Evaluation {

@@ -3,9 +3,34 @@
 //! and the sweep that sets aside outputs no step of the current plan produces.
 
 use crate::error::{StepError, StudyError};
-use crate::plan::Step;
+use crate::plan::{Step, StepKind};
 use crate::{manifest, Study};
+use fishprobe_io::StudyLayout;
 use std::path::{Path, PathBuf};
+
+fn files_in(d: &Path) -> usize {
+    fishprobe_io::trial_files(d).len()
+}
+
+/// Whether a step's output is there (a marker alone is not enough).
+fn output_valid(study: &Study, s: &Step) -> bool {
+    let out = study.output(&s.kind);
+    let c = &study.cfg;
+    match &s.kind {
+        StepKind::FitConvnet => out.join("convnet.safetensors").is_file(),
+        StepKind::Train { .. } => out.join("policy.safetensors").is_file(),
+        StepKind::Eval { p, m } => files_in(&out) == study.eval_episodes(*p, *m),
+        StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
+        StepKind::Baseline { m } => fishprobe_sim::SCRIPTED.iter().all(|name| {
+            fishprobe_sim::scripted(name)
+                .is_some_and(|b| files_in(&out.join(b.name())) == study.eval_episodes(*m, *m))
+        }),
+        StepKind::Stability { .. } => files_in(&out) == c.stability_episodes,
+        StepKind::Reality { .. } => files_in(&out) > 0,
+        StepKind::Analyze => StudyLayout::results_in(&out).is_file(),
+        StepKind::Report => out.join("index.html").is_file(),
+    }
+}
 
 impl Study {
     fn marker(&self, s: &Step) -> PathBuf {
@@ -24,7 +49,7 @@ impl Study {
         };
         let hash_ok = marker["hash"].as_str() == Some(format!("{:016x}", s.hash).as_str());
         hash_ok
-            && crate::steps::output_valid(self, s)
+            && output_valid(self, s)
             && manifest::matches(&marker, &manifest::manifest(&self.output(&s.kind)))
     }
 

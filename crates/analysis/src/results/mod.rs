@@ -187,7 +187,7 @@ pub struct TimeToGoal {
 }
 
 /// How well a policy leads its own model's fish, next to the scripted controllers on the same
-/// evaluation episodes (issue 20).
+/// evaluation episodes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Competence {
     /// Mean goals per evaluation episode of the policy on its own model.

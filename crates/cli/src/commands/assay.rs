@@ -1,5 +1,5 @@
 //! `fishprobe assay approach`: the approach assay of SPEC §8 for one policy, so a single
-//! policy's strategy can be checked without a study (issue 20): does it go to the fish first?
+//! policy's strategy can be checked without a study: does it go to the fish first?
 
 use anyhow::{bail, Result};
 use clap::{Args, Subcommand};
@@ -68,7 +68,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
     };
     let c = super::policy_controller(&a.policy, a.stochastic)?;
     // The still fish is observed as the policy was trained to observe: with the group's
-    // centroid bins (issue 22) when it takes those, as a study's approach step does.
+    // centroid bins when it takes those, as a study's approach step does.
     // A policy that records its observation settings is given them; for one that records
     // none (ONNX, or trained before fishprobe recorded them) the length tells.
     let obs = match c.trained_observation() {

@@ -93,7 +93,7 @@ enum BenchWhat {
         /// Environments in the all-cores run (default: 32 per core).
         #[arg(long)]
         envs: Option<usize>,
-        /// Fish per tank (`fish_count`; groups, issue 22).
+        /// Fish per tank (`fish_count`; groups).
         #[arg(long, default_value_t = 1)]
         fish: u32,
     },

@@ -55,16 +55,6 @@ pub struct FitConvnetArgs {
     jobs: Option<usize>,
 }
 
-/// The recordings given, or else the shared guppy pairs' `sub` split (`train`, `validation`).
-pub(super) fn pairs_or_shared(given: &[PathBuf], sub: &str) -> Result<Vec<PathBuf>> {
-    if !given.is_empty() {
-        return Ok(given.to_vec());
-    }
-    let d = fishprobe_io::shared_data_dir()
-        .context("no recordings given and no shared data found (set FISHPROBE_DATA)")?;
-    Ok(vec![d.join("guppy-pairs/legacy").join(sub)])
-}
-
 pub fn run(a: FitConvnetArgs) -> Result<()> {
     let mut cfg: CloneConfig = match &a.config {
         Some(p) => super::read_toml(p, "settings")?,
@@ -77,7 +67,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         cfg.ensemble_members = k;
     }
     cfg.validate()?;
-    let validation = pairs_or_shared(&a.validation, "validation")?;
+    let validation = fishprobe_learn::bc::pairs_or_shared(&a.validation, "validation")?;
     if let Some(w) = &a.score {
         let (nll, n) = fishprobe_learn::bc::score_weights(w, &validation, &cfg)
             .with_context(|| format!("scoring {}", w.display()))?;
@@ -92,7 +82,7 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         .clone()
         .context("--out names the weights file to write")?;
     let _lock = super::lock_out_file(&out, "fit-convnet")?;
-    let data = pairs_or_shared(&a.data, "train")?;
+    let data = fishprobe_learn::bc::pairs_or_shared(&a.data, "train")?;
     // The command as a user types it (the binary's own path says nothing).
     let command: Vec<String> = std::iter::once("fishprobe".to_string())
         .chain(std::env::args().skip(1))

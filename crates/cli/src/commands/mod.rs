@@ -11,25 +11,19 @@ macro_rules! say {
 mod analyze;
 mod assay;
 mod bench;
-mod collective;
 mod compare_offline;
 mod config;
 mod evaluate;
 mod export;
-mod fidelity;
 mod fit_convnet;
 mod import_legacy;
 mod inspect;
 mod live;
 mod models;
-mod ood_loop;
-mod ood_report;
-mod reference;
 mod report;
+mod research;
 mod run;
 mod simulate;
-mod support;
-pub(crate) mod synth;
 mod train;
 
 use anyhow::Context as _;
@@ -83,20 +77,20 @@ enum Command {
     /// Assays of one policy's strategy: `assay approach` (does it go to the fish first?).
     Assay(assay::AssayArgs),
     /// The fidelity sweep: probes trained under each reading of what the paper leaves open,
-    /// scored against the paper's simulation results (issue 20).
-    Fidelity(fidelity::FidelityArgs),
+    /// scored against the paper's simulation results.
+    Fidelity(fishprobe_study::research::fidelity::FidelityArgs),
     /// Groups in open water: Couzin's collective states of M_Zone (its phase picture) and
-    /// M_Force's order over alignment (issue 22).
-    Collective(collective::CollectiveArgs),
+    /// M_Force's order over alignment.
+    Collective(fishprobe_study::research::collective::CollectiveArgs),
     /// What an OOD policy (`train --task ood`) drives the fish into: support scores next to
     /// the training data's and a lead-to-goal policy's, example episodes, a data wishlist.
-    OodReport(ood_report::OodReportArgs),
+    OodReport(fishprobe_study::research::ood_report::OodReportArgs),
     /// The OOD idea tested in silico: fit M_ConvNet on narrow virtual-guppy data, add data
     /// recorded under an OOD or a lead-to-goal policy, and compare the refitted models' gaps.
-    OodLoop(ood_loop::OodLoopArgs),
+    OodLoop(research::OodLoopArgs),
     /// The support model of a data-driven fish model's training recordings (what the OOD
     /// objective scores against), with its check on held-out and unseen situations.
-    Support(support::SupportArgs),
+    Support(fishprobe_study::research::support::SupportArgs),
     /// Export a trained policy as ONNX (observation in, turn angle out).
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
@@ -111,6 +105,49 @@ enum Command {
     CompareOffline(compare_offline::CompareOfflineArgs),
     /// Figures (SVG, PNG) and the self-contained HTML report of an analysed study.
     Report(report::ReportArgs),
+}
+
+/// The commands that check the method itself or explore the paper's outlook, rather than run
+/// it: listed apart in `--help`, under their own heading, and run like every other command.
+const RESEARCH_COMMANDS: &[&str] = &["fidelity", "collective", "support", "ood-loop"];
+
+/// The heading `--help` lists [`RESEARCH_COMMANDS`] under.
+pub const RESEARCH_HEADING: &str =
+    "Research commands (checks of the method and the paper's outlook)";
+
+/// The command line as parsed: [`Cli`] with the research commands listed under their own
+/// heading in `--help` (clap lists all subcommands under one heading; these are hidden from it
+/// and listed again below it, with their one-line help).
+pub fn command() -> clap::Command {
+    use clap::CommandFactory;
+    let mut cmd = Cli::command();
+    let width = cmd
+        .get_subcommands()
+        .map(|s| s.get_name().len())
+        .max()
+        .unwrap_or(0);
+    let mut research = String::new();
+    for name in RESEARCH_COMMANDS {
+        let about = cmd
+            .find_subcommand(name)
+            .and_then(|s| s.get_about())
+            .map(ToString::to_string)
+            .unwrap_or_default();
+        research.push_str(&format!("  {name:<width$}  {about}\n"));
+        cmd = cmd.mut_subcommand(name, |s| s.hide(true));
+    }
+    cmd.help_template(format!(
+        "{{before-help}}{{about-with-newline}}\n{{usage-heading}} {{usage}}\n\n\
+         Commands:\n{{subcommands}}\n\n{RESEARCH_HEADING}:\n{research}\n\
+         Options:\n{{options}}{{after-help}}"
+    ))
+}
+
+/// Parses the process's arguments with [`command`] (exits with clap's message on bad ones).
+pub fn parse() -> Cli {
+    use clap::FromArgMatches;
+    let matches = command().get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
 }
 
 /// Writes a command's output to stdout. A closed pipe (`fishprobe models | head`) ends the
@@ -169,16 +206,9 @@ pub fn lock_out(dir: &std::path::Path, what: &str) -> anyhow::Result<fishprobe_i
     Ok(fishprobe_io::DirLock::acquire(dir, what)?)
 }
 
-/// The one-writer lock of an output *file* (`fit-convnet --out convnet.safetensors`): a hidden
-/// `.<name>.lock` beside it, so two commands writing the same file exclude each other and
-/// commands writing other files in the same directory do not.
+/// The one-writer lock of an output *file* ([`fishprobe_io::DirLock::for_file`]).
 pub fn lock_out_file(file: &std::path::Path, what: &str) -> anyhow::Result<fishprobe_io::DirLock> {
-    let name = file
-        .file_name()
-        .ok_or_else(|| anyhow::anyhow!("{}: not a file path", file.display()))?
-        .to_string_lossy();
-    let lock = file.with_file_name(format!(".{name}.lock"));
-    Ok(fishprobe_io::DirLock::acquire_file(file, &lock, what)?)
+    Ok(fishprobe_io::DirLock::for_file(file, what)?)
 }
 
 /// A line on stderr (a note, a warning, progress). A closed or full stderr is ignored: losing
@@ -193,21 +223,12 @@ pub fn note(line: &str) {
 }
 
 /// Checks a `--minutes` value: one second to 24 hours
-/// ([`fishprobe_learn::evaluate::minutes_in_range`]).
+/// ([`fishprobe_study::research::check_minutes`]).
 pub fn check_minutes<T>(flag: &str, m: T) -> anyhow::Result<()>
 where
     T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
 {
-    use fishprobe_learn::evaluate::{minutes_in_range, MINUTES_RANGE};
-    // Shown in the type it was given in: `--minutes 1e-40` says 1e-40, not the f64 noise of
-    // the nearest f32.
-    if !minutes_in_range(m.into()) {
-        anyhow::bail!(
-            "{flag} must lie in {MINUTES_RANGE}, got {}",
-            fishprobe_sim::params::check::shown(m)
-        );
-    }
-    Ok(())
+    Ok(fishprobe_study::research::check_minutes(flag, m)?)
 }
 
 /// Refuses a study path that is not a directory, saying whether it is missing or a file.
@@ -226,18 +247,13 @@ pub fn check_study_dir(study: &std::path::Path) -> anyhow::Result<()> {
     }
 }
 
-/// Refuses a list option that names one value twice (`--seeds 1 1`): each value is one
-/// replicate, cell or row, and a repeat would count the same one twice.
+/// Refuses a list option that names one value twice
+/// ([`fishprobe_study::research::no_repeats`]).
 pub fn no_repeats<T: PartialEq + std::fmt::Display>(
     flag: &str,
     values: &[T],
 ) -> anyhow::Result<()> {
-    for (i, v) in values.iter().enumerate() {
-        if values[..i].contains(v) {
-            anyhow::bail!("{flag} names {v} twice: name each once");
-        }
-    }
-    Ok(())
+    Ok(fishprobe_study::research::no_repeats(flag, values)?)
 }
 
 /// The controller of a `--policy` argument, sampling its actions with `stochastic`
@@ -272,11 +288,11 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Evaluate(a) => evaluate::run(a),
         Command::Export(a) => export::run(a),
         Command::Assay(a) => assay::run(a),
-        Command::Fidelity(a) => fidelity::run(a),
-        Command::Collective(a) => collective::run(a),
-        Command::Support(a) => support::run(a),
-        Command::OodReport(a) => ood_report::run(a),
-        Command::OodLoop(a) => ood_loop::run(a),
+        Command::Fidelity(a) => research::fidelity(a),
+        Command::Collective(a) => research::collective(a),
+        Command::Support(a) => research::support(a),
+        Command::OodReport(a) => research::ood_report(a),
+        Command::OodLoop(a) => research::ood_loop(a),
     }
 }
 

@@ -28,7 +28,7 @@ pub struct TrainArgs {
     /// `paper` (the published settings with sixteen times the steps at 2 epochs per batch
     /// instead of 100, a discount of 0.99 instead of 0.9453, the policy's log-s.d. bounded at
     /// 0; an expensive fish's policy, e.g. M_ConvNet's, 832,300 steps at 10 epochs: see
-    /// docs/validation.md, "The fidelity sweep" and "The `paper` preset's discount and
+    /// docs/validation.md, "Departures from the paper" and "The `paper` preset's discount and
     /// budget"), `published` (exactly the published settings, 100 epochs, γ = 0.9453, RLlib's
     /// unbounded log-s.d.),
     /// `quick` (200,000 steps at 10 epochs) or `smoke` (a few thousand steps of a small
@@ -51,7 +51,7 @@ pub struct TrainArgs {
     #[arg(long)]
     ppo: Option<PathBuf>,
     /// What the robot is rewarded for: `goal` (lead the fish to goals, the paper's task) or
-    /// `ood` (drive the fish's views out of its model's training support, issue 23; needs a
+    /// `ood` (drive the fish's views out of its model's training support; needs a
     /// data-driven model and its support file). Default: the settings file's
     /// `env.task.objective` (goal).
     #[arg(long, value_parser = ["goal", "ood"])]
@@ -69,7 +69,8 @@ pub struct TrainArgs {
     /// and `ood_weight`; what was measured: OUT/yardstick.json). docs/guide/ood.md.
     #[arg(long, value_name = "POLICY")]
     ood_yardstick: Option<String>,
-    /// With `--ood-yardstick`: the percentile, in (0, 1) (default 0.95, issue 23's target).
+    /// With `--ood-yardstick`: the percentile, in (0, 1) (default 0.95: at least as far out as
+    /// the 95th percentile of a lead-to-goal policy's scores).
     #[arg(long, requires = "ood_yardstick")]
     ood_yardstick_quantile: Option<f64>,
     /// With `--ood-yardstick`: width of the reward's ramp above the yardstick, in [0.01, 10]

@@ -185,6 +185,18 @@ fn add_file(
     Ok(())
 }
 
+/// The recordings `given`, or when none are given the shared data's
+/// `guppy-pairs/legacy/SUB` (`sub`: "train" or "validation", the lab's split).
+pub fn pairs_or_shared(given: &[PathBuf], sub: &str) -> Result<Vec<PathBuf>, LearnError> {
+    if !given.is_empty() {
+        return Ok(given.to_vec());
+    }
+    let d = fishprobe_io::shared_data_dir().ok_or_else(|| {
+        LearnError::Run("no recordings given and no shared data found (set FISHPROBE_DATA)".into())
+    })?;
+    Ok(vec![d.join("guppy-pairs/legacy").join(sub)])
+}
+
 /// Builds the dataset of the pair files under `dirs`. An empty result is an error naming what
 /// was skipped.
 pub fn load_pairs(

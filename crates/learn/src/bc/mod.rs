@@ -43,7 +43,7 @@ fishprobe_sim::documented_params! {
         /// training pairs) without the jitter adding up (0.072 over 5 frames): tracking noise.
         /// A fish that samples each frame's turn independently (SPEC §6) adds it up as real
         /// turning, and unsmoothed its course wandered twice as fast as a guppy's over 0.2-1 s
-        /// and into the walls (issue 20, item 4). Five frames remove the jitter (0.014 per
+        /// and into the walls. Five frames remove the jitter (0.014 per
         /// frame) and leave the course over 1 s and 3 s as recorded (median 0.235 and 0.605
         /// rad, against 0.243 and 0.612). The measurements: docs/validation.md, "M_ConvNet
         /// at the walls".
@@ -60,7 +60,7 @@ fishprobe_sim::documented_params! {
         pub patience: usize = 3; "epochs",
         /// Also learn from files of one fish with the robot (`lab`, `evaluate`, live trials):
         /// the fish's frames, with the robot as its neighbour (the robot's own motion is not a
-        /// fish's). Choice: off, the paper fits fish pairs only; the OOD loop (issue 23) turns
+        /// fish's). Choice: off, the paper fits fish pairs only; the OOD loop turns
         /// it on to add what the fish did under a policy.
         pub robot_as_partner: bool = false; "-",
         /// The partner range of the support written beside the weights
@@ -70,7 +70,7 @@ fishprobe_sim::documented_params! {
         /// [1, 16] (choice: 1, no ensemble). With K > 1 the K - 1 further members (each from its
         /// own initialisation and shuffle, seeds derived by label) are written beside the
         /// weights with the ensemble's disagreement file, which the OOD score `disagreement`
-        /// needs (issue 23). Each member costs a fit.
+        /// needs. Each member costs a fit.
         pub ensemble_members: usize = 1; "networks",
         /// Training views the disagreement is calibrated on (choice: 2048, as the support).
         pub ensemble_calibration_views: usize = 2048; "views",

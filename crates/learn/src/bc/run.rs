@@ -197,7 +197,7 @@ pub struct FitReport {
     pub skipped: Vec<(PathBuf, String)>,
     /// The weights file.
     pub weights: PathBuf,
-    /// The support file of the training views beside it (issue 23).
+    /// The support file of the training views beside it.
     pub support: PathBuf,
     /// The training log (CSV).
     pub log_file: PathBuf,
@@ -646,7 +646,7 @@ pub fn support_beside(weights: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
-/// The support model of a training dataset's views (issue 23), for the model `model` whose
+/// The support model of a training dataset's views, for the model `model` whose
 /// weights have SHA-256 `sha256`; seeded by `seed`.
 pub fn build_support(
     train: &PairDataset,

@@ -1,4 +1,4 @@
-//! The support of a data-driven fish model's training data (issue 23): how well the
+//! The support of a data-driven fish model's training data: how well the
 //! recordings a model was fitted on cover an input the fish sees.
 //!
 //! A view (M_ConvNet's 3 x 72 egocentric input, also the ONNX contract's) is reduced to the
@@ -112,7 +112,7 @@ fishprobe_sim::documented_params! {
         /// training views and in every scored view alike (choice: 0, no range: every partner
         /// the view shows counts, up to the far plane, since M_ConvNet still turns toward a
         /// partner 40 cm away at two thirds of its close-range rate; 15 makes the OOD task
-        /// seek close interactions; docs/validation.md, "A partner range for the support"). In
+        /// seek close interactions; docs/validation.md, "Probes that seek what the data lacks"). In
         /// [0, 1000].
         pub partner_range_cm: f32 = 0.0; "cm",
     }

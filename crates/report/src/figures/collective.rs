@@ -1,4 +1,4 @@
-//! Couzin's phase picture for a free group of model fish (issue 22): polarisation and milling
+//! Couzin's phase picture for a free group of model fish: polarisation and milling
 //! over the orientation and attraction widths, each cell marked with its collective state.
 
 use super::prelude::*;

@@ -1,4 +1,4 @@
-//! What an OOD policy finds (issue 23): the support scores of the fish's views per source,
+//! What an OOD policy finds: the support scores of the fish's views per source,
 //! and example episodes with the fish's path coloured by score.
 
 use super::prelude::*;

@@ -1,68 +1,68 @@
-//! `fishprobe collective`: Couzin's phase picture for free groups of M_Zone fish (issue 22),
-//! the validation that the group version of the model shows his four collective states, and
-//! for M_Force the polarisation over its alignment strength (Klamser et al. 2021).
+//! Groups in open water (`fishprobe collective`): Couzin's phase picture for free groups of
+//! M_Zone fish, the validation that the group version of the model shows his four collective
+//! states, and for M_Force the polarisation over its alignment strength (Klamser et al. 2021).
 
-use anyhow::{bail, Context, Result};
-use clap::{Args, ValueEnum};
+use crate::research::{bail, Context, ResearchError, Result};
 use fishprobe_models::collective::{
     couzin_zone, run as run_group, CollectiveParams, CollectiveState, PhaseGrid, Swimmer,
     COUZIN_TURN_RATE_RAD_S,
 };
 use fishprobe_models::{ForceParams, ZoneParams};
 use fishprobe_sim::params::check::shown;
-use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use super::emit;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-enum GroupModel {
+/// The model whose groups are swept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum GroupModel {
     /// M_Zone over Couzin's orientation and attraction widths.
     Zone,
     /// M_Force over its alignment strength.
     Force,
 }
 
-#[derive(Debug, Args)]
+/// What `fishprobe collective` sweeps, and where its output goes.
+#[derive(Debug, Clone)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct CollectiveArgs {
     /// The model.
-    #[arg(long, value_enum, default_value_t = GroupModel::Zone)]
-    model: GroupModel,
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = GroupModel::Zone))]
+    pub model: GroupModel,
     /// Fish per group.
-    #[arg(long, default_value_t = 50)]
-    fish: u32,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 50))]
+    pub fish: u32,
     /// Seeds per cell.
-    #[arg(long, default_value_t = 3)]
-    seeds: u64,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 3))]
+    pub seeds: u64,
     /// Simulated seconds per run (the first half is left out as burn-in).
-    #[arg(long, default_value_t = 150.0)]
-    seconds: f32,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 150.0))]
+    pub seconds: f32,
     // The sweeps' flags have no clap default, so that a flag of the other model's sweep is
     // refused instead of ignored; their defaults are the constants below, shown in the help.
     /// M_Zone: orientation widths Δr_o (cm), comma-separated [default: 0,1,2,4,8,12,16,20,30]
-    #[arg(long, value_delimiter = ',')]
-    orientation: Option<Vec<f32>>,
+    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
+    pub orientation: Option<Vec<f32>>,
     /// M_Zone: attraction widths Δr_a (cm), comma-separated [default: 4,8,14,20,28,40]
-    #[arg(long, value_delimiter = ',')]
-    attraction: Option<Vec<f32>>,
+    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
+    pub attraction: Option<Vec<f32>>,
     /// M_Zone: maximum turning rate in rad/s, or `couzin` (40°/s) or `paper` (10 rad/s)
     /// [default: couzin]
-    #[arg(long)]
-    turn_rate: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub turn_rate: Option<String>,
     /// M_Force: alignment strengths μ_alg, comma-separated [default: 0,0.05,0.1,0.2,0.3,0.6]
-    #[arg(long, value_delimiter = ',')]
-    alignment: Option<Vec<f32>>,
+    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
+    pub alignment: Option<Vec<f32>>,
     /// Master seed.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
     /// Write the picture (collective-phase.svg/.png) and the numbers (collective.json) here.
-    #[arg(long)]
-    out: Option<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub out: Option<PathBuf>,
     /// Print JSON instead of a table.
-    #[arg(long)]
-    json: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub json: bool,
 }
 
 /// Most runs one invocation may ask for (cells x seeds).
@@ -112,7 +112,9 @@ impl Sweep {
     }
 }
 
-pub fn run(a: CollectiveArgs) -> Result<()> {
+/// Runs the sweep, writes the picture and numbers into `--out` when given, and returns the
+/// table (or JSON) to show. `progress(done, total)` is called after each run, from any thread.
+pub fn run(a: &CollectiveArgs, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<String> {
     if a.seeds == 0 || a.seeds > 100 {
         bail!("--seeds must lie in [1, 100], got {}", a.seeds);
     }
@@ -123,8 +125,9 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
         ..CollectiveParams::default()
     };
     p.validate("")
-        .map_err(|e| anyhow::anyhow!("{e}").context("--fish/--seconds"))?;
-    let sweep = Sweep::of(&a)?;
+        .map_err(ResearchError::msg)
+        .context("--fish/--seconds")?;
+    let sweep = Sweep::of(a)?;
     let turn = match a.turn_rate.as_deref().unwrap_or("couzin") {
         "couzin" => COUZIN_TURN_RATE_RAD_S,
         "paper" => ZoneParams::default().max_turn_rate_rad_s,
@@ -136,16 +139,12 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
                 format!("--turn-rate must be `couzin`, `paper` or a positive number, got `{x}`")
             })?,
     };
-    let swimmers = swimmers(&a, &sweep, turn)?;
+    let swimmers = swimmers(a, &sweep, turn)?;
     let runs = swimmers.len() * a.seeds as usize;
     if swimmers.is_empty() || runs > MAX_RUNS {
         bail!("the sweep has {runs} runs; it must have 1 to {MAX_RUNS}");
     }
-    let bar = ProgressBar::new(runs as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {bar:30} run {pos}/{len}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
+    let done = std::sync::atomic::AtomicU64::new(0);
     let jobs: Vec<(usize, u64)> = (0..swimmers.len())
         .flat_map(|c| (0..a.seeds).map(move |s| (c, s)))
         .collect();
@@ -153,18 +152,18 @@ pub fn run(a: CollectiveArgs) -> Result<()> {
         .par_iter()
         .map(|&(c, s)| {
             let r = run_group(&swimmers[c].1, &p, a.seed.wrapping_add(s));
-            bar.inc(1);
-            r.map_err(|e| anyhow::anyhow!("{e}"))
+            let d = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress(d, runs as u64);
+            r.map_err(ResearchError::msg)
         })
         .collect::<Result<_>>()?;
-    bar.finish_and_clear();
     let cells: Vec<Vec<CollectiveState>> = results
         .chunks(a.seeds as usize)
         .map(<[CollectiveState]>::to_vec)
         .collect();
     match a.model {
-        GroupModel::Zone => zone_output(&a, &sweep, &p, turn, cells),
-        GroupModel::Force => force_output(&a, &swimmers, &cells),
+        GroupModel::Zone => zone_output(a, &sweep, &p, turn, cells),
+        GroupModel::Force => force_output(a, &swimmers, &cells),
     }
 }
 
@@ -181,7 +180,7 @@ fn swimmers(a: &CollectiveArgs, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32
                         ..couzin_zone(ro, ra)
                     };
                     let s = Swimmer::zone(zp)
-                        .map_err(|e| anyhow::anyhow!("{e}"))
+                        .map_err(ResearchError::msg)
                         .with_context(|| format!("Δr_o = {}, Δr_a = {}", shown(ro), shown(ra)))?;
                     v.push((vec![ro, ra], s));
                 }
@@ -196,7 +195,7 @@ fn swimmers(a: &CollectiveArgs, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32
                     alignment: al,
                     ..ForceParams::default()
                 })
-                .map_err(|e| anyhow::anyhow!("{e}"))
+                .map_err(ResearchError::msg)
                 .with_context(|| format!("--alignment {al}"))?;
                 Ok((vec![al], s))
             })
@@ -211,7 +210,7 @@ fn zone_output(
     p: &CollectiveParams,
     turn: f32,
     cells: Vec<Vec<CollectiveState>>,
-) -> Result<()> {
+) -> Result<String> {
     let grid = PhaseGrid {
         orientation_cm: sweep.orientation_cm.clone(),
         attraction_cm: sweep.attraction_cm.clone(),
@@ -233,7 +232,7 @@ fn zone_output(
         .with_context(|| format!("writing {}", dir.join("collective.json").display()))?;
     }
     if a.json {
-        return emit(&(serde_json::to_string_pretty(&grid)? + "\n"));
+        return Ok(serde_json::to_string_pretty(&grid)? + "\n");
     }
     let mut t = format!(
         "M_Zone, {} fish in open water, turning rate {:.2} rad/s, {} seeds per cell \
@@ -257,7 +256,7 @@ fn zone_output(
     if let Some(dir) = &a.out {
         let _ = writeln!(t, "picture and numbers in {}", dir.display());
     }
-    emit(&t)
+    Ok(t)
 }
 
 /// M_Force's order over alignment: the numbers into `--out`, the table (or JSON) printed.
@@ -265,7 +264,7 @@ fn force_output(
     a: &CollectiveArgs,
     swimmers: &[(Vec<f32>, Swimmer)],
     cells: &[Vec<CollectiveState>],
-) -> Result<()> {
+) -> Result<String> {
     let rows: Vec<serde_json::Value> = swimmers
         .iter()
         .zip(cells)
@@ -279,7 +278,7 @@ fn force_output(
         )?;
     }
     if a.json {
-        return emit(&(serde_json::to_string_pretty(&rows)? + "\n"));
+        return Ok(serde_json::to_string_pretty(&rows)? + "\n");
     }
     let mut t = format!(
         "M_Force, {} fish in open water, {} seeds (mean polarisation / milling / \
@@ -300,10 +299,10 @@ fn force_output(
             f(|s| s.cohesion)
         );
     }
-    emit(&t)
+    Ok(t)
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "cli"))]
 mod tests {
     use super::*;
     use clap::CommandFactory as _;

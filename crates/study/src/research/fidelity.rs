@@ -1,11 +1,10 @@
-//! `fishprobe fidelity`: the sweep of issue 20. The paper leaves details open that decide what
+//! The fidelity sweep (`fishprobe fidelity`). The paper leaves details open that decide what
 //! PPO can find; each reading of them is a set of overrides (environment, fish model, PPO),
 //! and for each reading and model this trains a probe, evaluates it on its own model, runs the
 //! approach assay and the scripted baselines, and prints a scoreboard against the paper.
 //! Resumable: a finished cell is read back, an interrupted training resumes.
 
-use anyhow::{bail, Context, Result};
-use clap::Args;
+use crate::research::{bail, on_threads, Context, ResearchError, Result, Runner};
 use fishprobe_analysis::competence::{plus_minus, ratio_se, GoalStats};
 use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
 use fishprobe_learn::{Evaluation, PolicyController, PpoConfig, RunSpec, Trainer};
@@ -14,41 +13,44 @@ use fishprobe_sim::{derive_seed, EnvConfig};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 
-use super::emit;
-
 mod readings;
 use readings::{paper, with, Combo, READINGS};
 
-#[derive(Debug, Args)]
+/// Which readings and models the sweep runs, with what budget, and where.
+#[derive(Debug, Clone)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct FidelityArgs {
     /// Readings to run, comma-separated (default: all; `--list` names them); `a+b` combines
     /// readings (their overrides merged, on the models both apply to).
-    #[arg(long, value_delimiter = ',')]
-    readings: Vec<String>,
+    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
+    pub readings: Vec<String>,
     /// Models, comma-separated (a reading that changes one model runs only on it).
-    #[arg(long, value_delimiter = ',', default_value = "Follow,Zone,Force")]
-    models: Vec<String>,
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_delimiter = ',', default_value = "Follow,Zone,Force")
+    )]
+    pub models: Vec<String>,
     /// PPO preset every reading starts from.
-    #[arg(long, default_value = "paper")]
-    preset: String,
+    #[cfg_attr(feature = "cli", arg(long, default_value = "paper"))]
+    pub preset: String,
     /// Evaluation episodes of 15 minutes per cell (paper: 18).
-    #[arg(long, default_value_t = 18)]
-    episodes: usize,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 18))]
+    pub episodes: usize,
     /// Approach-assay episodes of 2 minutes per cell (SPEC choice: 10).
-    #[arg(long, default_value_t = 10)]
-    approach_episodes: usize,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 10))]
+    pub approach_episodes: usize,
     /// Master seed.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
     /// Where the runs and `scoreboard.md` / `scoreboard.json` go.
-    #[arg(long, default_value = "fidelity")]
-    out: PathBuf,
+    #[cfg_attr(feature = "cli", arg(long, default_value = "fidelity"))]
+    pub out: PathBuf,
     /// List the readings and exit.
-    #[arg(long)]
-    list: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub list: bool,
     /// Threads (default: all cores).
-    #[arg(long)]
-    jobs: Option<usize>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub jobs: Option<usize>,
 }
 
 /// The fish model, PPO and environment settings of reading `r` for `model` under `preset`.
@@ -75,7 +77,7 @@ fn cell_settings(
 }
 
 /// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
-fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
+fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path, by: Runner) -> Result<Value> {
     let (spec, ppo, env) = cell_settings(&a.preset, r, model)?;
     // A finished cell is read back only if it was made with these settings (a default that
     // changed since, or another --preset, must not pass for this reading).
@@ -85,11 +87,11 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
     // As the file will hold it (an f32 becomes its shortest decimal there).
     let settings: Value = serde_json::from_str(&serde_json::to_string(&settings)?)?;
     let done = dir.join("cell.json");
-    if let Some(v) = finished_cell(dir, &settings)? {
+    if let Some(v) = finished_cell(dir, &settings, by)? {
         return Ok(v);
     }
     let train_dir = dir.join("policy");
-    let t = train_cell(a, r, model, &train_dir, &spec, ppo, &env)?;
+    let t = train_cell(a, r, model, &train_dir, (&spec, ppo, &env), by)?;
     let policy = PolicyController::load(&train_dir, false)?;
     // The cell is not finished (it has no cell.json), so its episodes, if any, are from a run
     // that stopped, perhaps with another --episodes: they go, or the times to reach the fish
@@ -149,7 +151,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         baselines,
         AnalysisConfig::default().competence_threshold,
     )
-    .ok_or_else(|| anyhow::anyhow!("no scripted baseline ran"))?;
+    .ok_or_else(|| ResearchError::msg("no scripted baseline ran"))?;
     let competence_se = match (own, baseline_stats.get(&competence.best)) {
         (Some(o), Some(Some(b))) => ratio_se(&o, b),
         _ => None,
@@ -164,7 +166,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
         .into_iter()
         .map(|x| x.file)
         .collect();
-    let ap = assay_files(&files, &AnalysisConfig::default()).map_err(anyhow::Error::msg)?;
+    let ap = assay_files(&files, &AnalysisConfig::default()).map_err(ResearchError::msg)?;
     let row = json!({
         "reading": r.name, "model": model, "goals": goals, "goals_sd": sd,
         "time_to_goal_s": ttg, "closest_cm": ap.min_iid, "mean_distance_cm": ap.mean_iid,
@@ -181,7 +183,7 @@ fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path) -> Result<Value> {
 
 /// The row of the finished cell in `dir` (its `cell.json`) when it was made with `settings`;
 /// `None` when there is none; an error when it was made with others.
-fn finished_cell(dir: &Path, settings: &Value) -> Result<Option<Value>> {
+fn finished_cell(dir: &Path, settings: &Value, by: Runner) -> Result<Option<Value>> {
     let done = dir.join("cell.json");
     if let Ok(text) = fishprobe_io::read_small_text(&done) {
         if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
@@ -198,10 +200,11 @@ fn finished_cell(dir: &Path, settings: &Value) -> Result<Option<Value>> {
                                 serde_json::to_string_pretty(&v)?.as_bytes(),
                             )?;
                         }
-                        Err(e) => say!(
-                            "  {}: no time to reach the fish for this older cell ({e:#})",
-                            dir.display()
-                        ),
+                        Err(e) => by.note(&format!(
+                            "  {}: no time to reach the fish for this older cell ({})",
+                            dir.display(),
+                            e.chain()
+                        )),
                     }
                 }
                 return Ok(Some(v));
@@ -217,15 +220,15 @@ fn finished_cell(dir: &Path, settings: &Value) -> Result<Option<Value>> {
     Ok(None)
 }
 
-/// Trains the cell's probe in `train_dir` (resuming a run of this cell's settings).
+/// Trains the cell's probe in `train_dir` (resuming a run of this cell's settings: the fish
+/// model, PPO and environment of [`cell_settings`]).
 fn train_cell(
     a: &FidelityArgs,
     r: &Combo,
     model: &str,
     train_dir: &Path,
-    spec: &ModelSpec,
-    ppo: PpoConfig,
-    env: &EnvConfig,
+    (spec, ppo, env): (&ModelSpec, PpoConfig, &EnvConfig),
+    by: Runner,
 ) -> Result<Trainer> {
     let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
     let run_spec = RunSpec {
@@ -235,7 +238,7 @@ fn train_cell(
         seed,
         preset: a.preset.clone(),
         program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: super::BUILD.into(),
+        program_build: by.build.into(),
         trainer_revision: fishprobe_learn::TRAINER_REVISION,
     };
     let mut t = if train_dir.join("params.json").exists() {
@@ -250,19 +253,16 @@ fn train_cell(
                 train_dir.display()
             );
         }
-        Trainer::resume(train_dir, super::BUILD)?
+        Trainer::resume(train_dir, by.build)?
     } else {
         Trainer::create(train_dir, run_spec)?
     };
     while !t.done() {
         let s = t.iterate()?;
-        say!(
+        by.note(&format!(
             "  {} / {model}: iteration {} steps {} goals/episode {:.2}",
-            r.name,
-            s.iteration,
-            s.timesteps,
-            s.goals_per_episode
-        );
+            r.name, s.iteration, s.timesteps, s.goals_per_episode
+        ));
     }
     t.finish()?;
     Ok(t)
@@ -283,7 +283,7 @@ fn reach_columns(dir: &Path) -> Result<(Option<f64>, ScriptedReach)> {
             .filter(|p| p.extension().is_some_and(|x| x == "hdf5"))
             .collect();
         files.sort();
-        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(anyhow::Error::msg)
+        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(ResearchError::msg)
     };
     let mut baselines = std::collections::BTreeMap::new();
     for name in fishprobe_sim::SCRIPTED {
@@ -332,7 +332,9 @@ fn scoreboard(rows: &[Value]) -> String {
     s
 }
 
-pub fn run(a: FidelityArgs) -> Result<()> {
+/// Runs the sweep (or, with `list`, lists the readings), writing every cell and the
+/// scoreboard files under `out`, and returns this run's scoreboard; progress goes to `by`.
+pub fn run(a: &FidelityArgs, by: Runner) -> Result<String> {
     if a.list {
         let mut s = String::new();
         for r in READINGS {
@@ -343,7 +345,7 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             };
             s += &format!("{:<24} {}{only}\n", r.name, r.what);
         }
-        return emit(&s);
+        return Ok(s);
     }
     if !(1..=1000).contains(&a.episodes) || !(1..=1000).contains(&a.approach_episodes) {
         bail!("--episodes and --approach-episodes must lie in [1, 1000]");
@@ -364,7 +366,7 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             .map(|n| Combo::parse(n))
             .collect::<Result<_>>()?
     };
-    let _lock = super::lock_out(&a.out, "fidelity")?;
+    let _lock = fishprobe_io::DirLock::acquire(&a.out, "fidelity")?;
     let mut rows = Vec::new();
     for r in &chosen {
         for m in &a.models {
@@ -372,11 +374,11 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             if !r.applies_to(&name) {
                 continue;
             }
-            say!("{} / {name}: {}", r.name, r.what());
+            by.note(&format!("{} / {name}: {}", r.name, r.what()));
             let dir = a.out.join(&r.name).join(&name);
-            let row = super::with_jobs(a.jobs, || cell(&a, r, &name, &dir))??;
+            let row = on_threads(a.jobs, || cell(a, r, &name, &dir, by))??;
             rows.push(row);
-            let all = with_finished_cells(&a, &rows);
+            let all = with_finished_cells(a, &rows);
             let board = scoreboard(&all);
             fishprobe_nn::store::write_atomic(
                 &a.out.join("scoreboard.md"),
@@ -397,7 +399,7 @@ pub fn run(a: FidelityArgs) -> Result<()> {
             )?;
         }
     }
-    emit(&scoreboard(&rows))
+    Ok(scoreboard(&rows))
 }
 
 /// This run's rows, then every other finished cell under `--out` (`READING/MODEL/cell.json`,

@@ -1,4 +1,4 @@
-//! `fishprobe ood-loop`: the OOD idea tested in silico with a known truth (issue 23, item 4).
+//! The OOD idea tested in silico with a known truth (`fishprobe ood-loop`).
 //!
 //! The virtual guppy plays the real fish. Per seed: record it with a robot in a narrow set of
 //! situations (a scripted robot shuttling between two goals); fit M_ConvNet on that (with its
@@ -15,8 +15,7 @@
 //! Every stage leaves its files in the output directory and is skipped when they are there, so
 //! an interrupted loop resumes.
 
-use anyhow::{bail, Context, Result};
-use clap::Args;
+use crate::research::{bail, Context, ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{metric_gap, pooled_metrics, quantile, score_trials, share_at_least};
 use fishprobe_analysis::{load_trial, AnalysisConfig};
 use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress, FitRequest};
@@ -25,26 +24,11 @@ use fishprobe_models::ModelSpec;
 use fishprobe_sim::{EnvConfig, Objective, OodScore};
 use std::path::{Path, PathBuf};
 
-use super::emit;
-
 mod config;
 mod results;
 use config::probe_dir_name;
 pub use config::OodLoopConfig;
 use results::{markdown, Gap, ProbeGaps, SeedResult};
-
-#[derive(Debug, Args)]
-pub struct OodLoopArgs {
-    /// Output directory (one subdirectory per seed; loop.json and loop.md at the end).
-    #[arg(long)]
-    out: PathBuf,
-    /// Seeds (each a whole loop).
-    #[arg(long, num_args = 1.., default_values_t = [0u64, 1, 2])]
-    seeds: Vec<u64>,
-    /// Settings (TOML, the fields of OodLoopConfig).
-    #[arg(long)]
-    config: Option<PathBuf>,
-}
 
 fn trial_files(dir: &Path) -> Vec<PathBuf> {
     fishprobe_io::trial_files(dir)
@@ -82,7 +66,7 @@ fn record(
         .iter()
         .map(|f| load_trial(f, &cfg, false).map(|t| f64::from(t.goals_reached)))
         .collect::<Result<_, _>>()
-        .map_err(anyhow::Error::msg)?;
+        .map_err(ResearchError::msg)?;
     Ok((files, goals.iter().sum::<f64>() / goals.len().max(1) as f64))
 }
 
@@ -95,6 +79,7 @@ fn fit(
     loop_cfg: &OodLoopConfig,
     seed: u64,
     ood_target: bool,
+    build: &str,
 ) -> Result<ModelSpec> {
     let weights = dir.join("convnet.safetensors");
     let ensemble = ood_target && loop_cfg.ood_score == OodScore::Disagreement;
@@ -127,7 +112,7 @@ fn fit(
                 // is several fits); the loop's resume is the stage's, this is the fit's.
                 resume: true,
                 command: "fishprobe ood-loop",
-                build: super::BUILD,
+                build,
             },
             &quiet,
         )
@@ -148,6 +133,7 @@ fn train(
     cfg: &OodLoopConfig,
     seed: u64,
     dir: &Path,
+    build: &str,
 ) -> Result<String> {
     let policy = dir.join("policy.safetensors");
     if policy.exists() {
@@ -156,7 +142,7 @@ fn train(
             .context("the loop was begun by another fishprobe; use another --out")?;
     } else {
         let mut t = if dir.join("params.json").exists() {
-            Trainer::resume(dir, super::BUILD)?
+            Trainer::resume(dir, build)?
         } else {
             let mut ppo = PpoConfig::preset(&cfg.ppo_preset).context("preset checked")?;
             ppo.total_timesteps = cfg.train_steps;
@@ -172,7 +158,7 @@ fn train(
                     seed,
                     preset: cfg.ppo_preset.clone(),
                     program_version: env!("CARGO_PKG_VERSION").into(),
-                    program_build: super::BUILD.into(),
+                    program_build: build.into(),
                     trainer_revision: fishprobe_learn::TRAINER_REVISION,
                 },
             )?
@@ -194,13 +180,14 @@ fn gap(model: &[Vec<f64>], guppy: &[Vec<f64>], goals: f64, guppy_goals: f64) -> 
 }
 
 fn metric_values(files: &[PathBuf]) -> Result<Vec<Vec<f64>>> {
-    pooled_metrics(files, &AnalysisConfig::default()).map_err(anyhow::Error::msg)
+    pooled_metrics(files, &AnalysisConfig::default()).map_err(ResearchError::msg)
 }
 
-fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
+fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path, by: Runner) -> Result<SeedResult> {
+    let build = by.build;
     let dir = root.join(format!("seed-{seed}"));
     let guppy = ModelSpec::by_name("Guppy")?;
-    let step = |what: &str| say!("seed {seed}: {what}");
+    let step = |what: &str| by.note(&format!("seed {seed}: {what}"));
     step("recording the virtual guppy in narrow situations");
     let (narrow, _) = record(
         &cfg.narrow_controller,
@@ -227,6 +214,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
         cfg,
         seed,
         true,
+        build,
     )?;
     let with = |extra: &[PathBuf]| narrow.iter().chain(extra).cloned().collect::<Vec<_>>();
     // Each chain: its current model and everything it has recorded.
@@ -254,6 +242,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             cfg,
             seed,
             &dir.join(format!("policy-ood{sfx}")),
+            build,
         )?;
         let p_goal = train(
             &m_goal,
@@ -261,6 +250,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             cfg,
             seed,
             &dir.join(format!("policy-goal{sfx}")),
+            build,
         )?;
         in_round("recording the virtual guppy under each policy");
         let new_seed = seed
@@ -285,8 +275,8 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             &dir.join(format!("data/under-goal{sfx}")),
         )?;
         let support = m_ood.support()?;
-        let ood_scores = score_trials(&support, "ood", &ood_data).map_err(anyhow::Error::msg)?;
-        let goal_scores = score_trials(&support, "goal", &goal_data).map_err(anyhow::Error::msg)?;
+        let ood_scores = score_trials(&support, "ood", &ood_data).map_err(ResearchError::msg)?;
+        let goal_scores = score_trials(&support, "goal", &goal_data).map_err(ResearchError::msg)?;
         shares.push(share_at_least(
             &ood_scores.scores,
             quantile(&goal_scores.scores, 0.95),
@@ -301,6 +291,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             cfg,
             seed,
             round < cfg.rounds,
+            build,
         )?;
         m_goal = fit(
             &with(&goal_all),
@@ -309,6 +300,7 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path) -> Result<SeedResult> {
             cfg,
             seed,
             false,
+            build,
         )?;
     }
     step("measuring each model's gap to the virtual guppy");
@@ -381,19 +373,17 @@ fn probe_gaps(
     })
 }
 
-pub fn run(a: OodLoopArgs) -> Result<()> {
-    let cfg: OodLoopConfig = match &a.config {
-        Some(p) => super::read_toml(p, "settings")?,
-        None => OodLoopConfig::default(),
-    };
+/// Runs the loop for each of `seeds` into `out` (resuming what is there), writes `loop.json`
+/// and `loop.md`, and returns `loop.md`; a line per stage goes to `by`.
+pub fn run(out: &Path, seeds: &[u64], cfg: &OodLoopConfig, by: Runner) -> Result<String> {
     cfg.validate()?;
-    if a.seeds.is_empty() || a.seeds.len() > 100 {
-        bail!("--seeds takes 1 to 100 seeds, got {}", a.seeds.len());
+    if seeds.is_empty() || seeds.len() > 100 {
+        bail!("--seeds takes 1 to 100 seeds, got {}", seeds.len());
     }
-    super::no_repeats("--seeds", &a.seeds)?;
-    let _lock = super::lock_out(&a.out, "ood-loop")?;
-    let settings = serde_json::to_string_pretty(&cfg)? + "\n";
-    let recorded = a.out.join("settings.json");
+    super::no_repeats("--seeds", seeds)?;
+    let _lock = fishprobe_io::DirLock::acquire(out, "ood-loop")?;
+    let settings = serde_json::to_string_pretty(cfg)? + "\n";
+    let recorded = out.join("settings.json");
     match fishprobe_io::read_small_text(&recorded) {
         // Compared as settings, not as text: a loop recorded before a setting existed has
         // that setting's default, and resumes when the new run keeps it.
@@ -404,10 +394,10 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
                     recorded.display()
                 )
             })?;
-            if old != cfg {
+            if old != *cfg {
                 bail!(
                     "{} holds a loop with other settings ({}); use another --out",
-                    a.out.display(),
+                    out.display(),
                     recorded.display()
                 );
             }
@@ -418,22 +408,22 @@ pub fn run(a: OodLoopArgs) -> Result<()> {
         Err(e) => return Err(e).with_context(|| format!("reading {}", recorded.display())),
     }
     let mut results = Vec::new();
-    for &seed in &a.seeds {
-        let r = one_seed(&cfg, seed, &a.out).with_context(|| format!("seed {seed}"))?;
-        say!(
+    for &seed in seeds {
+        let r = one_seed(cfg, seed, out, by).with_context(|| format!("seed {seed}"))?;
+        by.note(&format!(
             "seed {seed}: metric gap narrow {:.3}, after lead-to-goal data {:.3}, after OOD data {:.3}",
             r.narrow.metrics,
             r.after_goal_data.metrics,
             r.after_ood_data.metrics
-        );
+        ));
         results.push(r);
     }
     let json = serde_json::to_string_pretty(&serde_json::json!({
         "settings": cfg,
         "seeds": results,
     }))? + "\n";
-    fishprobe_io::write_atomically(&a.out.join("loop.json"), json.as_bytes())?;
-    let md = markdown(&cfg, &results);
-    fishprobe_io::write_atomically(&a.out.join("loop.md"), md.as_bytes())?;
-    emit(&md)
+    fishprobe_io::write_atomically(&out.join("loop.json"), json.as_bytes())?;
+    let md = markdown(cfg, &results);
+    fishprobe_io::write_atomically(&out.join("loop.md"), md.as_bytes())?;
+    Ok(md)
 }

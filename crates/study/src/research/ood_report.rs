@@ -1,11 +1,10 @@
-//! `fishprobe ood-report`: what an OOD policy (issue 23) drives the fish into. Runs the policy
+//! `fishprobe ood-report`: what an OOD policy drives the fish into. Runs the policy
 //! and a lead-to-goal policy on the same episodes against the fish model (or reads recorded
 //! trials of either, e.g. live ones), scores every view of the fish against the model's
 //! training support, and writes the distributions, example episodes, and a ranked data
 //! wishlist.
 
-use anyhow::{bail, Context, Result};
-use clap::Args;
+use crate::research::{bail, on_threads, Context, ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{
     disagreement_of_trials, disagreement_of_views, distribution, quantile, score_recorded,
     score_views, share_at_least, share_beyond_interval, trial_views, wishlist, Distribution,
@@ -21,54 +20,54 @@ use fishprobe_report::figures::{ood_scores, ood_trajectories, ScoredEpisode};
 use fishprobe_sim::{Controller, EnvConfig};
 use std::path::{Path, PathBuf};
 
-use super::emit;
-
 mod text;
 use text::{markdown, summary};
 
-#[derive(Debug, Args)]
+/// Which policies `fishprobe ood-report` runs or scores, against what, and where the report goes.
+#[derive(Debug, Clone)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct OodReportArgs {
     /// The OOD policy: a directory from `fishprobe train --task ood` (or `onnx:FILE`). With
     /// `--trials`, only names the policy the trials were recorded with (and, as a training
     /// directory, the fish model and its yardstick).
-    #[arg(long, required_unless_present = "trials")]
-    policy: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long, required_unless_present = "trials"))]
+    pub policy: Option<String>,
     /// Recorded trials of the OOD policy to score instead of simulating its episodes: trial
     /// files or directories of them (`*.hdf5`, `*.h5`), e.g. live trials (`fishprobe live`)
     /// or the virtual lab's (`fishprobe lab`): how far the fish in those recordings went
     /// outside the model's training support. At most 1000 files.
-    #[arg(long, num_args = 1..)]
-    trials: Vec<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
+    pub trials: Vec<PathBuf>,
     /// Recorded trials of the lead-to-goal policy, scored instead of simulating `--compare`'s
     /// episodes (as `--trials`).
-    #[arg(long, num_args = 1..)]
-    compare_trials: Vec<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
+    pub compare_trials: Vec<PathBuf>,
     /// The lead-to-goal policy to compare with (a training directory, `onnx:FILE` or
     /// `scripted:NAME`). Default: `scripted:fetch-and-lead`.
-    #[arg(long, default_value = "scripted:fetch-and-lead")]
-    compare: String,
+    #[cfg_attr(feature = "cli", arg(long, default_value = "scripted:fetch-and-lead"))]
+    pub compare: String,
     /// The fish model (default: the one the OOD policy was trained against).
-    #[arg(long)]
-    model: Option<String>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub model: Option<String>,
     /// The model's training recordings, for their score distribution (default: the shared
     /// guppy pairs when the model is the shipped ConvNet and they are found; else none).
-    #[arg(long, num_args = 1..)]
-    data: Vec<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
+    pub data: Vec<PathBuf>,
     /// Episodes per policy.
-    #[arg(long, default_value_t = 6)]
-    episodes: usize,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 6))]
+    pub episodes: usize,
     /// Minutes per episode (the evaluation task: random starts, corner goals).
-    #[arg(long, default_value_t = 5.0)]
-    minutes: f32,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 5.0))]
+    pub minutes: f32,
     /// Master seed of the episodes (both policies get the same ones).
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
     /// Report directory (report.md, ood.json, figures, the episodes' trial files).
-    #[arg(long)]
-    out: PathBuf,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub out: PathBuf,
     /// Print ood.json instead of the summary.
-    #[arg(long)]
-    json: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub json: bool,
 }
 
 /// The training run behind a policy argument, if it is one.
@@ -92,7 +91,7 @@ struct OodReport {
     distributions: Vec<Distribution>,
     /// The goal policy's 95th-percentile score.
     goal_policy_p95: f64,
-    /// Share of the OOD policy's views scoring at least that (the issue's target: most).
+    /// Share of the OOD policy's views scoring at least that (the target: most of the time).
     ood_share_beyond_goal_p95: f64,
     /// Its 95 % percentile-bootstrap interval over the episodes (or recorded trials) of both
     /// policies, the yardstick measured again in each replicate (`SHARE_INTERVAL_REPS` of
@@ -182,9 +181,14 @@ fn score_policy(
     e: &Evaluation,
     support: &SupportModel,
     label: &str,
+    by: Runner,
 ) -> Result<ScoredRun> {
-    say!("running {} episodes of {} ...", e.episodes, c.describe());
-    Ok(super::with_jobs(None, || {
+    by.note(&format!(
+        "running {} episodes of {} ...",
+        e.episodes,
+        c.describe()
+    ));
+    Ok(on_threads(None, || {
         fishprobe_learn::yardstick::score_policy(c, e, support, label)
     })??)
 }
@@ -197,7 +201,7 @@ const SHARE_INTERVAL_REPS: usize = 2000;
 /// The interval's coverage (choice: 95 %, as the report says).
 const SHARE_INTERVAL_LEVEL: f64 = 0.95;
 
-/// The lead-to-goal policy's quantile the OOD policy's time is measured beyond (issue 23's
+/// The lead-to-goal policy's quantile the OOD policy's time is measured beyond (the
 /// yardstick: its 95th percentile).
 const YARDSTICK_QUANTILE: f64 = 0.95;
 
@@ -237,9 +241,17 @@ fn recorded_files(paths: &[PathBuf], flag: &str) -> Result<Vec<PathBuf>> {
 
 /// Recorded trials scored against `support`: their views and their goals per trial (NaN when
 /// none of them has fishprobe's task record).
-fn recorded_run(support: &SupportModel, label: &str, files: &[PathBuf]) -> Result<ScoredRun> {
-    say!("scoring {} recorded trials of the {label} ...", files.len());
-    let (scores, goals) = score_recorded(support, label, files).map_err(anyhow::Error::msg)?;
+fn recorded_run(
+    support: &SupportModel,
+    label: &str,
+    files: &[PathBuf],
+    by: Runner,
+) -> Result<ScoredRun> {
+    by.note(&format!(
+        "scoring {} recorded trials of the {label} ...",
+        files.len()
+    ));
+    let (scores, goals) = score_recorded(support, label, files).map_err(ResearchError::msg)?;
     if scores.scores.is_empty() {
         bail!("the {label}'s recorded trials hold no tracked fish with the robot");
     }
@@ -251,7 +263,10 @@ fn recorded_run(support: &SupportModel, label: &str, files: &[PathBuf]) -> Resul
     })
 }
 
-pub fn run(a: OodReportArgs) -> Result<()> {
+/// Runs (or scores the recorded trials of) the OOD and the lead-to-goal policy, writes
+/// `report.md`, `ood.json`, the figures and the episodes' trial files into `out`, and returns
+/// the summary (or, with `json`, `ood.json`) to show; progress goes to `by`.
+pub fn run(a: &OodReportArgs, by: Runner) -> Result<String> {
     if a.episodes == 0 || a.episodes > 1000 {
         bail!("--episodes must lie in [1, 1000], got {}", a.episodes);
     }
@@ -302,9 +317,9 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     let compare_name = a.compare_trials.is_empty().then_some(a.compare.as_str());
     // The training recordings too: a bad --data fails before minutes of episodes.
     let (training, training_disagreement) =
-        training_scores(&a.data, &model, &support, ensemble.as_ref())?;
+        training_scores(&a.data, &model, &support, ensemble.as_ref(), by)?;
     // Locked (and so created) only now: a refused report leaves no empty --out behind.
-    let _lock = super::lock_out(&a.out, "ood-report")?;
+    let _lock = fishprobe_io::DirLock::acquire(&a.out, "ood-report")?;
     let mut sources = Vec::new();
     let mut goals = [0.0; 2];
     let mut first_files = Vec::new();
@@ -324,7 +339,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     }
     for (k, (src, name, label)) in both.into_iter().enumerate() {
         let run = match src {
-            Source::Recorded(files) => recorded_run(&support, label, files)?,
+            Source::Recorded(files) => recorded_run(&support, label, files, by)?,
             Source::Simulated(c) => {
                 // Each policy observes and acts as it was trained to (an opt-in block such
                 // as `heading_bins`, or five actions a second, on one side only).
@@ -338,7 +353,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
                     out: a.out.join("episodes").join(name),
                     prefix: name.into(),
                 };
-                score_policy(c.as_ref(), &e, &support, label)?
+                score_policy(c.as_ref(), &e, &support, label, by)?
             }
         };
         goals[k] = run.goals;
@@ -354,7 +369,7 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     };
     let disagreement = ensemble
         .as_ref()
-        .map(|e| disagreement_part(e, training_disagreement.as_ref(), &all_files))
+        .map(|e| disagreement_part(e, training_disagreement.as_ref(), &all_files, by))
         .transpose()?;
     let report = OodReport {
         model: model.name().to_string(),
@@ -395,12 +410,12 @@ pub fn run(a: OodReportArgs) -> Result<()> {
     )?;
     let json = serde_json::to_string_pretty(&report)? + "\n";
     fishprobe_io::write_atomically(&a.out.join("ood.json"), json.as_bytes())?;
-    let md = markdown(&report, &a);
+    let md = markdown(&report, a);
     fishprobe_io::write_atomically(&a.out.join("report.md"), md.as_bytes())?;
     if a.json {
-        emit(&json)
+        Ok(json)
     } else {
-        emit(&summary(&report, &a.out))
+        Ok(summary(&report, &a.out))
     }
 }
 
@@ -412,6 +427,7 @@ fn training_scores(
     model: &ModelSpec,
     support: &SupportModel,
     ensemble: Option<&Disagreement>,
+    by: Runner,
 ) -> Result<(Option<SourceScores>, Option<SourceScores>)> {
     let data = if !data.is_empty() {
         data.to_vec()
@@ -424,7 +440,7 @@ fn training_scores(
         }
     };
     if data.is_empty() {
-        say!("note: no training recordings given (--data): the report has no training-data row");
+        by.note("note: no training recordings given (--data): the report has no training-data row");
         return Ok((None, None));
     }
     let clone = CloneConfig {
@@ -446,13 +462,14 @@ fn disagreement_part(
     e: &Disagreement,
     training: Option<&SourceScores>,
     all_files: &[(&str, Vec<PathBuf>)],
+    by: Runner,
 ) -> Result<DisagreementPart> {
-    say!("scoring the views by the ensemble's disagreement ...");
+    by.note("scoring the views by the ensemble's disagreement ...");
     let policies = all_files
         .iter()
         .map(|(label, files)| disagreement_of_trials(e, label, files))
         .collect::<Result<Vec<_>, _>>()
-        .map_err(anyhow::Error::msg)?;
+        .map_err(ResearchError::msg)?;
     let p95 = quantile(&policies[1].scores, YARDSTICK_QUANTILE);
     Ok(DisagreementPart {
         members: e.members(),

@@ -1,10 +1,11 @@
-//! `fishprobe support`: the support model of a data-driven fish model's training recordings
-//! (issue 23), validated on held-out recordings and on situations the data lacks, with the
-//! two estimators compared.
+//! The support model of a data-driven fish model's training recordings (`fishprobe support`),
+//! validated on held-out recordings and on situations the data lacks, with the two estimators
+//! compared.
 
-use anyhow::{bail, Context, Result};
-use clap::Args;
-use fishprobe_learn::bc::{build_support, file_names, load_pairs, CloneConfig, PairDataset};
+use crate::research::{bail, Context, Result, Runner};
+use fishprobe_learn::bc::{
+    build_support, file_names, load_pairs, pairs_or_shared, CloneConfig, PairDataset,
+};
 use fishprobe_models::convnet::{shipped_sha256, ConvNetArch};
 use fishprobe_models::support::{auc, synthetic_views, Estimator, SupportConfig};
 use fishprobe_models::ModelSpec;
@@ -13,45 +14,45 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use super::emit;
-
-#[derive(Debug, Args)]
+/// Which model's support `fishprobe support` builds, from which recordings, and how it is checked.
+#[derive(Debug, Clone)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
 pub struct SupportArgs {
     /// The model: `ConvNet` (shipped weights), a ConvNet weights file (`--model
     /// convnet:FILE`) or `onnx:FILE` (a model of the view contract).
-    #[arg(long, default_value = "ConvNet")]
-    model: String,
+    #[cfg_attr(feature = "cli", arg(long, default_value = "ConvNet"))]
+    pub model: String,
     /// The model's training recordings (pair files; with --robot-as-partner also files of
     /// one fish with the robot). Default: guppy-pairs/legacy/train of the shared data.
-    #[arg(long, num_args = 1..)]
-    data: Vec<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
+    pub data: Vec<PathBuf>,
     /// Held-out recordings for the check. Default: guppy-pairs/legacy/validation.
-    #[arg(long, num_args = 1..)]
-    validation: Vec<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
+    pub validation: Vec<PathBuf>,
     /// Estimator written to the file (`knn` or `gmm`); both are compared.
-    #[arg(long, default_value = "knn")]
-    estimator: Estimator,
+    #[cfg_attr(feature = "cli", arg(long, default_value = "knn"))]
+    pub estimator: Estimator,
     /// Learn from files of one fish with the robot too (the fish's frames, the robot as
     /// its neighbour).
-    #[arg(long)]
-    robot_as_partner: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub robot_as_partner: bool,
     /// The support file to write. Default: beside the weights (`FILE.support.json`); the
     /// shipped ConvNet needs an explicit path.
-    #[arg(long)]
-    out: Option<PathBuf>,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub out: Option<PathBuf>,
     /// Partners farther than this (cm) are embedded as not seen (0: every partner the view
     /// shows; see `support.partner_range_cm` in docs/settings.md).
-    #[arg(long, default_value_t = SupportConfig::default().partner_range_cm)]
-    partner_range_cm: f32,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = SupportConfig::default().partner_range_cm))]
+    pub partner_range_cm: f32,
     /// Seed of the reference and calibration draws.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
     /// Synthetic views per kind of unseen situation in the check.
-    #[arg(long, default_value_t = 2000)]
-    synthetic: usize,
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 2000))]
+    pub synthetic: usize,
     /// Print the check as JSON.
-    #[arg(long)]
-    json: bool,
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub json: bool,
 }
 
 /// The model spec a `--model` names, and the SHA-256 of its weights.
@@ -148,7 +149,9 @@ fn check(
     }
 }
 
-pub fn run(a: SupportArgs) -> Result<()> {
+/// Builds the support file, checks both estimators, and returns the check to show (a table,
+/// or JSON with `json`); skipped recordings go to `by` as warnings.
+pub fn run(a: &SupportArgs, by: Runner) -> Result<String> {
     if a.synthetic == 0 || a.synthetic > 1_000_000 {
         bail!("--synthetic must lie in [1, 1000000], got {}", a.synthetic);
     }
@@ -167,9 +170,9 @@ pub fn run(a: SupportArgs) -> Result<()> {
              (e.g. crates/models/assets/convnet.support.json)"
         ),
     };
-    let _lock = super::lock_out_file(&out, "support")?;
-    let data = super::fit_convnet::pairs_or_shared(&a.data, "train")?;
-    let validation = super::fit_convnet::pairs_or_shared(&a.validation, "validation")?;
+    let _lock = fishprobe_io::DirLock::for_file(&out, "support")?;
+    let data = pairs_or_shared(&a.data, "train")?;
+    let validation = pairs_or_shared(&a.validation, "validation")?;
     let arch = ConvNetArch::default();
     let clone = CloneConfig {
         robot_as_partner: a.robot_as_partner,
@@ -181,13 +184,10 @@ pub fn run(a: SupportArgs) -> Result<()> {
         bail!("{} is both training and held-out data", f.display());
     }
     for (f, why) in train.skipped.iter().chain(&val.skipped) {
-        say!("warning: skipped {}: {why}", f.display());
+        by.note(&format!("warning: skipped {}: {why}", f.display()));
     }
-    let command: Vec<String> = std::iter::once("fishprobe".to_string())
-        .chain(std::env::args().skip(1))
-        .collect();
     let provenance = serde_json::json!({
-        "command": command.join(" "),
+        "command": by.command,
         "training_files": file_names(&train.files),
         "validation_files": file_names(&val.files),
     });
@@ -275,7 +275,7 @@ pub fn run(a: SupportArgs) -> Result<()> {
                 chosen_name.as_str().unwrap_or_default()
             )
     };
-    emit(&text)
+    Ok(text)
 }
 
 /// The checks as a Markdown table, a column per unseen situation (`kinds`).

@@ -11,7 +11,7 @@ pub(super) fn bench_stats(
     size: StudySizeArg,
     seed: u64,
 ) -> Result<()> {
-    use crate::commands::synth::{generate, StudySize};
+    use fishprobe_analysis::synth::{generate, StudySize};
     let size = match size {
         StudySizeArg::Paper => StudySize::PAPER,
         StudySizeArg::Small => StudySize {

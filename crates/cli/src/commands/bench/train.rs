@@ -80,7 +80,7 @@ pub(super) fn bench_train(json: bool, iterations: u64, model_name: &str) -> Resu
     let update_gflops = flops_mb * mb_per_s / 1e9;
 
     // 3. End to end: `iterations` iterations of the `published` preset (100 epochs per batch,
-    // the speed target) and of the `paper` preset (for this model) against the model.
+    // the speed target) and of the `paper` preset (for this model) against the model.
     let model = ModelSpec::by_name(model_name)?;
     let mut e2e = Vec::new();
     for preset in ["published", "paper"] {

@@ -2,7 +2,7 @@
 //! merged field by field into the defaults, alone or combined (`a+b`), and the paper's
 //! simulation results the scoreboard compares a cell with.
 
-use anyhow::Result;
+use crate::research::{ResearchError, Result};
 use fishprobe_learn::PpoConfig;
 use serde_json::{json, Value};
 
@@ -24,7 +24,7 @@ fn none() -> Value {
 /// The paper's training steps per policy; the budget readings are multiples of it.
 const PUBLISHED: u64 = PpoConfig::PUBLISHED_TIMESTEPS;
 
-/// The readings of issue 20 (one departure from the defaults each).
+/// The fidelity sweep's readings of what the paper leaves open (one departure from the defaults each).
 pub(super) const READINGS: &[Reading] = &[
     Reading {
         name: "baseline",
@@ -288,7 +288,9 @@ impl Combo {
             .split('+')
             .map(|n| {
                 READINGS.iter().find(|r| r.name == n.trim()).ok_or_else(|| {
-                    anyhow::anyhow!("unknown reading `{n}` (see `fishprobe fidelity --list`)")
+                    ResearchError::msg(format!(
+                        "unknown reading `{n}` (see `fishprobe fidelity --list`)"
+                    ))
                 })
             })
             .collect::<Result<Vec<_>>>()?;

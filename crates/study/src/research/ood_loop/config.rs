@@ -1,6 +1,6 @@
 //! The closed loop's settings, and the names of the further probes' directories they imply.
 
-use anyhow::{bail, Context, Result};
+use crate::research::{bail, Context, Result};
 use fishprobe_learn::PpoConfig;
 use fishprobe_sim::params::check;
 use fishprobe_sim::OodScore;
@@ -19,7 +19,7 @@ fishprobe_sim::documented_params! {
         /// Episodes recorded under each policy and added to the data (choice: 6: half the
         /// narrow data again).
         pub new_episodes: usize = 6; "episodes",
-        /// Rounds of policy training, recording and refitting (choice: 1, the loop).
+        /// Rounds of policy training, recording and refitting (choice: 1: train, record, refit once).
         /// In round k > 1 each chain trains a new policy against its own model of round k - 1
         /// (the OOD chain against the model refitted with OOD data, the lead-to-goal chain
         /// against its own), records `new_episodes` more and refits on the narrow data plus
@@ -49,7 +49,7 @@ fishprobe_sim::documented_params! {
         pub gap_minutes: f32 = 5.0; "min",
         /// Partner range of every fitted model's support (`support.partner_range_cm`; choice:
         /// 0, every partner counts, as the shipped support; 15 makes the OOD policy seek
-        /// close interactions, docs/validation.md, "A partner range for the support").
+        /// close interactions, docs/validation.md, "Probes that seek what the data lacks").
         pub support_partner_range_cm: f32 = 0.0; "cm",
         /// What the OOD policy is rewarded by (`task.ood_score`): `support` (choice: the rarity
         /// of the fish's views in the model's training data) or `disagreement` (how much an
@@ -65,7 +65,8 @@ fishprobe_sim::documented_params! {
 }
 
 impl OodLoopConfig {
-    pub(crate) fn validate(&self) -> Result<()> {
+    /// Refuses settings out of their ranges, naming the setting.
+    pub fn validate(&self) -> Result<()> {
         for (f, v, hi) in [
             ("narrow_episodes", self.narrow_episodes, 1000),
             ("validation_episodes", self.validation_episodes, 1000),
@@ -84,8 +85,8 @@ impl OodLoopConfig {
                 self.train_steps
             );
         }
-        super::super::check_minutes("episode_minutes", self.episode_minutes)?;
-        super::super::check_minutes("gap_minutes", self.gap_minutes)?;
+        crate::research::check_minutes("episode_minutes", self.episode_minutes)?;
+        crate::research::check_minutes("gap_minutes", self.gap_minutes)?;
         // The support's own bound, checked before any recording rather than at the first fit.
         check::within(
             "",

@@ -178,7 +178,7 @@ fn yardstick_note(r: &OodReport) -> String {
 
 /// A note when the lead-to-goal policy's 95th percentile lies within the support (at most 1,
 /// e.g. 0.74 under an 8-cm partner range): time beyond it is then not yet time beyond the
-/// training data (docs/validation.md, "How long a partner range").
+/// training data (docs/validation.md, "Probes that seek what the data lacks").
 fn within_support_note(goal_p95: f64) -> &'static str {
     if goal_p95 <= 1.0 {
         " That yardstick lies within the support (at most 1): time beyond it is time in \
