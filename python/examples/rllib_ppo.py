@@ -1,7 +1,7 @@
 """Train RLlib 2.0.1's PPO, the trainer the paper used, on fishprobe's lead-to-goal task with the
 paper's published settings (or fewer epochs and more steps), and export the policy's mean action
 to ONNX (fishprobe's policy contract), so `fishprobe evaluate` and `fishprobe assay approach` can
-run it next to fishprobe's own PPO (docs/validation.md, "RLlib 2.0.1 on this simulator").
+run it next to fishprobe's own PPO (docs/validation.md, "Does PPO learn?").
 
 RLlib 2.0.1 has wheels up to Python 3.10 and speaks gym 0.23's API; these pins install it:
 

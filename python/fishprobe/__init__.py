@@ -47,7 +47,7 @@ if "fishprobe/LeadToGoal-v0" not in _gym.registry:
         entry_point="fishprobe.env:LeadToGoalEnv",
         vector_entry_point="fishprobe.vector:VectorEnv",
     )
-# The OOD task (issue 23): the robot is rewarded for driving the fish's views out of its
+# The OOD task: the robot is rewarded for driving the fish's views out of its
 # model's training support; the shipped M_ConvNet by default.
 if "fishprobe/OOD-v0" not in _gym.registry:
     _gym.register(

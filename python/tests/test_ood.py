@@ -1,4 +1,4 @@
-"""The OOD task (issue 23) from Python: ``fishprobe/OOD-v0`` and ``task="ood"``."""
+"""The OOD task from Python: ``fishprobe/OOD-v0`` and ``task="ood"``."""
 
 from __future__ import annotations
 
