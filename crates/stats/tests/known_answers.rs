@@ -49,6 +49,25 @@ fn rel(a: f64, b: f64) -> f64 {
     ((a - b) / b).abs()
 }
 
+/// The NB2 trend of 6 trials x 15 minutes of counts: intercept and minute, clustered by trial.
+fn per_minute_trend(y: &[f64; 90]) -> fishprobe_stats::Nb2Fit {
+    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
+    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
+    fit_nb2(y, &x, 2, Some(&clusters)).unwrap()
+}
+
+/// Each of `fit`'s first `params.len()` parameters and standard errors within `tol` (relative).
+fn assert_estimates(fit: &fishprobe_stats::Nb2Fit, params: &[f64], bse: &[f64], tol: f64) {
+    for (j, (p, se)) in params.iter().zip(bse).enumerate() {
+        assert!(
+            rel(fit.params[j], *p) < tol,
+            "param {j}: {} vs {p}",
+            fit.params[j]
+        );
+        assert!(rel(fit.se[j], *se) < tol, "se {j}: {} vs {se}", fit.se[j]);
+    }
+}
+
 #[test]
 fn wasserstein_matches_scipy() {
     let w = wasserstein(&A, &B).unwrap();
@@ -81,19 +100,8 @@ fn nb2_with_trial_clustered_errors_matches_statsmodels() {
         [-0.05932384663559524, -0.006186479299902695],
         [0.28682995539802214, 0.5782125651995937],
     ];
+    assert_estimates(&fit, &params, &bse, 1e-4);
     for j in 0..3 {
-        assert!(
-            rel(fit.params[j], params[j]) < 1e-4,
-            "param {j}: {} vs {}",
-            fit.params[j],
-            params[j]
-        );
-        assert!(
-            rel(fit.se[j], bse[j]) < 1e-4,
-            "se {j}: {} vs {}",
-            fit.se[j],
-            bse[j]
-        );
         let w = fit.wald(j);
         assert!(
             rel(w.p, pvalues[j]) < 1e-3,
@@ -176,28 +184,15 @@ fn nb2_temporal_fit_of_an_under_dispersed_policy_is_the_converged_poisson_fit() 
         5., 5., 4., 5., 5., 4., 4., 5., 4., 4., 4., 4., 4., 3., 6., 6., 5., 6., 5., 5., 5., 5., 5.,
         4., 5., 4., 5., 4., 4., 4., 5., 4., 4., 4., 4., 4., 3., 4., 4., 3., 4., 3., 3., 3.,
     ];
-    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
-    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
-    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let fit = per_minute_trend(&y);
     let params = [1.610453240856613, -0.02314489727595962];
     let bse = [0.05661939465208497, 0.00120642778848474];
     let pvalues = [5.865654986998659e-178, 4.972590106197667e-82];
-    for j in 0..2 {
-        assert!(
-            rel(fit.params[j], params[j]) < 1e-6,
-            "param {j}: {} vs {}",
-            fit.params[j],
-            params[j]
-        );
-        assert!(
-            rel(fit.se[j], bse[j]) < 1e-6,
-            "se {j}: {} vs {}",
-            fit.se[j],
-            bse[j]
-        );
+    assert_estimates(&fit, &params, &bse, 1e-6);
+    for (j, want) in pvalues.iter().enumerate() {
         // z = -19.2 for the slope: p moves by 19.2² times the s.e.'s relative error.
         let p = fit.wald(j).p;
-        assert!(rel(p, pvalues[j]) < 2e-3, "p {j}: {p} vs {}", pvalues[j]);
+        assert!(rel(p, *want) < 2e-3, "p {j}: {p} vs {want}");
     }
     assert_eq!(fit.params[2], 0.0);
     // statsmodels' non-converged NegativeBinomial fit (above) ends lower.
@@ -221,9 +216,7 @@ fn nb2_with_a_tiny_interior_dispersion_matches_the_50_digit_maximum_and_statsmod
         1., 9., 4., 2., 7., 5., 2., 3., 5., 4., 4., 1., 3., 3., 4., 1., 5., 4., 4., 3., 4., 8., 4.,
         2., 2., 5., 5., 4., 1., 7., 4., 6., 7., 2., 3., 9., 4., 3., 6., 5., 5., 2., 3., 4.,
     ];
-    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
-    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
-    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let fit = per_minute_trend(&y);
     let params = [
         1.5019117711586394,
         -0.01565797319211985,
@@ -236,20 +229,7 @@ fn nb2_with_a_tiny_interior_dispersion_matches_the_50_digit_maximum_and_statsmod
     ];
     let pvalues = [2.3516874195569803e-90, 0.024032540316973473];
     let ci_slope = [-0.02925761251323148, -0.0020583338710082207];
-    for j in 0..3 {
-        assert!(
-            rel(fit.params[j], params[j]) < 1e-6,
-            "param {j}: {} vs {}",
-            fit.params[j],
-            params[j]
-        );
-        assert!(
-            rel(fit.se[j], bse[j]) < 1e-6,
-            "se {j}: {} vs {}",
-            fit.se[j],
-            bse[j]
-        );
-    }
+    assert_estimates(&fit, &params, &bse, 1e-6);
     for (j, want) in pvalues.iter().enumerate() {
         let p = fit.wald(j).p;
         assert!(rel(p, *want) < 1e-5, "p {j}: {p} vs {want}");
@@ -276,9 +256,7 @@ fn nb2_whose_first_newton_path_stalls_finds_the_maximum() {
         5., 2., 1., 2., 2., 2., 1., 1., 1., 1., 0., 1., 1., 0., 3., 1., 3., 2., 3., 3., 1., 2., 1.,
         2., 5., 4., 2., 3., 2., 5., 2., 2., 1., 0., 0., 5., 0., 5., 4., 1., 0., 2., 0., 2.,
     ];
-    let x: Vec<f64> = (0..90).flat_map(|i| [1.0, f64::from(i % 15)]).collect();
-    let clusters: Vec<usize> = (0..90).map(|i| i / 15).collect();
-    let fit = fit_nb2(&y, &x, 2, Some(&clusters)).unwrap();
+    let fit = per_minute_trend(&y);
     let params = [
         1.0414871046992018,
         -0.05173472930856267,
@@ -289,15 +267,7 @@ fn nb2_whose_first_newton_path_stalls_finds_the_maximum() {
         0.02370805398247987,
         0.08516793072730706,
     ];
-    for j in 0..3 {
-        assert!(
-            rel(fit.params[j], params[j]) < 1e-6,
-            "param {j}: {} vs {}",
-            fit.params[j],
-            params[j]
-        );
-        assert!(rel(fit.se[j], bse[j]) < 1e-6, "se {j}: {}", fit.se[j]);
-    }
+    assert_estimates(&fit, &params, &bse, 1e-6);
     let w = fit.wald(1);
     assert!(rel(w.p, 0.02909784381665266) < 1e-6, "p {}", w.p);
     // statsmodels' fit, which stops a little short of the maximum (α 1.5 % off).
