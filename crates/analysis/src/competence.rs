@@ -11,6 +11,8 @@ use crate::trial::TrialData;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+pub use crate::results::plus_minus;
+
 pub(crate) type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
 
 /// Goals per episode of a set of episodes: what a competence ratio and its standard error
@@ -40,11 +42,6 @@ impl GoalStats {
         };
         Some(Self { mean, sd, n })
     }
-}
-
-/// ` ± 0.03`: a ratio's standard error as the tables append it (empty without one).
-pub fn plus_minus(se: Option<f64>) -> String {
-    se.map_or(String::new(), |se| format!(" ± {se:.2}"))
 }
 
 /// Goals per valid trial of `files` (none without any).

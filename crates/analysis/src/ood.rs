@@ -535,7 +535,7 @@ mod tests {
             attributes: Default::default(),
             task: None,
         };
-        let support = fishprobe_models::convnet::shipped_support().unwrap();
+        let support = fishprobe_models::support::shipped_convnet().unwrap();
         assert_eq!(trial_views(&support, &t).len(), 10);
         t.task = Some(record(0));
         assert_eq!(trial_views(&support, &t).len(), 10);

@@ -27,8 +27,7 @@
 //! - `orbit-cw-R-A` / `orbit-ccw-R-A`: around the fish at R cm (R = 5, 8, 12, 16), clockwise /
 //!   counter-clockwise: the point on that circle A rad (0.5, 0.8, 1.2, 1.6) beyond the robot's
 //!   present bearing from the fish. Clockwise, the robot passes the fish's right heading the
-//!   opposite way, the OOD policies' first wish (docs/validation.md, "Rewards shaped like the
-//!   target, and orbits").
+//!   opposite way, the OOD policies' first wish (docs/validation.md, "Probes that seek what the data lacks").
 //! - `weave-D-L`: across the fish's path in front of it: the point D cm ahead of the fish and
 //!   L cm to the side of its path opposite the robot's (D = 5, 10, 20; L = 5, 10, 15), so the
 //!   robot keeps crossing the fish's heading instead of swimming alongside it.

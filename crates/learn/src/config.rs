@@ -20,7 +20,7 @@ fishprobe_sim::documented_params! {
         /// 0.92-1.02 (docs/validation.md, "The approach pattern over seeds"). Eight times, the budget
         /// before, was chosen thus. A probe must find what its model allows before its strategy
         /// says anything about the model. In the fidelity sweep (docs/validation.md,
-        /// "The fidelity sweep", rows `budget-8x+epochs-2`) this budget gave π_Force more goals
+        /// "Departures from the paper", rows `budget-8x+epochs-2`) this budget gave π_Force more goals
         /// than the best scripted controller (1.18 and 1.17 of it, seeds 0 and 1) and the paper's
         /// approach pattern (closest 0.1 and 0.3 cm, half the time nearer the fish than the goal;
         /// the paper: 0.35 cm, 56.1 %), π_Zone 0.85 and 0.74 of the best script, π_Follow 0.96,
@@ -45,8 +45,7 @@ fishprobe_sim::documented_params! {
         /// learn; with 10 they do (docs/validation.md, "Does PPO learn?"), and more data with
         /// fewer passes does better still: at the same update work, four times the steps at 3
         /// epochs did about as well as four times at 10, and eight times at 2 (the default
-        /// then; sixteen times since, see [`PpoConfig::total_timesteps`]) did best (docs/validation.md, "The fidelity
-        /// sweep"). No reading under which the published 100
+        /// then; sixteen times since, see [`PpoConfig::total_timesteps`]) did best (docs/validation.md, "Departures from the paper"). No reading under which the published 100
         /// epochs learn was found.
         pub num_sgd_iter: usize = 2; "epochs",
         /// Adam learning rate (paper: 0.00026); with [`PpoConfig::lr_final`], the rate at the

@@ -30,8 +30,7 @@ fishprobe_sim::documented_params! {
         /// of the lead-to-goal policy's").
         pub quantile: f64 = 0.95; "1",
         /// Width of the reward's ramp above the yardstick: floor `T`, cap `T + band`, weight
-        /// `1 / band` (choice: 0.15, the near-count of docs/validation.md, "Rewards shaped like
-        /// the target, and orbits": 26.9, 32.7 and 28.8 % of the time beyond the yardstick with
+        /// `1 / band` (choice: 0.15, the near-count of docs/validation.md, "Probes that seek what the data lacks": 26.9, 32.7 and 28.8 % of the time beyond the yardstick with
         /// 4x the paper's steps, against 21.9, 25.1 and 24.8 % with the default reward, seeds
         /// 0-2). In [0.01, 10].
         pub band: f32 = 0.15; "1",

@@ -25,27 +25,10 @@ pub use view::{encode_view, ConvNetArch, CHANNELS};
 
 static SHIPPED_WEIGHTS: &[u8] = include_bytes!("../assets/convnet.safetensors");
 static SHIPPED_META: &str = include_str!("../assets/convnet.safetensors.json");
-static SHIPPED_SUPPORT: &str = include_str!("../assets/convnet.support.json");
 
 /// SHA-256 of the shipped weights file (what its support file names).
 pub fn shipped_sha256() -> String {
     fishprobe_onnx::sha256_hex(SHIPPED_WEIGHTS)
-}
-
-/// The support model of the shipped weights' training views (`assets/convnet.support.json`,
-/// made by `fishprobe support`; see docs/validation.md).
-pub fn shipped_support() -> Result<crate::support::SupportModel, crate::support::SupportError> {
-    let invalid = |what: String| crate::support::SupportError::Invalid {
-        path: "shipped with fishprobe (convnet.support.json)".into(),
-        what,
-    };
-    let s = crate::support::SupportModel::from_json(SHIPPED_SUPPORT).map_err(invalid)?;
-    if s.model_sha256 != shipped_sha256() {
-        return Err(invalid(
-            "built for other weights than the shipped ones".into(),
-        ));
-    }
-    Ok(s)
 }
 
 /// Buffers of a forward/backward pass, reused across calls.

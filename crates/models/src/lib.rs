@@ -275,7 +275,7 @@ impl ModelSpec {
     /// (by SHA-256). Data-driven models only.
     pub fn support(&self) -> Result<support::SupportModel, ModelError> {
         match (self, self.support_path()?) {
-            (_, None) => Ok(convnet::shipped_support()?),
+            (_, None) => Ok(support::shipped_convnet()?),
             (Self::ConvNet(p), Some(file)) => {
                 let hash =
                     weights_sha256(p.weights.as_ref()).map_err(|e| weights_error(&p.weights, e))?;

@@ -1,7 +1,7 @@
 //! A small SVG plotting kit: a canvas, axes with "nice" ticks, and the colour scheme.
 //!
 //! Figures are written as SVG with `<text>` elements in the embedded font (DejaVu Sans);
-//! [`crate::render`] turns them into PNG and into SVG whose text is converted to paths, so
+//! `render` turns them into PNG and into SVG whose text is converted to paths, so
 //! neither needs a font on the reader's machine.
 
 use std::fmt::Write as _;
@@ -9,7 +9,7 @@ use std::fmt::Write as _;
 mod axes;
 pub use axes::{legend, tick_label, ticks, Axes, Key};
 
-/// The font every figure names (embedded, see [`crate::render`]).
+/// The font every figure names (embedded: the `render` module).
 pub const FONT: &str = "DejaVu Sans";
 
 /// Okabe-Ito colours (colour-blind safe), ordered so that neighbours also differ in

@@ -52,14 +52,13 @@ crate::documented_params! {
         /// corner (one drawn per fish), within `lab_start_spread_cm` of the corner's start
         /// point; headings uniform; or `mixed`: each episode lab-style with probability
         /// `lab_start_share`, else random. **Decision: `random`** (the paper does not say where
-        /// its training episodes start). the fidelity sweep (docs/validation.md, "Mixed
-        /// starts, with the fixed trainer") found no start that is better in every seed: mixed
-        /// starts gave π_Zone 0.92 and 0.89 of the best script and the paper's approach to a
+        /// its training episodes start). The fidelity sweep (docs/validation.md, "What did not
+        /// work") found no start that is better in every seed: mixed starts gave π_Zone 0.92 and 0.89 of the best script and the paper's approach to a
         /// still fish in two fidelity seeds, but `train --seed 0` 0.74 and no approach, and
         /// π_Force lost its approach there; `lab` alone led poorly (0.57) while M_Zone had its
         /// former wall pull, and since (without it) as well as random starts, no better: π_Zone
-        /// 0.82-0.95 and the approach in two of three seeds either way ("Lab starts again, with
-        /// the current M_Zone"). Evaluation episodes always start at random poses (SPEC §4).
+        /// 0.82-0.95 and the approach in two of three seeds either way. Evaluation episodes
+        /// always start at random poses (SPEC §4).
         pub training_start: TrainingStart = TrainingStart::Random; "-",
         /// With `training_start = lab`: the side of the squares the robot (at the centre) and
         /// the fish (in a corner) start in (choice: 10 cm).
@@ -105,8 +104,8 @@ crate::documented_params! {
         /// views outside the support (beyond the training views' 95th percentile) earn reward:
         /// "how far out of the support" read literally, and a return that measures what the
         /// robot adds (the fish's in-support views score 0.6-0.8 whatever it does). 0 counts
-        /// every view by its score (the first reading). Evidence (docs/validation.md, "A reward
-        /// floor, a larger budget, and a ceiling"): neutral; with 4x the paper's steps the
+        /// every view by its score (the first reading). Evidence (docs/validation.md, "Probes
+        /// that seek what the data lacks"): neutral; with 4x the paper's steps the
         /// OOD policy's time beyond the lead-to-goal policy's 95th percentile was 15.8 and
         /// 11.8 % with floor 1, 11.9 and 14.6 % with 0 (seeds 0 and 1).
         pub ood_score_floor: f32 = 1.0; "1",

@@ -378,7 +378,7 @@ impl Results {
 
     /// `seeds.csv`: every training seed's competence and approach assay.
     fn seeds_csv(&self) -> String {
-        crate::seeds::csv(&self.seeds)
+        super::seeds_table::csv(&self.seeds)
     }
 
     /// `stability.csv`: retraining stability, σ²_between / σ²_within over the training seeds, with

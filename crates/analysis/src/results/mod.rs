@@ -6,9 +6,15 @@ use serde::{Deserialize, Deserializer, Serialize};
 use std::collections::BTreeMap;
 
 mod csv;
+pub mod seeds_table;
 mod summary;
 
 pub(crate) use csv::{f, table};
+
+/// ` ± 0.03`: a ratio's standard error as the tables append it (empty without one).
+pub fn plus_minus(se: Option<f64>) -> String {
+    se.map_or(String::new(), |se| format!(" ± {se:.2}"))
+}
 
 /// Reading `results.json` back: serde_json writes NaN as `null`, so numbers read `null` (and
 /// an absent field, from an older or partial analysis) as NaN. With these, the report reads the
@@ -217,7 +223,7 @@ pub struct Competence {
     #[serde(default)]
     pub baselines_reach_s: BTreeMap<String, f64>,
     /// Standard error of `ratio` over the episodes (delta method,
-    /// [`crate::competence::ratio_se`]); `None` with fewer than two episodes a side (results
+    /// `competence::ratio_se`); `None` with fewer than two episodes a side (results
     /// of versions before this measure too).
     #[serde(default)]
     pub ratio_se: Option<f64>,
@@ -241,7 +247,7 @@ pub struct Approach {
 }
 
 /// One training seed of a policy: how well it leads its own model's fish and whether it goes
-/// to the still fish of the approach assay (`crate::seeds`).
+/// to the still fish of the approach assay (`seeds`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SeedProbe {
     /// The seed's name in the study (`seed0` is the policy itself).

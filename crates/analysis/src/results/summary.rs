@@ -31,7 +31,7 @@ impl Results {
             s += &self.competence_markdown();
         }
         if !self.seeds.is_empty() {
-            s += &crate::seeds::summary_markdown(&self.seeds, &self.config);
+            s += &super::seeds_table::summary_markdown(&self.seeds, &self.config);
         }
         if !self.mean_ranks.is_empty() {
             let over = if self.metric_gaps.len() > crate::METRICS.len() {
@@ -108,7 +108,7 @@ impl Results {
                 c.best,
                 c.best_goals,
                 c.ratio,
-                crate::competence::plus_minus(c.ratio_se),
+                super::plus_minus(c.ratio_se),
                 if c.weak { " **weak**" } else { "" },
                 c.reach_s.map_or("–".into(), |t| format!("{t:.1}")),
                 if scripted.is_empty() {

@@ -45,8 +45,7 @@ fishprobe_sim::documented_params! {
         /// turning, and unsmoothed its course wandered twice as fast as a guppy's over 0.2-1 s
         /// and into the walls. Five frames remove the jitter (0.014 per
         /// frame) and leave the course over 1 s and 3 s as recorded (median 0.235 and 0.605
-        /// rad, against 0.243 and 0.612). The measurements: docs/validation.md, "M_ConvNet
-        /// at the walls".
+        /// rad, against 0.243 and 0.612). The measurements: docs/validation.md, "M_ConvNet and the virtual guppy against held-back real pairs".
         pub heading_smoothing_frames: usize = 5; "frames",
         /// Files with fewer frames are skipped (choice: 10 s at 25 Hz).
         pub min_frames: usize = 250; "frames",

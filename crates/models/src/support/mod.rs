@@ -63,6 +63,25 @@ pub use model::*;
 pub use situation::*;
 pub use synthetic::*;
 
+/// The shipped M_ConvNet's support file (`assets/convnet.support.json`, made by `fishprobe
+/// support`; see docs/validation.md).
+static SHIPPED_CONVNET: &str = include_str!("../../assets/convnet.support.json");
+
+/// The support model of the shipped M_ConvNet's training views.
+pub fn shipped_convnet() -> Result<SupportModel, SupportError> {
+    let invalid = |what: String| SupportError::Invalid {
+        path: "shipped with fishprobe (convnet.support.json)".into(),
+        what,
+    };
+    let s = SupportModel::from_json(SHIPPED_CONVNET).map_err(invalid)?;
+    if s.model_sha256 != crate::convnet::shipped_sha256() {
+        return Err(invalid(
+            "built for other weights than the shipped ones".into(),
+        ));
+    }
+    Ok(s)
+}
+
 /// Format name written into support files.
 const FORMAT: &str = "fishprobe-support";
 /// Format version.

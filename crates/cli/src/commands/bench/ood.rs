@@ -68,7 +68,7 @@ pub(super) fn bench_ood(json: bool, members: usize, seconds: f64) -> Result<()> 
         serde_json::Value::Null,
     );
     let ensemble = Disagreement::fit(nets, file, &encoded, 256, &mut net_rng)?;
-    let support = fishprobe_models::convnet::shipped_support()?;
+    let support = fishprobe_models::support::shipped_convnet()?;
     let fish = ConvNetFish::from_net(shipped);
     let mut out = vec![0.0; batch * arch.cells()];
     let mut measure = |name: &str, batch: usize, f: &mut dyn FnMut(&[FishView], &mut [f32])| {
