@@ -101,6 +101,11 @@ const SUMMED_ABOVE_R: f64 = 1e4;
 /// The largest count whose terms are summed (a longer sum costs more than it saves).
 const SUMMED_UP_TO_Y: f64 = 1e4;
 
+/// The mean μ = exp(xβ) of the observation with covariates `row`.
+fn mean_at(row: &[f64], beta: &[f64]) -> f64 {
+    row.iter().zip(beta).map(|(x, b)| x * b).sum::<f64>().exp()
+}
+
 /// The terms of one count `y` at r = 1/α: lnΓ(y + r) - lnΓ(r), ψ(y + r) - ψ(r),
 /// ψ'(y + r) - ψ'(r), ln(r / (r + μ)) and 1/r - 1/(r + μ).
 fn count_terms(y: f64, r: f64, mu: f64) -> [f64; 5] {
@@ -136,8 +141,7 @@ fn obs_terms(
 ) -> f64 {
     let k = beta.len();
     let p = k + 1;
-    let eta: f64 = xrow.iter().zip(beta).map(|(x, b)| x * b).sum();
-    let mu = eta.exp();
+    let mu = mean_at(xrow, beta);
     let r = 1.0 / alpha;
     let [lg, dg, tg, ln_q, inv_diff] = count_terms(y, r, mu);
     let ll = lg - ln_gamma(y + 1.0) + r * ln_q + y * (mu / (r + mu)).ln();
@@ -202,7 +206,7 @@ fn poisson_totals(y: &[f64], x: &[f64], beta: &[f64]) -> Objective {
     let (mut ll, mut g, mut h) = (0.0, vec![0.0; k], vec![0.0; k * k]);
     for (i, &yi) in y.iter().enumerate() {
         let row = &x[i * k..(i + 1) * k];
-        let mu = row.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>().exp();
+        let mu = mean_at(row, beta);
         ll += yi * mu.ln() - mu - ln_gamma(yi + 1.0);
         for a in 0..k {
             g[a] += (yi - mu) * row[a];
@@ -365,7 +369,7 @@ fn fit_poisson(
     // K = k + 1: α stays a parameter, as in statsmodels' NegativeBinomial (module docs).
     let cov_b = covariance(&h, k, k + 1, y.len(), clusters, |i, out| {
         let row = &x[i * k..(i + 1) * k];
-        let mu = row.iter().zip(&beta).map(|(a, b)| a * b).sum::<f64>().exp();
+        let mu = mean_at(row, &beta);
         out.iter_mut()
             .zip(row)
             .for_each(|(o, r)| *o = (y[i] - mu) * r);
@@ -471,7 +475,7 @@ fn overdispersion_moment(y: &[f64], x: &[f64], beta: &[f64]) -> Option<f64> {
     let (mut excess, mut mu2) = (0.0, 0.0);
     for (i, &yi) in y.iter().enumerate() {
         let row = &x[i * k..(i + 1) * k];
-        let mu = row.iter().zip(beta).map(|(a, b)| a * b).sum::<f64>().exp();
+        let mu = mean_at(row, beta);
         excess += (yi - mu) * (yi - mu) - yi;
         mu2 += mu * mu;
     }

@@ -191,13 +191,10 @@ pub fn resolve_jobs(jobs: Option<usize>) -> anyhow::Result<Option<usize>> {
 
 /// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
 pub fn with_jobs<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> anyhow::Result<T> {
-    match resolve_jobs(jobs)? {
-        None => Ok(f()),
-        Some(n) => Ok(rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()?
-            .install(f)),
-    }
+    Ok(fishprobe_study::research::on_threads(
+        resolve_jobs(jobs)?,
+        f,
+    )?)
 }
 
 /// Takes the one-writer lock of an output directory for the whole command (see

@@ -74,7 +74,7 @@ pub fn no_repeats<T: PartialEq + std::fmt::Display>(what: &str, values: &[T]) ->
 }
 
 /// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
-pub(crate) fn on_threads<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+pub fn on_threads<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
     match jobs {
         None => Ok(f()),
         Some(n) => Ok(rayon::ThreadPoolBuilder::new()
