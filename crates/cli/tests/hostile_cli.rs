@@ -653,3 +653,47 @@ fn a_policy_with_nan_weights_is_refused_by_the_bridge() {
         "non-finite weights",
     );
 }
+
+/// Model names that would share a directory with the study's own (the reality arms), with
+/// each other on a case-insensitive file system, or split at the arm separator are refused
+/// before any work starts, naming the clash; the output directory stays empty.
+#[test]
+fn model_names_that_collide_with_the_layout_are_refused_before_any_work() {
+    let d = fresh_dir("hostile-names");
+    let study = |name: &str, spec: &str| {
+        format!(
+            "preset = \"smoke\"\n[[extra_models]]\nname = \"{name}\"\nspec = {{ model = \"{spec}\" }}\n"
+        )
+    };
+    let mut cases: Vec<(String, String, &str)> = Vec::new();
+    for reserved in fishprobe_io::layout::RESERVED_NAMES {
+        for n in [
+            reserved.to_string(),
+            reserved.to_lowercase(),
+            reserved.to_uppercase(),
+        ] {
+            cases.push((n, "Zone".into(), "reserved"));
+        }
+    }
+    cases.push(("zone".into(), "Zone".into(), "differ only in case"));
+    cases.push(("Zone_".into(), "Zone".into(), "trailing '_'"));
+    cases.push(("_Zone".into(), "Zone".into(), "leading or trailing"));
+    cases.push(("a__b".into(), "Zone".into(), "separates policy and model"));
+    for (i, (name, spec, needle)) in cases.iter().enumerate() {
+        let file = d.join(format!("s{i}.toml"));
+        std::fs::write(&file, study(name, spec)).unwrap();
+        let out = d.join(format!("out{i}"));
+        let o = run_within(
+            &["run", "--config", s(&file), "--out", s(&out)],
+            Duration::from_secs(60),
+        );
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(
+            err.contains(needle) && err.contains(&format!("`{name}`")),
+            "{name}: {err}"
+        );
+        let left = std::fs::read_dir(&out).map_or(0, |r| r.count());
+        assert_eq!(left, 0, "{name}: the refused study wrote into {out:?}");
+    }
+}

@@ -72,6 +72,61 @@ pub const REALITY_ARMS: [&str; 2] = [REAL, VIRTUAL_LAB];
 /// Separates policy and arm in a rollout directory's name.
 pub const ARM_SEPARATOR: &str = "__";
 
+/// Names the layout gives to directories of its own where a model's name would stand (the
+/// reality arms): a model named so would share `rollouts/<Policy>__Real/` with live trials.
+pub const RESERVED_NAMES: [&str; 2] = REALITY_ARMS;
+
+/// Why `name` cannot name a model (or its policy) in a study, or `None` when it can: it names
+/// directories (`policies/<Model>/`, `rollouts/<Policy>__<Model>/`), so it must be letters,
+/// digits, `-` and `_` only, at most 100 characters, neither begin nor end with `_` nor hold
+/// the arm separator `__` (which would split `<Policy>__<Model>` in the wrong place), and not
+/// be a reserved name ([`RESERVED_NAMES`]) in any spelling of case (a case-insensitive file
+/// system, macOS's default, makes `real/` and `Real/` one directory).
+pub fn name_problem(name: &str) -> Option<String> {
+    if name.is_empty() {
+        return Some("an empty name".into());
+    }
+    if name.chars().count() > 100 {
+        return Some("more than 100 characters".into());
+    }
+    if let Some(c) = name
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '-' | '_')))
+    {
+        return Some(format!(
+            "the character {c:?}: use letters, digits, '-' and '_', it names directories"
+        ));
+    }
+    if name.contains(ARM_SEPARATOR) {
+        return Some(format!(
+            "\"{ARM_SEPARATOR}\", which separates policy and model in `rollouts/<Policy>{ARM_SEPARATOR}<Model>/`"
+        ));
+    }
+    if name.starts_with('_') || name.ends_with('_') {
+        return Some(format!(
+            "a leading or trailing '_', which would join the separator \"{ARM_SEPARATOR}\" of `rollouts/<Policy>{ARM_SEPARATOR}<Model>/`"
+        ));
+    }
+    if let Some(r) = RESERVED_NAMES.iter().find(|r| r.eq_ignore_ascii_case(name)) {
+        return Some(format!(
+            "reserved: `rollouts/<Policy>{ARM_SEPARATOR}{r}/` holds the reality arm (in any case: a case-insensitive file system makes them one directory)"
+        ));
+    }
+    None
+}
+
+/// The first two of `names` that would be one directory on a case-insensitive file system
+/// (`Zone` and `zone`), if any.
+pub fn case_clash<'a>(names: impl IntoIterator<Item = &'a str>) -> Option<(&'a str, &'a str)> {
+    let mut seen: std::collections::BTreeMap<String, &'a str> = std::collections::BTreeMap::new();
+    for n in names {
+        if let Some(first) = seen.insert(n.to_ascii_lowercase(), n) {
+            return Some((first, n));
+        }
+    }
+    None
+}
+
 /// The top-level directories that hold the outputs of study steps.
 pub const STEP_OUTPUT_DIRS: [&str; 7] = [
     "rollouts",
@@ -285,6 +340,45 @@ impl StudyLayout {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn names_that_would_collide_with_the_layout_are_refused() {
+        for ok in [
+            "Zone",
+            "Zone-radii",
+            "M_Zone",
+            "a-b_c",
+            "Real2",
+            "VirtualLab-b",
+        ] {
+            assert_eq!(name_problem(ok), None, "{ok}");
+        }
+        // Every reserved name, in its own and in other spellings of case.
+        for r in RESERVED_NAMES {
+            for n in [r.to_string(), r.to_lowercase(), r.to_uppercase()] {
+                let why = name_problem(&n).unwrap_or_default();
+                assert!(why.contains("reserved") && why.contains(r), "{n}: {why}");
+            }
+        }
+        for (bad, needle) in [
+            ("", "empty"),
+            ("Zone_", "trailing"),
+            ("_Zone", "leading"),
+            ("a__b", "separates"),
+            ("a/b", "'/'"),
+            ("..", "'.'"),
+            ("zö", "'ö'"),
+        ] {
+            let why = name_problem(bad).unwrap_or_default();
+            assert!(why.contains(needle), "{bad:?}: {why}");
+        }
+        assert!(name_problem(&"a".repeat(101)).is_some());
+        assert_eq!(
+            case_clash(["Zone", "Force", "zone"]),
+            Some(("Zone", "zone"))
+        );
+        assert_eq!(case_clash(["Zone", "Force", "Zone2"]), None);
+    }
 
     #[test]
     fn the_archive_layout() {

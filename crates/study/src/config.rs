@@ -316,20 +316,22 @@ impl StudyConfig {
         }
         let mut seen = std::collections::BTreeSet::new();
         for m in &self.models {
-            let ok = !m.name.is_empty()
-                && m.name
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-                && !m.name.contains(fishprobe_io::layout::ARM_SEPARATOR);
-            if !ok {
-                return bad(format!(
-                    "model name `{}`: use letters, digits, '-' and '_' (no \"__\"), it names directories",
-                    m.name
-                ));
+            if let Some(why) = fishprobe_io::layout::name_problem(&m.name) {
+                return bad(format!("model name `{}`: {why}", m.name));
             }
             if !seen.insert(m.name.clone()) {
                 return bad(format!("model name `{}` twice", m.name));
             }
+        }
+        if let Some((a, b)) =
+            fishprobe_io::layout::case_clash(self.models.iter().map(|m| m.name.as_str()))
+        {
+            return bad(format!(
+                "model names `{a}` and `{b}` differ only in case: on a case-insensitive file \
+                 system (macOS's default) they would share one directory"
+            ));
+        }
+        for m in &self.models {
             m.spec
                 .build()
                 .map_err(|e| StudyError::Input(format!("model `{}`: {e}", m.name)))?;
