@@ -47,11 +47,13 @@ fn make_onnx_files(dir: &Path) {
 import sys, onnx
 from onnx import helper as h, TensorProto as T
 d = sys.argv[1]
-def model(name, inp, out, nodes, inits=(), opset=13, domain_opsets=()):
+def model(name, inp, out, nodes, inits=(), opset=13, domain_opsets=(), meta=None):
     g = h.make_graph(nodes, name, [inp], [out], initializer=list(inits))
     ops = [h.make_opsetid("", opset)] + [h.make_opsetid(dm, v) for dm, v in domain_opsets]
     m = h.make_model(g, opset_imports=ops, producer_name="onnx-helper-test")
     m.ir_version = 8
+    if meta:
+        h.set_model_props(m, meta)
     onnx.save(m, f"{d}/{name}.onnx")
 obs = h.make_tensor_value_info("obs", T.FLOAT, ["batch", 180])
 turn = h.make_tensor_value_info("turn", T.FLOAT, ["batch", 1])
@@ -87,6 +89,39 @@ for name, n in [("huge_3gb", 20000), ("huge_80gb", 100000)]:
         h.make_node("ReduceSum", ["big"], ["bs"], keepdims=0),
         h.make_node("Mul", ["bs", "zero"], ["bz"]), h.make_node("Add", ["z", "bz"], ["z2"]),
         h.make_node("Add", ["z2", "half"], ["turn"])], [half, zero, axes, shp])
+# Many tensors, each far under the single-tensor cap, that together take gigabytes (the
+# engine folds them all while it plans): 24 different 2 x 2 initializers tiled to 4,000 x
+# 4,000 (61 MiB each), summed in a chain, then 0 x their sum. (A `ConstantOfShape` or an
+# `Expand` the engine keeps as a uniform or broadcast value, so it takes no memory.)
+reps = h.make_tensor("reps", T.INT64, [2], [2000, 2000])
+quads = [h.make_tensor(f"q{i}", T.FLOAT, [2, 2], [i, i + 1.0, i + 2.0, i + 3.0]) for i in range(24)]
+tiles = [h.make_node("Tile", [f"q{i}", "reps"], [f"t{i}"]) for i in range(24)]
+def bomb_tail(last):
+    return [h.make_node("ReduceSum", [last], ["bs"], keepdims=0),
+            h.make_node("Mul", ["bs", "zero"], ["bz"])]
+tile_chain = [h.make_node("Add", ["t0" if i == 1 else f"c{i-1}", f"t{i}"], [f"c{i}"]) for i in range(1, 24)]
+model("many_tensors", obs, turn, const[:2] + tiles + tile_chain + bomb_tail("c23") +
+      [h.make_node("Add", ["z", "bz"], ["z2"]), h.make_node("Add", ["z2", "half"], ["turn"])],
+      [half, zero, axes, reps] + quads)
+# The same 24 tiles held at once as the inputs of one `Sum`.
+model("many_inputs", obs, turn, const[:2] + tiles + [h.make_node("Sum", [f"t{i}" for i in range(24)], ["c"])] +
+      bomb_tail("c") + [h.make_node("Add", ["z", "bz"], ["z2"]), h.make_node("Add", ["z2", "half"], ["turn"])],
+      [half, zero, axes, reps] + quads)
+# Deep and wide graphs over the node limit: a chain of 20,000 `Identity` nodes, and 20,000
+# `Identity` nodes side by side summed by one `Sum`.
+chain = [h.make_node("Identity", ["z"], ["i0"])]
+chain += [h.make_node("Identity", [f"i{j-1}"], [f"i{j}"]) for j in range(1, 20000)]
+chain += [h.make_node("Add", ["i19999", "half"], ["turn"])]
+model("deep", obs, turn, const[:2] + chain, [half, zero, axes])
+wide = [h.make_node("Identity", ["z"], [f"w{j}"]) for j in range(20000)]
+wide += [h.make_node("Sum", [f"w{j}" for j in range(20000)], ["ws"]),
+         h.make_node("Add", ["ws", "half"], ["turn"])]
+model("wide", obs, turn, const[:2] + wide, [half, zero, axes])
+# A chain just under the limit plans, in bounded time.
+chain = [h.make_node("Identity", ["z"], ["i0"])]
+chain += [h.make_node("Identity", [f"i{j-1}"], [f"i{j}"]) for j in range(1, 9990)]
+chain += [h.make_node("Add", ["i9989", "half"], ["turn"])]
+model("deep_ok", obs, turn, const[:2] + chain, [half, zero, axes])
 # A fish model whose logits are NaN: flatten the view, multiply by zeros, add NaN.
 view = h.make_tensor_value_info("view", T.FLOAT, ["batch", 3, 72])
 logits = h.make_tensor_value_info("logits", T.FLOAT, ["batch", 1025])
@@ -95,6 +130,13 @@ bn = h.make_tensor("bn", T.FLOAT, [1025], [float("nan")] * 1025)
 model("nan_fish", view, logits, [h.make_node("Flatten", ["view"], ["f"], axis=1),
       h.make_node("MatMul", ["f", "wz"], ["m"]), h.make_node("Add", ["m", "bn"], ["logits"])],
       [wz, bn])
+# Fish models: one of M_ConvNet's grid whose logits are 0, with a contract value out of range
+# (a top speed of 1e30 cm/s), and one that also folds 24 tiles of 61 MiB while it plans.
+zero_fish = [h.make_node("Flatten", ["view"], ["f"], axis=1), h.make_node("MatMul", ["f", "wz"], ["logits"])]
+model("fast_fish", view, logits, zero_fish, [wz], meta={"v_max_cm_s": "1e30"})
+model("bomb_fish", view, logits, [h.make_node("Flatten", ["view"], ["f"], axis=1),
+      h.make_node("MatMul", ["f", "wz"], ["m"])] + tiles + tile_chain + bomb_tail("c23") +
+      [h.make_node("Add", ["m", "bz"], ["logits"])], [wz, zero, reps] + quads)
 "#;
     let o = Command::new("python3")
         .args(["-c", script, s(dir)])
@@ -252,10 +294,132 @@ fn onnx_files_that_break_the_contract_are_refused_naming_what_was_expected() {
             &["needs more memory than fishprobe gives an ONNX network"],
         );
     }
+    // Many tensors under the single cap but gigabytes together: refused at the file's bound,
+    // naming the sizes and how to raise it.
+    for many in ["many_tensors.onnx", "many_inputs.onnx"] {
+        assert!(std::fs::metadata(d.join(many)).unwrap().len() < 3_000);
+        refused(
+            many,
+            &[
+                "needs more memory than fishprobe gives an ONNX network",
+                "over this file's bound of 256.0 MiB",
+                "FISHPROBE_ONNX_MAX_MEMORY_MB",
+            ],
+        );
+    }
+    // Deep and wide graphs: refused by their node count before the engine plans them.
+    for graph in ["deep.onnx", "wide.onnx"] {
+        refused(
+            graph,
+            &[
+                "refused: 2000",
+                "nodes, more than the 10000",
+                "FISHPROBE_ONNX_MAX_NODES",
+            ],
+        );
+    }
     // A policy that outputs NaN: refused at its first action, naming episode and second.
     refused(
         "nan_turn.onnx",
         &["non-finite turn", "episode 0", "second 0"],
+    );
+}
+
+/// The limits on ONNX files hold under an address-space limit smaller than what the files
+/// would take (the refusal comes from fishprobe's bound, not from the machine), a chain just
+/// under the node limit plans in bounded time, and both limits are settable, with a wrong
+/// setting refused by name.
+#[cfg(unix)]
+#[test]
+fn onnx_limits_hold_under_an_address_space_limit_and_can_be_set() {
+    let d = fresh_dir("onnx-limits");
+    make_onnx_files(&d);
+    let bin = env!("CARGO_BIN_EXE_fishprobe");
+    let run = |file: &str, env: &[(&str, &str)], ulimit_kb: Option<u64>| {
+        let out = d.join(format!("out-{file}"));
+        let args = [
+            "evaluate",
+            "--policy",
+            &format!("onnx:{}", s(&d.join(file))),
+            "--model",
+            "Follow",
+            "--episodes",
+            "1",
+            "--minutes",
+            "0.2",
+            "--out",
+            s(&out),
+        ];
+        let mut cmd = match ulimit_kb {
+            // 1.5 GiB of address space: the many-tensor files take 1.5 GB as the engine
+            // builds them, fishprobe itself a few hundred MB.
+            Some(kb) => {
+                let mut c = Command::new("sh");
+                c.arg("-c")
+                    .arg(format!("ulimit -v {kb} && exec \"$0\" \"$@\""))
+                    .arg(bin)
+                    .args(args);
+                c
+            }
+            None => {
+                let mut c = Command::new(bin);
+                c.args(args);
+                c
+            }
+        };
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let start = std::time::Instant::now();
+        let o = cmd.output().unwrap();
+        (o, start.elapsed())
+    };
+    for many in ["many_tensors.onnx", "many_inputs.onnx"] {
+        let (o, took) = run(many, &[], Some(3 << 19));
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{many}: {err}");
+        assert!(err.contains("over this file's bound"), "{many}: {err}");
+        assert!(took.as_secs() < 30, "{many} took {took:?}");
+    }
+    // Just under the node limit: planned and run.
+    let (o, took) = run("deep_ok.onnx", &[], None);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        took.as_secs() < 60,
+        "a chain under the node limit took {took:?}"
+    );
+    // The limits are settings: a lower node limit refuses a small file, a higher memory bound
+    // lets the many-tensor file plan further (it is then refused at the next limit, not at
+    // 256 MiB), and a wrong setting is an error naming the variable.
+    let (o, _) = run(
+        "constant_turn.onnx",
+        &[("FISHPROBE_ONNX_MAX_NODES", "2")],
+        None,
+    );
+    assert!(
+        stderr(&o).contains("3 nodes, more than the 2"),
+        "{}",
+        stderr(&o)
+    );
+    let (o, _) = run(
+        "constant_turn.onnx",
+        &[("FISHPROBE_ONNX_MAX_MEMORY_MB", "lots")],
+        None,
+    );
+    assert!(
+        stderr(&o).contains("FISHPROBE_ONNX_MAX_MEMORY_MB = `lots`: must be a whole number"),
+        "{}",
+        stderr(&o)
+    );
+    let (o, _) = run(
+        "many_tensors.onnx",
+        &[("FISHPROBE_ONNX_MAX_MEMORY_MB", "700")],
+        None,
+    );
+    let err = stderr(&o);
+    assert!(
+        err.contains("bound of 700.0 MiB (set by FISHPROBE_ONNX_MAX_MEMORY_MB)"),
+        "{err}"
     );
 }
 
@@ -341,6 +505,19 @@ fn onnx_fish_models_that_break_the_contract_are_refused() {
     assert_eq!(o.status.code(), Some(1), "{e}");
     assert!(e.contains("Onnx") && e.contains("frame"), "{e}");
     assert!(!e.contains("panicked"), "{e}");
+    // A contract value out of its range: refused naming the key, the value and the range.
+    let o = sim("fast_fish.onnx");
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("v_max_cm_s = 1e30") && e.contains("allowed range: a number in (0, 100]"),
+        "{e}"
+    );
+    // Gigabytes of folded constants: refused at the file's bound.
+    let o = sim("bomb_fish.onnx");
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("over this file's bound"), "{e}");
 }
 
 /// A study names an ONNX candidate (path relative to the study file): it is trained against,

@@ -43,36 +43,85 @@ impl OnnxParams {
     }
 }
 
-/// The grid of `metadata_props`, on M_ConvNet's defaults.
+/// The allowed range of each `metadata_props` value of the fish-model contract; a value
+/// outside it is refused naming the key, the value and the range.
+///
+/// - `v_max_cm_s` in (0, 100] cm/s: a tank width a second, about twice a guppy's fastest
+///   burst (M_ConvNet: 25).
+/// - `omega_max_rad_s` in (0, 25π] rad/s: at the tank's 25 frames a second a larger turn
+///   rate turns more than π in one frame, which is no longer a turn (M_ConvNet: 10).
+/// - `v_bins` and `omega_bins` whole numbers in [1, 1,000] (M_ConvNet: 25 and 41), with at
+///   most [`MAX_GRID_CELLS`] cells in all: the network outputs a logit per cell, per fish
+///   and frame.
+pub const METADATA_RANGES: [(&str, f64, f64); 4] = [
+    ("v_max_cm_s", 0.0, 100.0),
+    ("omega_max_rad_s", 0.0, 25.0 * std::f64::consts::PI),
+    ("v_bins", 1.0, 1000.0),
+    ("omega_bins", 1.0, 1000.0),
+];
+
+/// Most cells the (v, ω) grid of an ONNX fish may have (M_ConvNet: 1,025).
+pub const MAX_GRID_CELLS: usize = 100_000;
+
+/// The grid of `metadata_props`, on M_ConvNet's defaults, each value checked against
+/// [`METADATA_RANGES`].
 fn arch_from(meta: &BTreeMap<String, String>) -> Result<ConvNetArch, String> {
     let mut a = ConvNetArch::default();
-    let num = |k: &str| -> Result<Option<f64>, String> {
-        meta.get(k)
-            .map(|v| {
-                v.trim()
-                    .parse::<f64>()
-                    .map_err(|_| format!("metadata {k} = `{v}`, not a number"))
-            })
-            .transpose()
+    let value = |k: &str| -> Result<Option<f64>, String> {
+        let Some(v) = meta.get(k) else {
+            return Ok(None);
+        };
+        let &(_, lo, hi) = METADATA_RANGES
+            .iter()
+            .find(|(key, ..)| *key == k)
+            .ok_or_else(|| format!("metadata {k}: no range defined"))?;
+        let count = lo >= 1.0;
+        let range = if count {
+            format!("a whole number in [{lo}, {hi}]")
+        } else {
+            let hi = if hi.fract() == 0.0 {
+                format!("{hi}")
+            } else {
+                format!("{hi:.4}")
+            };
+            format!("a number in ({lo}, {hi}]")
+        };
+        let x = v
+            .trim()
+            .parse::<f64>()
+            .map_err(|_| format!("metadata {k} = `{v}`, not a number (allowed: {range})"))?;
+        let inside = if count {
+            x.fract() == 0.0 && (lo..=hi).contains(&x)
+        } else {
+            x > lo && x <= hi
+        };
+        if !inside {
+            return Err(format!(
+                "metadata {k} = {}, outside the allowed range: {range}",
+                fishprobe_sim::params::check::shown(x)
+            ));
+        }
+        Ok(Some(x))
     };
-    if let Some(v) = num("v_max_cm_s")? {
+    if let Some(v) = value("v_max_cm_s")? {
         a.v_max_cm_s = v as f32;
     }
-    if let Some(v) = num("omega_max_rad_s")? {
+    if let Some(v) = value("omega_max_rad_s")? {
         a.w_max_rad_s = v as f32;
     }
-    let count = |v: f64, k: &str| -> Result<usize, String> {
-        if v.fract() == 0.0 && (1.0..=10_000.0).contains(&v) {
-            Ok(v as usize)
-        } else {
-            Err(format!("metadata {k} = {v}, not a count of 1 to 10,000"))
-        }
-    };
-    if let Some(v) = num("v_bins")? {
-        a.v_bins = count(v, "v_bins")?;
+    if let Some(v) = value("v_bins")? {
+        a.v_bins = v as usize;
     }
-    if let Some(v) = num("omega_bins")? {
-        a.w_bins = count(v, "omega_bins")?;
+    if let Some(v) = value("omega_bins")? {
+        a.w_bins = v as usize;
+    }
+    if a.cells() > MAX_GRID_CELLS {
+        return Err(format!(
+            "metadata v_bins x omega_bins = {} x {} = {} cells, more than the {MAX_GRID_CELLS} allowed",
+            a.v_bins,
+            a.w_bins,
+            a.cells()
+        ));
     }
     a.validate().map_err(|e| e.to_string())?;
     Ok(a)
@@ -209,5 +258,60 @@ impl crate::ModelParams for OnnxParams {
 
     fn build_model(&self) -> Result<Arc<dyn FishModel>, crate::ModelError> {
         Ok(Arc::new(OnnxFish::load(self)?))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    fn grid(pairs: &[(&str, &str)]) -> Result<ConvNetArch, String> {
+        arch_from(
+            &pairs
+                .iter()
+                .map(|(k, v)| ((*k).to_string(), (*v).to_string()))
+                .collect(),
+        )
+    }
+
+    #[test]
+    fn every_contract_value_is_checked_against_its_range() {
+        // No metadata: M_ConvNet's grid; values inside their ranges are taken.
+        assert_eq!(grid(&[]).unwrap().cells(), 1025);
+        let a = grid(&[
+            ("v_max_cm_s", "100"),
+            ("omega_max_rad_s", "78.5"),
+            ("v_bins", "1000"),
+            ("omega_bins", "100"),
+        ])
+        .unwrap();
+        assert_eq!((a.v_max_cm_s, a.v_bins, a.w_bins), (100.0, 1000, 100));
+        // Outside: refused naming the key, the value and the range.
+        for (k, v, range) in [
+            ("v_max_cm_s", "1e30", "(0, 100]"),
+            ("v_max_cm_s", "0", "(0, 100]"),
+            ("v_max_cm_s", "-3", "(0, 100]"),
+            ("v_max_cm_s", "NaN", "(0, 100]"),
+            ("v_max_cm_s", "inf", "(0, 100]"),
+            ("omega_max_rad_s", "1e30", "(0, 78.5398]"),
+            ("omega_max_rad_s", "78.6", "(0, 78.5398]"),
+            ("v_bins", "0", "[1, 1000]"),
+            ("v_bins", "2.5", "[1, 1000]"),
+            ("omega_bins", "1001", "[1, 1000]"),
+            ("omega_bins", "lots", "[1, 1000]"),
+        ] {
+            let e = grid(&[(k, v)]).unwrap_err();
+            assert!(
+                e.contains(k) && e.contains(range) && e.contains("allowed"),
+                "{k} = {v}: {e}"
+            );
+            assert!(e.len() < 200, "{e}");
+        }
+        assert!(grid(&[("v_max_cm_s", "1e30")])
+            .unwrap_err()
+            .contains("1e30"));
+        let e = grid(&[("v_bins", "1000"), ("omega_bins", "1000")]).unwrap_err();
+        assert!(e.contains("1000000 cells") && e.contains("100000"), "{e}");
     }
 }

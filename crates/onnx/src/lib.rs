@@ -10,7 +10,9 @@
 //! Every file is checked against its contract when it is loaded, before any work: a file that
 //! is missing, not ONNX, has other input or output names, shapes or types, or uses an operator
 //! the engine lacks is a one-line error naming the file, what was expected and what was found.
-//! A file that declares tensors of gigabytes is refused with bounded memory (see [`CappedAlloc`]).
+//! A file that declares tensors of gigabytes is refused with bounded memory (see
+//! [`CappedAlloc`] and [`MemoryBound`]), one of more than [`MAX_NODES`] nodes before the
+//! engine plans it.
 //!
 //! ```no_run
 //! use fishprobe_onnx::OnnxPolicy;
@@ -29,8 +31,13 @@ mod guard;
 mod net;
 mod policy;
 
-pub use guard::{CappedAlloc, MAX_ALLOCATION_BYTES};
-pub use net::{hex, read_model_file, sha256_hex, Contract, OnnxNet, MAX_FILE_BYTES};
+pub use guard::{
+    CappedAlloc, MemoryBound, MAX_ALLOCATION_BYTES, MEMORY_ENV, SMALL_ALLOCATION_BYTES,
+};
+pub use net::{
+    hex, node_limit, read_model_file, sha256_hex, Contract, OnnxNet, MAX_FILE_BYTES, MAX_NODES,
+    NODES_ENV,
+};
 
 // The unit tests check the allocation cap, so their binary installs it as binaries do.
 #[cfg(test)]
@@ -78,6 +85,15 @@ pub enum OnnxError {
         /// The file.
         path: PathBuf,
         /// The engine's words.
+        what: String,
+    },
+    /// Over one of the limits that bound the memory and time a file may take (the node
+    /// count, the memory bound's setting).
+    #[error("{}: refused: {what}", path.display())]
+    Limit {
+        /// The file.
+        path: PathBuf,
+        /// Which limit, the file's value and how to raise it.
         what: String,
     },
     /// Running it failed.

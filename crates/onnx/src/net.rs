@@ -1,5 +1,6 @@
 //! One ONNX network checked against a contract and planned for a fixed batch size.
 
+use crate::guard::{mib, MemoryBound, Stopped};
 use crate::{OnnxError, ENGINE};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -78,6 +79,8 @@ pub struct OnnxNet {
     contract: Contract,
     metadata: std::collections::BTreeMap<String, String>,
     plan: Arc<Plan>,
+    /// The memory the engine may hold for it (planning and every run).
+    bound: MemoryBound,
     batch: usize,
     input_len: usize,
     output_len: usize,
@@ -96,6 +99,47 @@ impl std::fmt::Debug for OnnxNet {
 
 /// Largest ONNX file accepted (a policy of 2 x 256 units is 0.3 MB, the ConvNet fish 1 MB).
 pub const MAX_FILE_BYTES: u64 = 512 << 20;
+
+/// Most nodes an ONNX file may hold, those of its subgraphs included, unless
+/// [`NODES_ENV`] sets another number: the engine's planning time grows faster than the
+/// node count (a chain of 20,000 nodes took 6 s, one of 100,000 did not finish in 90 s),
+/// while the networks of fishprobe's contracts have tens of nodes and a large exported policy
+/// a few hundred. Just under this limit the engine plans a chain in 0.6 s.
+pub const MAX_NODES: usize = 10_000;
+
+/// The environment variable that sets the node limit of every ONNX file (a whole number in
+/// [1, 1,000,000]) for a user with a big honest network.
+pub const NODES_ENV: &str = "FISHPROBE_ONNX_MAX_NODES";
+
+/// The node limit: [`NODES_ENV`] if set (`setting`), else [`MAX_NODES`].
+pub fn node_limit(setting: Option<&str>) -> Result<usize, String> {
+    let Some(v) = setting else {
+        return Ok(MAX_NODES);
+    };
+    match v.trim().parse::<usize>() {
+        Ok(n) if (1..=1_000_000).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "{NODES_ENV} = `{v}`: must be a whole number in [1, 1000000]"
+        )),
+    }
+}
+
+/// Nodes of a graph and of every subgraph its nodes' attributes hold (`If`, `Loop`, `Scan`).
+fn count_nodes(g: &tract_onnx::pb::GraphProto) -> usize {
+    g.node
+        .iter()
+        .map(|n| {
+            1 + n
+                .attribute
+                .iter()
+                .map(|a| {
+                    a.g.as_ref().map_or(0, count_nodes)
+                        + a.graphs.iter().map(count_nodes).sum::<usize>()
+                })
+                .sum::<usize>()
+        })
+        .sum()
+}
 
 /// The bytes of an ONNX file, as the loader reads them: a regular file of at most
 /// [`MAX_FILE_BYTES`] (bounded by reading too, so a file that grows meanwhile is refused
@@ -163,13 +207,14 @@ impl OnnxNet {
         ) -> Result<Contract, String>,
     ) -> Result<Self, OnnxError> {
         let bytes = Arc::new(read_model_file(path)?);
-        let metadata = Self::metadata_of(path, &bytes)?;
+        let bound = Self::bound(path, bytes.len())?;
+        let metadata = Self::inspect(path, &bytes, bound)?;
         let contract = contract_of(&metadata).map_err(|what| OnnxError::Contract {
             path: path.to_path_buf(),
             expected: "metadata_props fishprobe can use".into(),
             found: what,
         })?;
-        Self::plan(path, bytes, contract, metadata, batch)
+        Self::plan(path, bytes, contract, metadata, batch, bound)
     }
 
     /// The same network planned for another batch size.
@@ -180,6 +225,7 @@ impl OnnxNet {
             self.contract.clone(),
             self.metadata.clone(),
             batch,
+            self.bound,
         )
     }
 
@@ -188,21 +234,60 @@ impl OnnxNet {
         &self.metadata
     }
 
-    fn metadata_of(
+    /// The memory the engine may hold for this file while planning or running it.
+    pub fn memory_bound(&self) -> usize {
+        self.bound.bytes
+    }
+
+    fn bound(path: &Path, file_bytes: usize) -> Result<MemoryBound, OnnxError> {
+        MemoryBound::for_file(file_bytes).map_err(|what| OnnxError::Limit {
+            path: path.to_path_buf(),
+            what,
+        })
+    }
+
+    /// Parses the file (with bounded memory: a file's nodes and tensors become structures
+    /// larger than their bytes), refuses it above the node limit, and returns its
+    /// `metadata_props`.
+    fn inspect(
         path: &Path,
         bytes: &[u8],
+        bound: MemoryBound,
     ) -> Result<std::collections::BTreeMap<String, String>, OnnxError> {
-        let proto = tract_onnx::onnx()
-            .proto_model_for_read(&mut &bytes[..])
-            .map_err(|e| OnnxError::NotOnnx {
+        let limit = node_limit(std::env::var(NODES_ENV).ok().as_deref()).map_err(|what| {
+            OnnxError::Limit {
                 path: path.to_path_buf(),
-                what: first_line(&e),
-            })?;
-        Ok(proto
-            .metadata_props
-            .iter()
-            .map(|p| (p.key.clone(), p.value.clone()))
-            .collect())
+                what,
+            }
+        })?;
+        let parsed = crate::guard::capped(bound.bytes, || {
+            tract_onnx::onnx()
+                .proto_model_for_read(&mut &bytes[..])
+                .map(|proto| {
+                    let nodes = proto.graph.as_ref().map_or(0, count_nodes);
+                    let meta = proto
+                        .metadata_props
+                        .iter()
+                        .map(|p| (p.key.clone(), p.value.clone()))
+                        .collect();
+                    (nodes, meta)
+                })
+        })
+        .map_err(|stop| engine_stopped(path, 1, bytes.len(), bound, stop))?;
+        let (nodes, meta) = parsed.map_err(|e| OnnxError::NotOnnx {
+            path: path.to_path_buf(),
+            what: first_line(&e),
+        })?;
+        if nodes > limit {
+            return Err(OnnxError::Limit {
+                path: path.to_path_buf(),
+                what: format!(
+                    "{nodes} nodes, more than the {limit} fishprobe plans (the engine's planning \
+                     time grows faster than the node count; set {NODES_ENV} to raise it)"
+                ),
+            });
+        }
+        Ok(meta)
     }
 
     /// [`Self::plan_unguarded`] with bounded memory: the engine folds constants while it
@@ -213,9 +298,13 @@ impl OnnxNet {
         contract: Contract,
         metadata: std::collections::BTreeMap<String, String>,
         batch: usize,
+        bound: MemoryBound,
     ) -> Result<Self, OnnxError> {
-        crate::guard::capped(|| Self::plan_unguarded(path, bytes, contract, metadata, batch))
-            .map_err(|what| engine_stopped(path, batch, &what))?
+        let file_bytes = bytes.len();
+        crate::guard::capped(bound.bytes, || {
+            Self::plan_unguarded(path, bytes, contract, metadata, batch, bound)
+        })
+        .map_err(|stop| engine_stopped(path, batch, file_bytes, bound, stop))?
     }
 
     fn plan_unguarded(
@@ -224,6 +313,7 @@ impl OnnxNet {
         contract: Contract,
         metadata: std::collections::BTreeMap<String, String>,
         batch: usize,
+        bound: MemoryBound,
     ) -> Result<Self, OnnxError> {
         let sha256 = sha256_hex(&bytes);
         let expected = contract.describe();
@@ -327,6 +417,7 @@ impl OnnxNet {
             contract,
             metadata,
             plan,
+            bound,
             batch,
             input_dims: shape,
         })
@@ -365,8 +456,10 @@ impl OnnxNet {
         }
         let t = Tensor::from_shape(&self.input_dims, input).map_err(|e| run_err(first_line(&e)))?;
         // Bounded like planning: a shape the network computes at run time can be huge too.
-        let out = crate::guard::capped(|| self.plan.run(tvec!(t.into())))
-            .map_err(|what| engine_stopped(&self.path, self.batch, &what))?
+        let out = crate::guard::capped(self.bound.bytes, || self.plan.run(tvec!(t.into())))
+            .map_err(|stop| {
+                engine_stopped(&self.path, self.batch, self.bytes.len(), self.bound, stop)
+            })?
             .map_err(|e| run_err(first_line(&e)))?;
         let view = out[0]
             .to_plain_array_view::<f32>()
@@ -381,18 +474,33 @@ impl OnnxNet {
     }
 }
 
-/// The engine stopped (panicked) inside [`crate::guard::capped`]: most likely an allocation
-/// over the cap failed (the engine asserts its allocations succeed); any other panic of the
-/// engine's is reported with its own message.
-fn engine_stopped(path: &Path, batch: usize, what: &str) -> OnnxError {
-    let what = if what.contains("allocat") {
-        format!(
-            "it needs more memory than fishprobe gives an ONNX network (no single tensor over \
-             {} MiB at a batch of {batch}; fishprobe_onnx::MAX_ALLOCATION_BYTES): {what}",
-            crate::MAX_ALLOCATION_BYTES >> 20
-        )
-    } else {
-        format!("the engine stopped: {what}")
+/// The engine stopped (panicked) inside [`crate::guard::capped`]: an allocation the guard
+/// refused (over the file's memory bound, or a single tensor over
+/// [`crate::MAX_ALLOCATION_BYTES`]), named with its sizes, or any other panic of the engine's
+/// with its own message.
+fn engine_stopped(
+    path: &Path,
+    batch: usize,
+    file_bytes: usize,
+    bound: MemoryBound,
+    stop: Stopped,
+) -> OnnxError {
+    let what = match stop {
+        Stopped::Memory(r) if r.asked > crate::MAX_ALLOCATION_BYTES => format!(
+            "it needs more memory than fishprobe gives an ONNX network: one tensor of {} at a \
+             batch of {batch}, over the cap of {} on any single tensor \
+             (fishprobe_onnx::MAX_ALLOCATION_BYTES)",
+            mib(r.asked),
+            mib(crate::MAX_ALLOCATION_BYTES)
+        ),
+        Stopped::Memory(r) => format!(
+            "it needs more memory than fishprobe gives an ONNX network: {} asked for with {} \
+             already held at a batch of {batch}, over this file's bound of {}",
+            mib(r.asked),
+            mib(usize::try_from(r.held).unwrap_or(0)),
+            bound.describe(file_bytes)
+        ),
+        Stopped::Panic(what) => format!("the engine stopped: {what}"),
     };
     OnnxError::Unsupported {
         path: path.to_path_buf(),
