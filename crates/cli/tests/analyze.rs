@@ -362,3 +362,66 @@ fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
         "{summary}"
     );
 }
+
+/// A study directory a hostile or careless hand made: a directory link looping back to its
+/// parent inside an arm and an arm that is a link to `rollouts/` itself, 10,000 tiny files
+/// named `*.hdf5`, a trial recorded at another frame rate, and a trial rewritten in place
+/// (torn) while `analyze` reads. Documented behaviour (docs/guide/analyse.md): every entry
+/// that is not a readable trial is named in `skipped`, a trial is read at its own frame rate,
+/// and the rest is analysed; nothing panics or hangs.
+#[cfg(unix)]
+#[test]
+fn hostile_study_directories_are_analysed_or_skipped_by_name() {
+    use std::os::unix::fs::symlink;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let s = small_study("hostile-dirs");
+    let roll = s.join("rollouts");
+    let real = roll.join("Follow__Real");
+    symlink(&real, real.join("zz_loop.hdf5")).unwrap();
+    symlink(&roll, roll.join("Loop__Real")).unwrap();
+    let tiny = roll.join("Zone__Real");
+    for i in 0..10_000 {
+        std::fs::write(tiny.join(format!("tiny_{i:05}.hdf5")), b"x").unwrap();
+    }
+    // The same motion recorded at 50 Hz: as many frames, half the time.
+    let mut t = read_trial(&roll.join("Follow__Real/Follow__Real_000.hdf5")).unwrap();
+    t.frame_rate_hz = 50.0;
+    write_trial(&roll.join("Follow__Real/zz_50hz.hdf5"), &t).unwrap();
+    // A trial rewritten in place, alternately whole and cut in half, until analyze ends.
+    let good = std::fs::read(roll.join("Zone__Zone/Zone__Zone_000.hdf5")).unwrap();
+    let torn = roll.join("Zone__Zone/zz_torn.hdf5");
+    std::fs::write(&torn, &good).unwrap();
+    let done = std::sync::Arc::new(AtomicBool::new(false));
+    let writer = {
+        let (done, torn, good) = (done.clone(), torn.clone(), good.clone());
+        std::thread::spawn(move || {
+            let mut k = 0usize;
+            while !done.load(Ordering::Relaxed) && k < 100_000 {
+                let n = if k.is_multiple_of(2) {
+                    good.len()
+                } else {
+                    good.len() / 2
+                };
+                let _ = std::fs::write(&torn, &good[..n]);
+                k += 1;
+            }
+        })
+    };
+    let start = std::time::Instant::now();
+    let r = analyze(&s, &s.join("out"), "2");
+    done.store(true, Ordering::Relaxed);
+    writer.join().unwrap();
+    assert!(
+        start.elapsed() < std::time::Duration::from_secs(300),
+        "analyze took {:?}",
+        start.elapsed()
+    );
+    let skipped = r["skipped"].to_string();
+    for needle in ["zz_loop.hdf5", "tiny_00000.hdf5", "tiny_09999.hdf5", "Loop"] {
+        assert!(skipped.contains(needle), "{needle} not in skipped");
+    }
+    // The 10,000 tiny files cost Zone none of its real trials; the 50-Hz trial is analysed
+    // with Follow's, at its own rate.
+    assert_eq!(r["goals"]["Zone"]["real"].as_array().unwrap().len(), 6);
+    assert_eq!(r["goals"]["Follow"]["real"].as_array().unwrap().len(), 7);
+}

@@ -436,3 +436,81 @@ fn the_virtual_guppy_matches_validation_pairs_better_than_zone_and_force() {
         }
     }
 }
+
+/// `compare-offline` on a directory a hostile or careless hand made: a link looping back to
+/// the directory, 10,000 tiny files named `*.hdf5`, a pair recorded at 50 Hz beside one at
+/// 25 Hz, and a file rewritten in place (torn) while it reads. Documented behaviour
+/// (docs/guide/analyse.md): entries that are no usable pair are skipped with a warning naming
+/// them, each recording is read at its own frame rate, and the rest is compared; nothing
+/// panics or hangs.
+#[cfg(unix)]
+#[test]
+fn compare_offline_takes_hostile_directories_as_documented() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let d = dir("offline-hostile");
+    let data = d.join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    write_pair(&data.join("a_pair.hdf5"), 2, 400, 100.0);
+    let mut t = fishprobe_io::read_trial(&data.join("a_pair.hdf5")).unwrap();
+    t.frame_rate_hz = 50.0;
+    write_trial(&data.join("b_pair_50hz.hdf5"), &t).unwrap();
+    std::os::unix::fs::symlink(&data, data.join("loop.hdf5")).unwrap();
+    for i in 0..10_000 {
+        std::fs::write(data.join(format!("tiny_{i:05}.hdf5")), b"x").unwrap();
+    }
+    let good = std::fs::read(data.join("a_pair.hdf5")).unwrap();
+    let torn = data.join("c_torn.hdf5");
+    std::fs::write(&torn, &good).unwrap();
+    let done = std::sync::Arc::new(AtomicBool::new(false));
+    let writer = {
+        let (done, torn) = (done.clone(), torn.clone());
+        std::thread::spawn(move || {
+            let mut k = 0usize;
+            while !done.load(Ordering::Relaxed) && k < 100_000 {
+                let n = if k.is_multiple_of(2) {
+                    good.len()
+                } else {
+                    good.len() / 2
+                };
+                let _ = std::fs::write(&torn, &good[..n]);
+                k += 1;
+            }
+        })
+    };
+    let start = std::time::Instant::now();
+    let o = fishprobe(&[
+        "compare-offline",
+        "--data",
+        data.to_str().unwrap(),
+        "--models",
+        "Zone",
+        "--reps",
+        "10",
+        "--out",
+        d.join("off").to_str().unwrap(),
+    ]);
+    done.store(true, Ordering::Relaxed);
+    writer.join().unwrap();
+    let e = stderr(&o);
+    assert!(o.status.success(), "{e}");
+    assert!(
+        start.elapsed().as_secs() < 300,
+        "took {:?}",
+        start.elapsed()
+    );
+    for name in ["loop.hdf5", "tiny_00000.hdf5", "tiny_09999.hdf5"] {
+        assert!(
+            e.contains(name),
+            "{name} not named: {}",
+            &e[..e.len().min(2000)]
+        );
+    }
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("off/offline.json")).unwrap())
+            .unwrap();
+    let used = r["recordings"].to_string();
+    assert!(
+        used.contains("a_pair.hdf5") && used.contains("b_pair_50hz.hdf5"),
+        "{used}"
+    );
+}

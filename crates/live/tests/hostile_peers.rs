@@ -415,3 +415,83 @@ fn a_write_failure_keeps_the_bridge_alive_and_the_trial() {
         read_trial(&f).unwrap();
     }
 }
+
+/// A group bridge (3 fish) fed frames whose fish lists disagree with it and with each other:
+/// more fish than it tracks, fewer, none, and one id given to every fish. Documented
+/// behaviour (docs/live-protocol.md, "Groups"): the k-th entry is the k-th fish whatever its
+/// id, a missing entry is that fish untracked, entries past the third are ignored. Every frame
+/// is stored (3 fish each), the robot stops when no fish is tracked for `stale_s`, nothing
+/// panics and the trial file is written.
+#[test]
+fn a_group_bridge_takes_inconsistent_fish_lists_as_documented() {
+    let out = tmp("group");
+    let mut opts = options(&out, 1);
+    opts.live.fish_count = 3;
+    let (addr, h) = start(opts, "Seeker", 0.1);
+    let mut c = Client::welcomed(addr);
+    let fish = |ids: &[&str], x: f32| -> Vec<FishPose> {
+        ids.iter()
+            .enumerate()
+            .map(|(k, id)| FishPose {
+                id: (*id).into(),
+                pose: Some(Pose {
+                    x: x + 3.0 * k as f32,
+                    y: 5.0,
+                    heading: 0.0,
+                }),
+            })
+            .collect()
+    };
+    let lists: [&[&str]; 5] = [
+        &["a", "b", "c"],
+        &["a"],
+        &["a", "b", "c", "d", "e"],
+        &["same", "same", "same"],
+        &[],
+    ];
+    let frames = 250;
+    let mut text = String::new();
+    for k in 0..frames {
+        // Each list in turn for 10 frames; the last stretch (frames 200-249) has no fish at
+        // all, so the robot must stop there.
+        let ids = if k >= 200 {
+            lists[4]
+        } else {
+            lists[(k / 10) % 4]
+        };
+        text.push_str(&to_line(&ClientMsg::Frame {
+            t: f64::from(k as u32) * 0.04,
+            robot: Some(Pose {
+                x: 0.0,
+                y: 0.0,
+                heading: 0.0,
+            }),
+            fish: fish(ids, 10.0),
+        }));
+    }
+    c.send(&text);
+    // No fish from 8.0 s on; with stale_s = 0.5 the robot stops by 8.5 s (tracking time).
+    let (_, stop) = c.until("fish not tracked", Duration::from_secs(10));
+    assert!(stop.contains("\"stop\":true"), "{stop}");
+    c.send(&to_line(&ClientMsg::End));
+    let outcomes = h.join().unwrap().unwrap();
+    let o = &outcomes[0];
+    assert_eq!(o.frames, frames);
+    let f = read_trial(o.file.as_ref().unwrap()).unwrap();
+    let stored: Vec<_> = f.fish().collect();
+    assert_eq!(
+        stored.len(),
+        3,
+        "the bridge's fish count, whatever the lists held"
+    );
+    for e in &stored {
+        assert_eq!(e.positions.len(), frames);
+    }
+    // Frame 10 held only "a": fish 2 and 3 untracked there (NaN), fish 1 tracked.
+    assert!(stored[0].positions[10][0].is_finite());
+    assert!(stored[1].positions[10][0].is_nan() && stored[2].positions[10][0].is_nan());
+    // Frame 20 held five: the first three were taken, in order.
+    assert!((stored[2].positions[20][0] - 16.0).abs() < 1e-4);
+    // Frame 30 gave every fish the same id: still three fish, by position.
+    assert!((stored[1].positions[30][0] - 13.0).abs() < 1e-4);
+}
