@@ -373,7 +373,6 @@ fn trials_of_two_weights_under_one_name_are_left_out_and_named() {
 #[test]
 fn hostile_study_directories_are_analysed_or_skipped_by_name() {
     use std::os::unix::fs::symlink;
-    use std::sync::atomic::{AtomicBool, Ordering};
     let s = small_study("hostile-dirs");
     let roll = s.join("rollouts");
     let real = roll.join("Follow__Real");
@@ -389,28 +388,10 @@ fn hostile_study_directories_are_analysed_or_skipped_by_name() {
     write_trial(&roll.join("Follow__Real/zz_50hz.hdf5"), &t).unwrap();
     // A trial rewritten in place, alternately whole and cut in half, until analyze ends.
     let good = std::fs::read(roll.join("Zone__Zone/Zone__Zone_000.hdf5")).unwrap();
-    let torn = roll.join("Zone__Zone/zz_torn.hdf5");
-    std::fs::write(&torn, &good).unwrap();
-    let done = std::sync::Arc::new(AtomicBool::new(false));
-    let writer = {
-        let (done, torn, good) = (done.clone(), torn.clone(), good.clone());
-        std::thread::spawn(move || {
-            let mut k = 0usize;
-            while !done.load(Ordering::Relaxed) && k < 100_000 {
-                let n = if k.is_multiple_of(2) {
-                    good.len()
-                } else {
-                    good.len() / 2
-                };
-                let _ = std::fs::write(&torn, &good[..n]);
-                k += 1;
-            }
-        })
-    };
+    let torn = common::TornFile::start(&roll.join("Zone__Zone/zz_torn.hdf5"), good);
     let start = std::time::Instant::now();
     let r = analyze(&s, &s.join("out"), "2");
-    done.store(true, Ordering::Relaxed);
-    writer.join().unwrap();
+    drop(torn);
     assert!(
         start.elapsed() < std::time::Duration::from_secs(300),
         "analyze took {:?}",

@@ -446,7 +446,6 @@ fn the_virtual_guppy_matches_validation_pairs_better_than_zone_and_force() {
 #[cfg(unix)]
 #[test]
 fn compare_offline_takes_hostile_directories_as_documented() {
-    use std::sync::atomic::{AtomicBool, Ordering};
     let d = dir("offline-hostile");
     let data = d.join("data");
     std::fs::create_dir_all(&data).unwrap();
@@ -459,24 +458,7 @@ fn compare_offline_takes_hostile_directories_as_documented() {
         std::fs::write(data.join(format!("tiny_{i:05}.hdf5")), b"x").unwrap();
     }
     let good = std::fs::read(data.join("a_pair.hdf5")).unwrap();
-    let torn = data.join("c_torn.hdf5");
-    std::fs::write(&torn, &good).unwrap();
-    let done = std::sync::Arc::new(AtomicBool::new(false));
-    let writer = {
-        let (done, torn) = (done.clone(), torn.clone());
-        std::thread::spawn(move || {
-            let mut k = 0usize;
-            while !done.load(Ordering::Relaxed) && k < 100_000 {
-                let n = if k.is_multiple_of(2) {
-                    good.len()
-                } else {
-                    good.len() / 2
-                };
-                let _ = std::fs::write(&torn, &good[..n]);
-                k += 1;
-            }
-        })
-    };
+    let torn = common::TornFile::start(&data.join("c_torn.hdf5"), good);
     let start = std::time::Instant::now();
     let o = fishprobe(&[
         "compare-offline",
@@ -489,8 +471,7 @@ fn compare_offline_takes_hostile_directories_as_documented() {
         "--out",
         d.join("off").to_str().unwrap(),
     ]);
-    done.store(true, Ordering::Relaxed);
-    writer.join().unwrap();
+    drop(torn);
     let e = stderr(&o);
     assert!(o.status.success(), "{e}");
     assert!(

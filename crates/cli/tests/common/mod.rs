@@ -43,3 +43,47 @@ pub fn train_smoke(model: &str, out: &Path, extra: &[&str]) {
     let o = fishprobe(&args);
     assert!(o.status.success(), "{}", stderr(&o));
 }
+
+/// A file rewritten in place, alternately whole (`bytes`) and cut in half, by a thread that
+/// runs until this value is dropped (at most 100,000 writes): a file torn while a command
+/// reads it.
+pub struct TornFile {
+    done: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    writer: Option<std::thread::JoinHandle<()>>,
+}
+
+impl TornFile {
+    /// Writes `bytes` to `path`, then starts tearing it.
+    pub fn start(path: &Path, bytes: Vec<u8>) -> Self {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        std::fs::write(path, &bytes).unwrap();
+        let done = std::sync::Arc::new(AtomicBool::new(false));
+        let (stop, path) = (done.clone(), path.to_path_buf());
+        let writer = std::thread::spawn(move || {
+            for k in 0..100_000usize {
+                if stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                let n = if k.is_multiple_of(2) {
+                    bytes.len()
+                } else {
+                    bytes.len() / 2
+                };
+                let _ = std::fs::write(&path, &bytes[..n]);
+            }
+        });
+        Self {
+            done,
+            writer: Some(writer),
+        }
+    }
+}
+
+impl Drop for TornFile {
+    fn drop(&mut self) {
+        self.done.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(w) = self.writer.take() {
+            let _ = w.join();
+        }
+    }
+}
