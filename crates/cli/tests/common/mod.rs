@@ -56,7 +56,7 @@ impl TornFile {
     /// Writes `bytes` to `path`, then starts tearing it.
     pub fn start(path: &Path, bytes: Vec<u8>) -> Self {
         use std::sync::atomic::{AtomicBool, Ordering};
-        std::fs::write(path, &bytes).unwrap();
+        std::fs::write(path, &bytes).expect("the torn file can be written");
         let done = std::sync::Arc::new(AtomicBool::new(false));
         let (stop, path) = (done.clone(), path.to_path_buf());
         let writer = std::thread::spawn(move || {
