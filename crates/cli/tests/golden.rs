@@ -106,6 +106,38 @@ fn has_avx2_fma() -> bool {
     }
 }
 
+/// The same digests from a release build (what `cargo install` builds, with its own profile):
+/// the build's settings change how long it takes, never the bits. Opt-in, since it needs that
+/// build: `cargo build --release --locked -p fishprobe` first, or set `FISHPROBE_RELEASE_BIN`
+/// to an installed binary.
+#[test]
+#[ignore = "needs a release build: cargo build --release --locked -p fishprobe"]
+fn the_release_build_gives_the_recorded_digests() {
+    let bin = std::env::var_os("FISHPROBE_RELEASE_BIN").map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/release/fishprobe"),
+        PathBuf::from,
+    );
+    assert!(bin.is_file(), "no release build at {}", bin.display());
+    let d = fresh_dir("golden-release");
+    let study = d.join("s");
+    let o = std::process::Command::new(&bin)
+        .args(["run", "--preset", "smoke", "--out", study.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (got, n) = digest(&study);
+    let report = report_digest(&study);
+    println!(
+        "release build {}: digest {got} over {n} files; report {report}",
+        bin.display()
+    );
+    assert!(
+        has_avx2_fma(),
+        "the recorded digests hold on x86-64 with AVX2 and FMA only"
+    );
+    assert_eq!((got.as_str(), report.as_str()), (GOLDEN, GOLDEN_REPORT));
+}
+
 #[test]
 fn the_smoke_study_is_bit_identical_to_the_recorded_one() {
     let d = fresh_dir("golden");
