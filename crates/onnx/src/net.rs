@@ -234,11 +234,6 @@ impl OnnxNet {
         &self.metadata
     }
 
-    /// The memory the engine may hold for this file while planning or running it.
-    pub fn memory_bound(&self) -> usize {
-        self.bound.bytes
-    }
-
     fn bound(path: &Path, file_bytes: usize) -> Result<MemoryBound, OnnxError> {
         MemoryBound::for_file(file_bytes).map_err(|what| OnnxError::Limit {
             path: path.to_path_buf(),
