@@ -272,7 +272,7 @@ impl TankEnv {
         let time_s = self.frame as f32 * self.dt;
         let leading = [self.robot.state];
         for i in 0..self.fish.len() {
-            self.views[i] = FishView::build(i, &self.fish, &leading, self.tank, self.dt, time_s);
+            self.views[i].rebuild(i, &self.fish, &leading, self.tank, self.dt, time_s);
         }
     }
 

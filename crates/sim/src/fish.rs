@@ -57,14 +57,31 @@ impl FishView {
         dt: f32,
         time_s: f32,
     ) -> Self {
+        let mut v = FishView::default();
+        v.rebuild(i, fish, leading, tank, dt, time_s);
+        v
+    }
+
+    /// [`FishView::build`] in place: the same valid entries, written into an existing view
+    /// (entries of `others` past `n_others` keep whatever they held). The environment's
+    /// views are rebuilt every frame; building a fresh view and moving it in cost a sixth of
+    /// a frame's time in copies.
+    #[inline]
+    pub fn rebuild(
+        &mut self,
+        i: usize,
+        fish: &[AgentState],
+        leading: &[AgentState],
+        tank: Tank,
+        dt: f32,
+        time_s: f32,
+    ) {
         let me = fish[i];
-        let mut v = FishView {
-            me,
-            tank,
-            dt,
-            time_s,
-            ..FishView::default()
-        };
+        let v = self;
+        v.me = me;
+        v.tank = tank;
+        v.dt = dt;
+        v.time_s = time_s;
         let lead = leading.len().min(MAX_OTHERS);
         v.others[..lead].copy_from_slice(&leading[..lead]);
         let room = MAX_OTHERS - lead;
@@ -103,7 +120,6 @@ impl FishView {
             }
         }
         v.n_others = n as u8;
-        v
     }
 
     /// The closest other agent and its distance, if any.
@@ -203,6 +219,24 @@ pub fn apply_motion(tank: &Tank, s: &mut AgentState, m: FishMotion, dt: f32) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_view_rebuilt_in_place_holds_what_a_fresh_one_holds() {
+        let tank = Tank::default();
+        let robot = AgentState::at(-40.0, -40.0, 0.0);
+        let fish: Vec<AgentState> = (0..20)
+            .map(|i| AgentState::at(i as f32 * 2.0 - 20.0, (i % 3) as f32, 0.1 * i as f32))
+            .collect();
+        // A view that last held many agents, rebuilt for fewer and for more (the nearest).
+        let mut v = FishView::build(0, &fish, &[robot], tank, 0.04, 1.0);
+        for (i, n, lead) in [(1, 3, 1), (2, 20, 1), (0, 2, 0), (5, 17, 1)] {
+            let leading = &[robot][..lead];
+            v.rebuild(i, &fish[..n], leading, tank, 0.02, 2.0);
+            let fresh = FishView::build(i, &fish[..n], leading, tank, 0.02, 2.0);
+            assert_eq!(v.others(), fresh.others(), "fish {i} of {n}");
+            assert_eq!((v.me, v.tank, v.dt, v.time_s), (fresh.me, fresh.tank, 0.02, 2.0));
+        }
+    }
 
     #[test]
     fn a_view_holds_the_leading_agents_then_the_other_fish_or_the_nearest_of_them() {

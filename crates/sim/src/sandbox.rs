@@ -88,8 +88,7 @@ impl Sandbox {
     pub fn step(&mut self) -> Result<(), SimError> {
         let time_s = self.frame as f32 * self.dt;
         for i in 0..self.fish.len() {
-            self.views[i] =
-                FishView::build(i, &self.fish, &self.scripted, self.tank, self.dt, time_s);
+            self.views[i].rebuild(i, &self.fish, &self.scripted, self.tank, self.dt, time_s);
         }
         let width = self.model.inference_width();
         if width > 0 {
