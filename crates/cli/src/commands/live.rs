@@ -228,10 +228,11 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         .map_or_else(String::new, |s| {
             format!(" (weights sha256 {}…)", fishprobe_io::short_sha(&s))
         });
+    // The address actually bound: with port 0 the system chose one, and a client needs it.
+    let bound = listener.local_addr().unwrap_or(a.listen);
     say!(
-        "bridge for {}{weights} listening on {} (trials go to {})",
+        "bridge for {}{weights} listening on {bound} (trials go to {})",
         a.policy,
-        a.listen,
         a.out.display()
     );
     let done = serve(&listener, &opts, &mut make, report)?;
