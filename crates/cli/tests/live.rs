@@ -210,3 +210,46 @@ fn listening_beyond_loopback_needs_a_flag_and_a_token() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("/nonexistent/policy"), "{}", stderr(&o));
 }
+
+/// The RoboTracker behaviour turns a command's turn into a target point `L` ahead of the robot;
+/// its default `L` is the distance the simulated robot covers in one action when it keeps its
+/// heading (steady state, the robot settings' defaults). This simulates that and reads the
+/// number the behaviour file states.
+#[test]
+fn the_robotracker_step_is_what_the_simulated_robot_covers_in_one_action() {
+    use fishprobe_sim::{EnvConfig, Robot, Tank};
+    let cfg = EnvConfig::default();
+    let tank = Tank::default();
+    let dt = 1.0 / cfg.frame_rate_hz;
+    // Far from every wall: a run of straight actions along +x from the left wall's side.
+    let mut robot = Robot::at(-45.0, 0.0, 0.0);
+    let mut per_action = Vec::new();
+    for _ in 0..6 {
+        let x0 = robot.state.x;
+        robot.begin_action(0.0);
+        for _ in 0..cfg.frames_per_action {
+            assert!(!robot.advance(&cfg.robot, &tank, dt), "the robot reached a wall");
+        }
+        per_action.push(robot.state.x - x0);
+    }
+    // From rest the first action is shorter; from the third on it repeats.
+    let steady = per_action[5];
+    assert!((per_action[4] - steady).abs() < 1e-3, "{per_action:?}");
+
+    let shim = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../lab/robotracker/fishprobe_robotracker.py");
+    let text = std::fs::read_to_string(&shim).unwrap();
+    let stated: f32 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("SIMULATED_STEP_CM = "))
+        .expect("the behaviour states SIMULATED_STEP_CM")
+        .trim()
+        .parse()
+        .unwrap();
+    assert!(
+        (stated - steady).abs() <= 0.05,
+        "{} states SIMULATED_STEP_CM = {stated} cm, the simulated robot covers {steady:.3} cm \
+         per action (per action from rest: {per_action:?})",
+        shim.display()
+    );
+}
