@@ -9,20 +9,27 @@ For each round it runs, for A then B (then B then A in the next round, to cancel
   fishprobe bench train --iterations 4 --json                (M_Zone)
   fishprobe bench train --iterations 4 --model ConvNet --json
   fishprobe bench stats --json
-and prints, per number, the median of the rounds for A and B and B's change in per cent.
+  fishprobe simulate --model onnx:CONVNET.onnx --minutes 60  (an ONNX fish, timed: seconds)
+and prints, per number, the median of the rounds for A and B, B's change in per cent, and the
+range of B/A over the rounds (each round's A and B ran back to back, so their ratio is what
+drift disturbs least).
 
   python3 scripts/bench_builds.py OLD/bin/fishprobe NEW/bin/fishprobe --rounds 3
 """
 import argparse
 import json
+import os
 import statistics
 import subprocess
+import tempfile
+import time
 
 BENCHES = {
     "sim": ["bench", "sim", "--json"],
     "train Zone": ["bench", "train", "--iterations", "4", "--json"],
     "train ConvNet": ["bench", "train", "--iterations", "4", "--model", "ConvNet", "--json"],
     "stats": ["bench", "stats", "--json"],
+    "onnx fish": "onnx fish",
 }
 
 
@@ -38,7 +45,18 @@ def numbers(prefix, value, out):
         out[prefix] = float(value)
 
 
-def run(binary, args):
+def run(binary, args, scratch):
+    if args == "onnx fish":
+        # M_ConvNet exported by this build and simulated as an ONNX fish: the engine's speed.
+        onnx = os.path.join(scratch, os.path.basename(os.path.dirname(binary)) + ".onnx")
+        if not os.path.exists(onnx):
+            subprocess.run([binary, "export", "--convnet", "--onnx", onnx], check=True,
+                           capture_output=True)
+        t = time.perf_counter()
+        subprocess.run([binary, "simulate", "--model", "onnx:" + onnx, "--minutes", "60",
+                        "--out", os.path.join(scratch, "trial.hdf5")], check=True,
+                       capture_output=True)
+        return {"simulate_seconds": time.perf_counter() - t}
     o = subprocess.run([binary, *args], check=True, capture_output=True, text=True)
     out = {}
     numbers("", json.loads(o.stdout), out)
@@ -54,15 +72,16 @@ def main():
     ap.add_argument("--keys", nargs="*", help="print only numbers whose path contains one of these")
     args = ap.parse_args()
     seen = {name: {"a": [], "b": []} for name in BENCHES}
+    scratch = tempfile.mkdtemp(prefix="bench_builds")
     for r in range(args.rounds):
         order = ["a", "b"] if r % 2 == 0 else ["b", "a"]
         for name, bench in BENCHES.items():
             if args.only and name not in args.only:
                 continue
             for side in order:
-                seen[name][side].append(run(getattr(args, side), bench))
-    print("| bench | number | A (median) | B (median) | B vs A |")
-    print("|---|---|---|---|---|")
+                seen[name][side].append(run(getattr(args, side), bench, scratch))
+    print("| bench | number | A (median) | B (median) | B vs A | B/A by round |")
+    print("|---|---|---|---|---|---|")
     for name, sides in seen.items():
         if not sides["a"]:
             continue
@@ -72,7 +91,10 @@ def main():
             a = statistics.median(x[key] for x in sides["a"] if key in x)
             b = statistics.median(x[key] for x in sides["b"] if key in x)
             change = f"{100 * (b - a) / a:+.1f} %" if a else "-"
-            print(f"| {name} | {key} | {a:.4g} | {b:.4g} | {change} |")
+            ratios = [y[key] / x[key] for x, y in zip(sides["a"], sides["b"])
+                      if x.get(key) and key in y]
+            spread = f"{min(ratios):.3f}-{max(ratios):.3f}" if ratios else "-"
+            print(f"| {name} | {key} | {a:.4g} | {b:.4g} | {change} | {spread} |")
 
 
 if __name__ == "__main__":
