@@ -48,13 +48,13 @@ except ImportError:  # outside RoboTracker (documentation, syntax checks): a pla
 LOG = logging.getLogger("fishprobe_robotracker")
 
 # The distance fishprobe's simulated robot covers in one action (one second of the paper's
-# 1 Hz commands) when it keeps its heading: 13.3 cm, from the robot settings' defaults (15 cm/s
-# for a 0.6 s burst through a 0.16 s actuator lag, then a glide). A test of fishprobe
+# 1 Hz commands) when it keeps its heading: 13.6 cm with the robot settings' defaults (at most
+# 15 cm/s, through the actuators' lag and acceleration limit). A test of fishprobe
 # (crates/cli/tests/live.rs) simulates the robot and fails when this number and the
 # simulator part. A target this far ahead asks RoboTracker's controller for the step the
 # policy was trained with; if the rig's robot is slower or faster, set `step_cm` to what it
 # covers in a second.
-SIMULATED_STEP_CM = 13.3
+SIMULATED_STEP_CM = 13.6
 
 DEFAULTS = {
     # The bridge (`fishprobe live serve`): address, and its --token when it listens off loopback.
