@@ -228,7 +228,10 @@ fn the_robotracker_step_is_what_the_simulated_robot_covers_in_one_action() {
         let x0 = robot.state.x;
         robot.begin_action(0.0);
         for _ in 0..cfg.frames_per_action {
-            assert!(!robot.advance(&cfg.robot, &tank, dt), "the robot reached a wall");
+            assert!(
+                !robot.advance(&cfg.robot, &tank, dt),
+                "the robot reached a wall"
+            );
         }
         per_action.push(robot.state.x - x0);
     }

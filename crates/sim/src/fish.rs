@@ -234,7 +234,10 @@ mod tests {
             v.rebuild(i, &fish[..n], leading, tank, 0.02, 2.0);
             let fresh = FishView::build(i, &fish[..n], leading, tank, 0.02, 2.0);
             assert_eq!(v.others(), fresh.others(), "fish {i} of {n}");
-            assert_eq!((v.me, v.tank, v.dt, v.time_s), (fresh.me, fresh.tank, 0.02, 2.0));
+            assert_eq!(
+                (v.me, v.tank, v.dt, v.time_s),
+                (fresh.me, fresh.tank, 0.02, 2.0)
+            );
         }
     }
 
