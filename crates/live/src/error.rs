@@ -28,6 +28,9 @@ pub enum LiveError {
         /// Why.
         what: String,
     },
+    /// The BioTracker observer's settings do not fit together.
+    #[error("observer settings: {0}")]
+    Observer(String),
     /// The pilot (policy) could not be made.
     #[error("pilot: {0}")]
     Pilot(String),

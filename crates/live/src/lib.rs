@@ -40,6 +40,7 @@
 
 #![warn(missing_docs)]
 
+pub mod biotracker;
 pub mod error;
 pub mod keep;
 pub mod lab;
@@ -47,6 +48,7 @@ mod lines;
 pub mod protocol;
 pub mod server;
 pub mod session;
+pub mod sink;
 
 pub use error::LiveError;
 pub use lines::{read_line_at_most, MAX_BRIDGE_LINE_BYTES};

@@ -133,7 +133,7 @@ pub fn is_loopback(addr: &SocketAddr) -> bool {
 }
 
 /// Compares tokens in time independent of where they differ.
-fn same_token(a: &str, b: &str) -> bool {
+pub(crate) fn same_token(a: &str, b: &str) -> bool {
     a.len() == b.len() && a.bytes().zip(b.bytes()).fold(0u8, |d, (x, y)| d | (x ^ y)) == 0
 }
 
@@ -171,7 +171,7 @@ pub fn serve(
     mut on_trial: impl FnMut(&TrialOutcome),
 ) -> Result<Vec<TrialOutcome>, LiveError> {
     opts.validate()?;
-    check_provenance(opts, pilot()?.as_ref())?;
+    check_provenance(&opts.out, pilot()?.as_ref())?;
     listener
         .set_nonblocking(true)
         .map_err(|e| LiveError::Net(format!("listener: {e}")))?;
@@ -411,13 +411,13 @@ fn check_hello(
 
 /// Refuses to add the pilot's trials to directories that hold another policy's under its
 /// name (trials that record no fingerprint, from scripted pilots or older files, pass).
-fn check_provenance(opts: &ServeOptions, pilot: &dyn Controller) -> Result<(), LiveError> {
+pub(crate) fn check_provenance(out: &Path, pilot: &dyn Controller) -> Result<(), LiveError> {
     let Some(sha) = pilot.fingerprint() else {
         return Ok(());
     };
     let name = StudyLayout::safe_name(&pilot.name());
     for arm in [Arm::Real, Arm::VirtualLab] {
-        let dir = opts.out.join(StudyLayout::arm_dir_name(&name, &arm));
+        let dir = out.join(StudyLayout::arm_dir_name(&name, &arm));
         let p = fishprobe_io::Provenance::of_dir(&dir, &sha);
         if let Some(why) = p.describe_other(&dir, &sha) {
             return Err(LiveError::Mixed(why));
@@ -610,7 +610,7 @@ fn drain(stream: &mut TcpStream) {
     let _ = stream.read(&mut sink);
 }
 
-fn next_free(dir: &Path, n: &mut usize) -> PathBuf {
+pub(crate) fn next_free(dir: &Path, n: &mut usize) -> PathBuf {
     loop {
         let p = dir.join(format!("trial_{:03}.hdf5", *n));
         *n += 1;

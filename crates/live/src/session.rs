@@ -192,6 +192,8 @@ pub struct Session {
     /// Set when the pilot failed (a non-finite turn): the robot stays stopped for the rest of
     /// the trial, since good tracking does not mend a broken policy.
     pilot_fault: Option<String>,
+    /// What the front end adds to the trial file's record (see [`Session::note`]).
+    notes: serde_json::Map<String, serde_json::Value>,
 }
 
 impl std::fmt::Debug for Session {
@@ -260,6 +262,7 @@ impl Session {
             goals_reached: 0,
             accepted: 0,
             pilot_fault: None,
+            notes: serde_json::Map::new(),
         })
     }
 
@@ -297,6 +300,14 @@ impl Session {
     /// Stops ordered so far.
     pub fn stops(&self) -> &[StopEvent] {
         &self.stops
+    }
+
+    /// Records `value` under `key` in the trial file's record (its `config_json`, under
+    /// `"front_end"`): what the front end knows and the session does not (the tracker's
+    /// rate, updates it dropped, why the trial ended). A later note under the same key
+    /// replaces the earlier one.
+    pub fn note(&mut self, key: &str, value: serde_json::Value) {
+        self.notes.insert(key.to_string(), value);
     }
 
     fn rel(&self, t: f64) -> f64 {
@@ -597,13 +608,18 @@ impl Session {
             _ => "fishprobe live bridge: policy-controlled robot with a live fish",
         };
         attributes.insert("experiment_setup".into(), Attr::Text(setup.into()));
-        let config = serde_json::json!({
+        let mut config = serde_json::json!({
             fishprobe_io::POLICY_SHA256_KEY: self.fingerprint(),
             "live": self.cfg,
             "stops": self.stops,
             "tracking_gaps_frames": self.gaps,
             "malformed_messages": self.malformed,
         });
+        // Only a front end that has something to say adds the key, so the bridge's and the
+        // virtual lab's files stay as they were.
+        if !self.notes.is_empty() {
+            config["front_end"] = serde_json::Value::Object(self.notes.clone());
+        }
         TrialFile {
             world_size_cm: [crate::TANK_CM; 2],
             frame_rate_hz: self.cfg.file_rate_hz,

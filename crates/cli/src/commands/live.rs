@@ -33,6 +33,10 @@ enum LiveWhat {
     Serve(ServeArgs),
     /// Play a recorded trial file as tracking input to a bridge (test and demo tool).
     Replay(ReplayArgs),
+    /// Run as a BioTracker v4 observer component: BioTracker's core starts it through
+    /// `lab/biotracker/fishprobe_biotracker.py` and sends it every tracked frame; the lab's
+    /// robot program reads the robot sink (docs/guide/live-trials.md).
+    Biotracker(super::observer::BiotrackerArgs),
 }
 
 #[derive(Debug, Args)]
@@ -136,7 +140,7 @@ pub struct LabArgs {
     heading_bins: bool,
 }
 
-fn pilot_factory(
+pub(super) fn pilot_factory(
     policy: &str,
     live: &LiveConfig,
 ) -> Result<impl FnMut() -> Result<Box<dyn Controller>, fishprobe_live::LiveError>> {
@@ -170,7 +174,7 @@ fn pilot_factory(
     Ok(move || Ok(c.boxed_clone()))
 }
 
-fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
+pub(super) fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
     let cfg: LiveConfig = match path {
         Some(p) => super::read_toml(p, "settings")?,
         None => LiveConfig::default(),
@@ -309,6 +313,7 @@ pub fn run_live(a: LiveArgs) -> Result<()> {
     match a.what {
         LiveWhat::Serve(s) => serve_cmd(s),
         LiveWhat::Replay(r) => replay_cmd(r),
+        LiveWhat::Biotracker(b) => super::observer::run(b),
     }
 }
 

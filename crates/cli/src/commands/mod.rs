@@ -20,6 +20,7 @@ mod import_legacy;
 mod inspect;
 mod live;
 mod models;
+mod observer;
 mod report;
 mod research;
 mod run;

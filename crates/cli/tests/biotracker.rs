@@ -1,0 +1,616 @@
+//! `fishprobe live biotracker` against a fake BioTracker core on loopback: a heartbeat server
+//! and a client that configures the observer and sends it updates at 25 Hz, built from a
+//! recorded trial, while a robot program reads the robot sink. No BioTracker needed.
+
+#![allow(clippy::unwrap_used)] // a failure is a test failure
+
+mod common;
+
+use common::{fishprobe, fresh_dir as dir, stderr};
+use fishprobe_live::biotracker::grpc::{self, Client, HeartbeatService};
+use fishprobe_live::biotracker::schema::{
+    Arena, ComponentConfig, Empty, Experiment, Feature, Features, RecordingConfig, RecordingState,
+    SkeletonDescriptor, SkeletonNode,
+};
+use std::io::{BufRead, BufReader};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tonic::Code;
+
+/// The short protocol of these tests: 2 s of habituation, 6 s of control.
+const PROTOCOL: &str = "habituation_s = 2.0\nrelease_s = 1.0\ncontrol_s = 6.0\n";
+const FPS: f32 = 25.0;
+
+fn free_addr() -> SocketAddr {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// The core's heartbeat on a thread of its own; `kill` (or dropping the value) ends it as a
+/// dying process would.
+struct FakeCore {
+    addr: SocketAddr,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl FakeCore {
+    fn start() -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::spawn(move || {
+            // Serving on the runtime until told to die; dropping the runtime then drops every
+            // connection, as a core that exits does (a graceful shutdown would keep them).
+            let rt = runtime();
+            rt.spawn(grpc::serve(
+                listener,
+                HeartbeatService,
+                std::future::pending(),
+            ));
+            let _ = rt.block_on(rx);
+        });
+        Self {
+            addr,
+            stop: Some(tx),
+            thread: Some(thread),
+        }
+    }
+
+    fn kill(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for FakeCore {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// The observer as BioTracker starts it: the address in the environment, and (with
+/// `launcher`) through the Python launcher the core's config names, which must `exec`
+/// fishprobe (the process keeps its id).
+fn observer(address: SocketAddr, core: SocketAddr, log: &Path, launcher: bool) -> Child {
+    let exe = env!("CARGO_BIN_EXE_fishprobe");
+    let args = [
+        "--core".to_string(),
+        core.to_string(),
+        "--log".into(),
+        log.to_str().unwrap().into(),
+    ];
+    let mut cmd = if launcher {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../lab/biotracker/fishprobe_biotracker.py");
+        let mut c = Command::new("python3");
+        c.arg(script).env("FISHPROBE_BIN", exe);
+        c
+    } else {
+        let mut c = Command::new(exe);
+        c.args(["live", "biotracker"]);
+        c
+    };
+    cmd.args(args)
+        .env("BIOTRACKER_COMPONENT_ADDRESS", address.to_string())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn config_json(out: &Path, protocol: &Path, sink: SocketAddr, core: SocketAddr) -> String {
+    serde_json::json!({
+        "policy": "scripted:goal-seeker",
+        "out": out,
+        "robot_id": 1,
+        "fish_ids": [2],
+        "robot_sink": sink.to_string(),
+        "core": core.to_string(),
+        "config": protocol,
+    })
+    .to_string()
+}
+
+/// A connected client, retried until the observer serves (it starts in well under 20 s).
+async fn connect(addr: SocketAddr) -> Client {
+    let start = Instant::now();
+    loop {
+        let mut c = Client::lazy(addr, Duration::from_secs(2)).unwrap();
+        // An empty update is a call like any other; before set_config it is dropped.
+        if c.call::<Experiment, Empty>(grpc::UPDATE_PATH, Experiment::default())
+            .await
+            .is_ok()
+        {
+            return c;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the observer did not start"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// Robot and fish poses (x, y, heading) per frame of a recorded trial, with the headings
+/// `fishprobe live replay` sends.
+fn recorded_poses(file: &Path) -> Vec<([f32; 3], [f32; 3])> {
+    let t = fishprobe_io::read_trial(file).unwrap();
+    let robot = t.robot().unwrap();
+    let fish = t.fish().next().unwrap();
+    let rh = robot.headings_from_motion(0.1);
+    let fh = fish.headings_checked(0.1, std::f32::consts::FRAC_PI_2).0;
+    (0..robot.frames().min(fish.frames()))
+        .map(|k| {
+            let r = robot.positions[k];
+            let f = fish.positions[k];
+            ([r[0], r[1], rh[k]], [f[0], f[1], fh[k]])
+        })
+        .collect()
+}
+
+fn feature(id: u32, p: [f32; 3]) -> Feature {
+    let node = |x: f32, y: f32| SkeletonNode { x, y, score: 1.0 };
+    Feature {
+        score: 1.0,
+        out_of_bounds: None,
+        id: Some(id),
+        // Front node 1 cm ahead of the centre, the heading's direction.
+        world_nodes: vec![node(p[0] + p[2].cos(), p[1] + p[2].sin()), node(p[0], p[1])],
+    }
+}
+
+fn experiment(state: RecordingState, frame: u32, robot: [f32; 3], fish: [f32; 3]) -> Experiment {
+    let tracked = |p: [f32; 3]| p.iter().all(|v| v.is_finite());
+    let mut features = Vec::new();
+    if tracked(robot) {
+        features.push(feature(1, robot));
+    }
+    if tracked(fish) {
+        features.push(feature(2, fish));
+    }
+    Experiment {
+        target_fps: FPS,
+        recording_config: Some(RecordingConfig {
+            base_path: "/recordings/2026-12-07_fake".into(),
+            fps: f64::from(FPS),
+        }),
+        arena: Some(Arena {
+            width_cm: 100,
+            height_cm: 100,
+        }),
+        recording_state: state as i32,
+        last_features: Some(Features {
+            features,
+            frame_number: frame,
+        }),
+        entity_ids: vec![1, 2],
+        skeleton: Some(SkeletonDescriptor {
+            front_index: 0,
+            center_index: 1,
+        }),
+    }
+}
+
+/// Lines the robot program read from the sink, collected on a thread.
+fn robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<String>>> {
+    let lines = Arc::new(Mutex::new(Vec::new()));
+    let keep = Arc::clone(&lines);
+    std::thread::spawn(move || {
+        let start = Instant::now();
+        let s = loop {
+            match TcpStream::connect(sink) {
+                Ok(s) => break s,
+                Err(_) if start.elapsed() < Duration::from_secs(20) => {
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                Err(e) => panic!("the robot sink never listened: {e}"),
+            }
+        };
+        for l in BufReader::new(s).lines() {
+            let Ok(l) = l else { break };
+            keep.lock().unwrap().push(l);
+        }
+    });
+    lines
+}
+
+fn wait_exit(child: &mut Child, within: Duration) -> Option<std::process::ExitStatus> {
+    let start = Instant::now();
+    while start.elapsed() < within {
+        if let Some(s) = child.try_wait().unwrap() {
+            return Some(s);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}
+
+/// A recorded trial of the short protocol (the virtual lab through a bridge with it).
+fn record_trial(d: &Path, protocol: &Path) -> PathBuf {
+    let port = free_addr().port();
+    let out = d.join("recorded");
+    let mut bridge = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args([
+            "live",
+            "serve",
+            "--policy",
+            "scripted:goal-seeker",
+            "--listen",
+            &format!("127.0.0.1:{port}"),
+            "--trials",
+            "1",
+            "--config",
+            protocol.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(start.elapsed() < Duration::from_secs(20));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = fishprobe(&[
+        "lab",
+        "--policy",
+        "scripted:goal-seeker",
+        "--connect",
+        &format!("127.0.0.1:{port}"),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(wait_exit(&mut bridge, Duration::from_secs(20)).is_some());
+    out.join("GoalSeeker__VirtualLab/trial_000.hdf5")
+}
+
+/// What `live replay` makes of a trial file with the same protocol.
+fn replayed(d: &Path, file: &Path, protocol: &Path) -> fishprobe_io::TrialFile {
+    let port = free_addr().port();
+    let out = d.join("replayed");
+    let mut bridge = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args([
+            "live",
+            "serve",
+            "--policy",
+            "scripted:goal-seeker",
+            "--listen",
+            &format!("127.0.0.1:{port}"),
+            "--trials",
+            "1",
+            "--config",
+            protocol.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(start.elapsed() < Duration::from_secs(20));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let o = fishprobe(&[
+        "live",
+        "replay",
+        file.to_str().unwrap(),
+        "--connect",
+        &format!("127.0.0.1:{port}"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(wait_exit(&mut bridge, Duration::from_secs(20)).is_some());
+    fishprobe_io::read_trial(&out.join("GoalSeeker__Real/trial_000.hdf5")).unwrap()
+}
+
+#[test]
+fn a_recording_through_the_observer_makes_the_trial_replay_makes_and_the_core_gone_stops_all() {
+    let d = dir("biotracker-e2e");
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let recorded = record_trial(&d, &protocol);
+    let poses = recorded_poses(&recorded);
+    assert!(poses.len() >= 200, "{}", poses.len());
+    let want = replayed(&d, &recorded, &protocol);
+
+    let mut core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let mut child = observer(address, core.addr, &log, false);
+    let out = d.join("trials");
+    let rt = runtime();
+    let mut client = rt.block_on(connect(address));
+    let cfg = ComponentConfig {
+        config_json: config_json(&out, &protocol, sink, core.addr),
+        id: "fishprobe".into(),
+    };
+    rt.block_on(client.call::<ComponentConfig, Empty>(grpc::SET_CONFIG_PATH, cfg.clone()))
+        .unwrap();
+    let robot = robot_program(sink);
+
+    // Idle frames, then the recording at 25 Hz, then FINISHED after the protocol's end.
+    let (r0, f0) = poses[0];
+    let mut answers = Vec::new();
+    let mut send = |client: &mut Client, e: Experiment| {
+        let t = Instant::now();
+        rt.block_on(client.call::<Experiment, Empty>(grpc::UPDATE_PATH, e))
+            .unwrap();
+        answers.push(t.elapsed());
+    };
+    for frame in 900..905 {
+        send(
+            &mut client,
+            experiment(RecordingState::Initial, frame, r0, f0),
+        );
+    }
+    let mut changed = None;
+    let start = Instant::now();
+    for (k, (r, f)) in poses.iter().enumerate() {
+        // On the 25 Hz clock.
+        let due = start + Duration::from_secs_f64(k as f64 / f64::from(FPS));
+        std::thread::sleep(due.saturating_duration_since(Instant::now()));
+        send(
+            &mut client,
+            experiment(RecordingState::Recording, k as u32, *r, *f),
+        );
+        if k == 100 {
+            // Mid-trial: the same config is accepted, another refused with the reason.
+            rt.block_on(client.call::<ComponentConfig, Empty>(grpc::SET_CONFIG_PATH, cfg.clone()))
+                .unwrap();
+            let mut other = cfg.clone();
+            other.config_json = other
+                .config_json
+                .replace("\"fish_ids\":[2]", "\"fish_ids\":[3]");
+            changed = Some(
+                rt.block_on(client.call::<ComponentConfig, Empty>(grpc::SET_CONFIG_PATH, other))
+                    .unwrap_err(),
+            );
+        }
+    }
+    let changed = changed.unwrap();
+    assert_eq!(changed.code(), Code::FailedPrecondition);
+    assert!(
+        changed.message().contains("a trial is running"),
+        "{changed:?}"
+    );
+    send(
+        &mut client,
+        experiment(RecordingState::Finished, poses.len() as u32, r0, f0),
+    );
+    // Every update answered at once (the core never waits for the trial's work).
+    answers.sort();
+    let p99 = answers[answers.len() * 99 / 100];
+    assert!(p99 < Duration::from_millis(100), "p99 {p99:?}");
+
+    // The trial lies beside the recording's files, named after them.
+    let file = out.join("GoalSeeker__Real/2026-12-07_fake.hdf5");
+    let start = Instant::now();
+    while !file.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "no trial file; log:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    let got = fishprobe_io::read_trial(&file).unwrap();
+    let (g, w) = (got.task.as_ref().unwrap(), want.task.as_ref().unwrap());
+    // The same commands at the same frames, the same goals: one engine behind both.
+    assert_eq!(g.command_frames, w.command_frames);
+    assert_eq!(g.goal_frames, w.goal_frames);
+    assert_eq!(g.command_turns.len(), w.command_turns.len());
+    for (a, b) in g.command_turns.iter().zip(&w.command_turns) {
+        assert!((a - b).abs() < 1e-3, "turn {a} vs {b}");
+    }
+    assert_eq!(g.policy_sha256(), w.policy_sha256());
+    // The robot program got the commands and a tick per frame.
+    let lines = robot.lock().unwrap().clone();
+    let ticks = lines.iter().filter(|l| l.contains("\"tick\"")).count();
+    let commands = lines.iter().filter(|l| l.contains("\"command\"")).count();
+    assert!(ticks >= poses.len(), "{ticks} ticks");
+    assert!(commands >= w.command_frames.len(), "{commands} commands");
+
+    // The core dies: the robot is stopped and the observer exits non-zero within 3 s.
+    core.kill();
+    let died = Instant::now();
+    let status = wait_exit(&mut child, Duration::from_secs(3));
+    let Some(status) = status else {
+        let _ = child.kill();
+        panic!(
+            "still running 3 s after the core died; log:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+    };
+    assert!(!status.success());
+    assert!(died.elapsed() <= Duration::from_secs(3));
+    let log_text = std::fs::read_to_string(&log).unwrap();
+    assert!(log_text.contains("tracker core gone"), "{log_text}");
+    let last = robot.lock().unwrap().last().cloned().unwrap_or_default();
+    assert!(last.contains("\"stop\":true"), "{last}");
+}
+
+/// A message with a field of the given number holding raw bytes: garbage where the observer
+/// expects an Experiment, or a huge one.
+#[derive(Clone, PartialEq, prost::Message)]
+struct Raw {
+    #[prost(bytes = "vec", tag = "11")]
+    features: Vec<u8>,
+    #[prost(bytes = "vec", tag = "99")]
+    padding: Vec<u8>,
+}
+
+#[test]
+fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
+    let d = dir("biotracker-hostile");
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let mut child = observer(address, core.addr, &log, true);
+    let rt = runtime();
+    let mut client = rt.block_on(connect(address));
+
+    // A config that is not ours, and one that names a missing policy: refused with reasons.
+    let bad = |json: String| {
+        rt.block_on(client.clone().call::<ComponentConfig, Empty>(
+            grpc::SET_CONFIG_PATH,
+            ComponentConfig {
+                config_json: json,
+                id: "x".into(),
+            },
+        ))
+        .unwrap_err()
+    };
+    let e = bad("{\"policy\": 3}".into());
+    assert_eq!(e.code(), Code::InvalidArgument);
+    let e = bad(config_json(&d.join("t"), &protocol, sink, core.addr)
+        .replace("scripted:goal-seeker", "/nonexistent/policy"));
+    assert!(e.message().contains("/nonexistent/policy"), "{e:?}");
+    rt.block_on(client.call::<ComponentConfig, Empty>(
+        grpc::SET_CONFIG_PATH,
+        ComponentConfig {
+            config_json: config_json(&d.join("t"), &protocol, sink, core.addr),
+            id: "x".into(),
+        },
+    ))
+    .unwrap();
+
+    // Garbage where the features should be: an error, not a crash.
+    let garbage = Raw {
+        features: vec![0xff; 64],
+        padding: Vec::new(),
+    };
+    let e = rt
+        .block_on(client.call::<Raw, Empty>(grpc::UPDATE_PATH, garbage))
+        .unwrap_err();
+    assert_ne!(e.code(), Code::Ok);
+    // Two MiB: refused before it is decoded.
+    let huge = Raw {
+        features: Vec::new(),
+        padding: vec![7; 2 << 20],
+    };
+    let e = rt
+        .block_on(client.call::<Raw, Empty>(grpc::UPDATE_PATH, huge))
+        .unwrap_err();
+    assert_eq!(e.code(), Code::OutOfRange, "{e:?}");
+
+    // A flood: 1,000 updates a second for 10 s, each answered promptly, memory bounded.
+    let rss_kb = |pid: u32| -> u64 {
+        std::fs::read_to_string(format!("/proc/{pid}/status"))
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find_map(|l| l.strip_prefix("VmRSS:"))
+                    .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+            })
+            .unwrap_or(0)
+    };
+    let before = rss_kb(child.id());
+    let p = [0.0f32, 0.0, 0.0];
+    let start = Instant::now();
+    let mut slowest = Duration::ZERO;
+    let mut k = 0u32;
+    while start.elapsed() < Duration::from_secs(10) {
+        let due = start + Duration::from_micros(u64::from(k) * 1000);
+        std::thread::sleep(due.saturating_duration_since(Instant::now()));
+        let t = Instant::now();
+        rt.block_on(client.call::<Experiment, Empty>(
+            grpc::UPDATE_PATH,
+            experiment(RecordingState::Recording, k, p, p),
+        ))
+        .unwrap();
+        slowest = slowest.max(t.elapsed());
+        k += 1;
+    }
+    let after = rss_kb(child.id());
+    assert!(k >= 5_000, "only {k} updates in 10 s");
+    assert!(
+        slowest < Duration::from_millis(500),
+        "slowest answer {slowest:?}"
+    );
+    assert!(
+        after < before + 50_000,
+        "memory grew from {before} kB to {after} kB"
+    );
+    assert!(child.try_wait().unwrap().is_none(), "the observer died");
+    let _ = child.kill();
+    let _ = child.wait();
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(!text.contains("panicked"), "{text}");
+}
+
+#[test]
+fn the_core_dying_mid_trial_stops_the_robot_and_keeps_the_trial_with_the_reason() {
+    let d = dir("biotracker-core-dies");
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let mut core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let mut child = observer(address, core.addr, &log, false);
+    let out = d.join("trials");
+    let rt = runtime();
+    let mut client = rt.block_on(connect(address));
+    rt.block_on(client.call::<ComponentConfig, Empty>(
+        grpc::SET_CONFIG_PATH,
+        ComponentConfig {
+            config_json: config_json(&out, &protocol, sink, core.addr),
+            id: "fishprobe".into(),
+        },
+    ))
+    .unwrap();
+    let robot = robot_program(sink);
+    let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
+    let start = Instant::now();
+    for k in 0..50u32 {
+        let due = start + Duration::from_secs_f64(f64::from(k) / f64::from(FPS));
+        std::thread::sleep(due.saturating_duration_since(Instant::now()));
+        rt.block_on(client.call::<Experiment, Empty>(
+            grpc::UPDATE_PATH,
+            experiment(RecordingState::Recording, k, r, f),
+        ))
+        .unwrap();
+    }
+    core.kill();
+    let status = wait_exit(&mut child, Duration::from_secs(3));
+    if status.is_none() {
+        let _ = child.kill();
+    }
+    assert!(
+        status.is_some_and(|s| !s.success()),
+        "{status:?}; log:\n{}",
+        std::fs::read_to_string(&log).unwrap_or_default()
+    );
+    let t = fishprobe_io::read_trial(&out.join("GoalSeeker__Real/2026-12-07_fake.hdf5")).unwrap();
+    let record: serde_json::Value = serde_json::from_str(&t.task.unwrap().config_json).unwrap();
+    assert_eq!(record["front_end"]["ended_because"], "tracker core gone");
+    assert_eq!(t.entities[0].positions.len(), 50);
+    let last = robot.lock().unwrap().last().cloned().unwrap_or_default();
+    assert!(
+        last.contains("\"stop\":true") && last.contains("tracker core gone"),
+        "{last}"
+    );
+}

@@ -1,0 +1,455 @@
+//! The observer component as a whole: the gRPC calls hand updates to one session thread over a
+//! bounded queue, the session thread runs the [`Observer`] and feeds the robot sink, and a
+//! heartbeat to the core ends everything safely when the core is gone.
+//!
+//! Nothing here writes to stdout or stderr: they are pipes into the core's log and fail once the
+//! core dies. Everything the component has to say goes to its log file.
+
+use super::grpc::{self, Client, ObserverCalls, ObserverService};
+use super::observer::{Event, Observer, PilotMaker};
+use super::schema::{ComponentConfig, Experiment};
+use super::{Expected, ObserverSettings};
+use crate::session::LiveConfig;
+use crate::sink::RobotSink;
+use crate::LiveError;
+use fishprobe_sim::{Controller, TaskParams};
+use std::collections::VecDeque;
+use std::io::Write;
+use std::net::{SocketAddr, TcpListener};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+use tonic::Status;
+
+fishprobe_sim::documented_params! {
+    /// How the observer component defends itself and watches the core (not the trial
+    /// protocol).
+    pub struct ComponentGuard {
+        /// Updates waiting for the session thread at most (choice: 8, a third of a second at
+        /// 25 Hz); beyond, the oldest is dropped and counted, so a flood never grows memory
+        /// and the session always works on the newest frames.
+        pub queue: usize = 8; "updates",
+        /// Largest request accepted (choice: 1 MiB; a frame of 16 fish is under 10 kB).
+        pub max_message_bytes: usize = 1_048_576; "bytes",
+        /// Heartbeat period to the core (BioTracker's components beat once a second).
+        pub heartbeat_s: f64 = 1.0; "s",
+        /// Failed heartbeats in a row that mean the core is gone (choice: 2; with the
+        /// period and the call timeout below the robot stops within 3 s of the core's end).
+        pub heartbeat_failures: u32 = 2; "1",
+        /// Longest a heartbeat may take before it counts as failed.
+        pub heartbeat_timeout_s: f64 = 0.5; "s",
+    }
+}
+
+impl ComponentGuard {
+    /// Checks the ranges.
+    pub fn validate(&self) -> Result<(), fishprobe_sim::ConfigError> {
+        use fishprobe_sim::ConfigError;
+        if !(1..=4096).contains(&self.queue) {
+            return Err(ConfigError::new(
+                "observer",
+                "queue",
+                self.queue,
+                "must lie in [1, 4096]",
+            ));
+        }
+        if !(4096..=64 << 20).contains(&self.max_message_bytes) {
+            return Err(ConfigError::new(
+                "observer",
+                "max_message_bytes",
+                self.max_message_bytes,
+                "must lie in [4096, 64 MiB]",
+            ));
+        }
+        for (f, v) in [
+            ("heartbeat_s", self.heartbeat_s),
+            ("heartbeat_timeout_s", self.heartbeat_timeout_s),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 60.0) {
+                return Err(ConfigError::new("observer", f, v, "must lie in (0, 60]"));
+            }
+        }
+        if !(1..=100).contains(&self.heartbeat_failures) {
+            return Err(ConfigError::new(
+                "observer",
+                "heartbeat_failures",
+                self.heartbeat_failures,
+                "must lie in [1, 100]",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What a config entry's settings load into (the binary loads policies and settings files).
+pub struct Prepared {
+    /// The trial protocol.
+    pub live: LiveConfig,
+    /// Goals.
+    pub task: TaskParams,
+    /// The tracking rate the policy was trained at (Hz).
+    pub trained_fps: f32,
+    /// Makes the pilot of each trial.
+    pub pilot: Box<dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + Send>,
+}
+
+/// Loads what a config entry names: the policy (checked to fit the fish count) and the
+/// protocol's settings. An error says what is wrong, for the core's user.
+pub type Loader = dyn Fn(&ObserverSettings) -> Result<Prepared, String> + Send + Sync;
+
+struct Active {
+    settings: ObserverSettings,
+    observer: Observer,
+    sink: RobotSink,
+    pilot: Box<dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + Send>,
+}
+
+#[derive(Default)]
+struct Queue {
+    updates: VecDeque<Experiment>,
+    dropped: u64,
+}
+
+/// A line-per-event log file; writing failures are ignored (there is nowhere else to say so).
+struct Log(Option<std::fs::File>);
+
+impl Log {
+    fn line(&mut self, what: &str) {
+        if let Some(f) = &mut self.0 {
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64());
+            let _ = writeln!(f, "{now:.3} {what}");
+        }
+    }
+}
+
+/// What the gRPC handlers, the session thread and the heartbeat share.
+struct Host {
+    loader: Box<Loader>,
+    guard: ComponentGuard,
+    fallback_dir: Option<PathBuf>,
+    queue: Mutex<Queue>,
+    ready: Condvar,
+    active: Mutex<Option<Active>>,
+    log: Mutex<Log>,
+    core: Mutex<SocketAddr>,
+    /// Set when the component must end (the reason).
+    ending: Mutex<Option<String>>,
+    stop: AtomicBool,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+impl Host {
+    fn log(&self, what: &str) {
+        lock(&self.log).line(what);
+    }
+
+    fn end(&self, reason: &str) {
+        let mut e = lock(&self.ending);
+        if e.is_none() {
+            *e = Some(reason.to_string());
+        }
+        self.stop.store(true, Ordering::SeqCst);
+        self.ready.notify_all();
+    }
+}
+
+impl ObserverCalls for Host {
+    fn set_config(&self, config: ComponentConfig) -> Result<(), Status> {
+        let refuse = |why: String| {
+            self.log(&format!("set_config refused: {why}"));
+            Err(Status::invalid_argument(why))
+        };
+        let settings = match ObserverSettings::from_json(&config.config_json) {
+            Ok(s) => s,
+            Err(why) => return refuse(why),
+        };
+        let mut active = lock(&self.active);
+        if let Some(a) = active.as_ref() {
+            if a.observer.in_trial() {
+                if a.settings == settings {
+                    return Ok(());
+                }
+                let why = "a trial is running; the component's config can change between trials \
+                           (stop the recording first)";
+                self.log(&format!("set_config refused: {why}"));
+                return Err(Status::failed_precondition(why));
+            }
+        }
+        let prepared = match (self.loader)(&settings) {
+            Ok(p) => p,
+            Err(why) => return refuse(why),
+        };
+        let expected = Expected {
+            tank_cm: crate::TANK_CM as u32,
+            fps: prepared.trained_fps,
+            accept_other_fps: settings.accept_other_fps,
+        };
+        let observer = match Observer::new(
+            prepared.live,
+            prepared.task,
+            settings.out.clone(),
+            settings.ids(),
+            expected,
+            settings.follow_recording,
+            self.fallback_dir.clone(),
+        ) {
+            Ok(o) => o,
+            Err(e) => return refuse(e.to_string()),
+        };
+        // The same sink address keeps its sink (and its robot program's connection).
+        let old = active.take();
+        let sink = match old {
+            Some(a)
+                if a.settings.robot_sink == settings.robot_sink
+                    && a.settings.robot_sink_token == settings.robot_sink_token =>
+            {
+                a.sink
+            }
+            old => {
+                drop(old);
+                let listener = match TcpListener::bind(settings.robot_sink) {
+                    Ok(l) => l,
+                    Err(e) => return refuse(format!("robot sink on {}: {e}", settings.robot_sink)),
+                };
+                match RobotSink::start(listener, settings.robot_sink_token.clone()) {
+                    Ok(s) => s,
+                    Err(e) => return refuse(e.to_string()),
+                }
+            }
+        };
+        *lock(&self.core) = settings.core;
+        self.log(&format!(
+            "configured ({}): policy {}, robot id {}, fish ids {:?}, robot sink {}, trials {}",
+            config.id,
+            settings.policy,
+            settings.robot_id,
+            settings.fish_ids,
+            sink.local_addr(),
+            if settings.follow_recording {
+                "follow the recording"
+            } else {
+                "start at the first update"
+            }
+        ));
+        *active = Some(Active {
+            settings,
+            observer,
+            sink,
+            pilot: prepared.pilot,
+        });
+        Ok(())
+    }
+
+    fn update(&self, experiment: Experiment) -> Result<(), Status> {
+        if self.stop.load(Ordering::SeqCst) {
+            return Err(Status::unavailable("the observer is ending"));
+        }
+        let mut q = lock(&self.queue);
+        if q.updates.len() >= self.guard.queue {
+            q.updates.pop_front();
+            q.dropped += 1;
+        }
+        q.updates.push_back(experiment);
+        drop(q);
+        self.ready.notify_one();
+        Ok(())
+    }
+}
+
+/// How the component ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ComponentEnd {
+    /// Why.
+    pub reason: String,
+    /// Trials that could not be written anywhere.
+    pub unsaved: Vec<PathBuf>,
+}
+
+/// Runs the observer component: serves `biotracker.Observer` on `listener` until the core is
+/// gone (heartbeat) or `stop` is set, with the log at `log` (appended). Returns why it ended.
+pub fn run(
+    listener: TcpListener,
+    core: SocketAddr,
+    loader: Box<Loader>,
+    guard: ComponentGuard,
+    log: Option<PathBuf>,
+    fallback_dir: Option<PathBuf>,
+    stop: Arc<AtomicBool>,
+) -> Result<ComponentEnd, LiveError> {
+    guard.validate()?;
+    let log_file = match &log {
+        Some(p) => Some(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .map_err(|e| LiveError::Write {
+                    path: p.clone(),
+                    what: e.to_string(),
+                })?,
+        ),
+        None => None,
+    };
+    let addr = listener
+        .local_addr()
+        .map_err(|e| LiveError::Net(e.to_string()))?;
+    let host = Arc::new(Host {
+        loader,
+        guard: guard.clone(),
+        fallback_dir,
+        queue: Mutex::new(Queue::default()),
+        ready: Condvar::new(),
+        active: Mutex::new(None),
+        log: Mutex::new(Log(log_file)),
+        core: Mutex::new(core),
+        ending: Mutex::new(None),
+        stop: AtomicBool::new(false),
+    });
+    host.log(&format!("observer listening on {addr}; core {core}"));
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| LiveError::Net(format!("runtime: {e}")))?;
+    let session = {
+        let host = Arc::clone(&host);
+        std::thread::Builder::new()
+            .name("observer-session".into())
+            .spawn(move || session_loop(&host))
+            .map_err(|e| LiveError::Net(format!("session thread: {e}")))?
+    };
+    let service = ObserverService::new(host.clone(), guard.max_message_bytes);
+    let served = runtime.block_on(async {
+        // The server runs until the runtime is dropped: no graceful shutdown, which would wait
+        // for the core's connections to close (a hung core never closes them).
+        let server = tokio::spawn(grpc::serve(listener, service, std::future::pending()));
+        let h = Arc::clone(&host);
+        let mut tick = tokio::time::interval(Duration::from_secs_f64(h.guard.heartbeat_s));
+        let timeout = Duration::from_secs_f64(h.guard.heartbeat_timeout_s);
+        let mut current = *lock(&h.core);
+        let mut client = Client::lazy(current, timeout).ok();
+        let mut failures = 0u32;
+        loop {
+            tick.tick().await;
+            if stop.load(Ordering::SeqCst) {
+                h.end("stopped");
+            }
+            if server.is_finished() {
+                h.end("the gRPC server stopped");
+                return match server.await {
+                    Ok(r) => r,
+                    Err(e) => Err(LiveError::Net(format!("gRPC server: {e}"))),
+                };
+            }
+            if h.stop.load(Ordering::SeqCst) {
+                return Ok(());
+            }
+            let now = *lock(&h.core);
+            if now != current {
+                current = now;
+                client = Client::lazy(current, timeout).ok();
+                failures = 0;
+            }
+            let ok = match &mut client {
+                Some(c) => tokio::time::timeout(timeout, c.heartbeat())
+                    .await
+                    .is_ok_and(|r| r.is_ok()),
+                None => false,
+            };
+            if ok {
+                failures = 0;
+            } else {
+                failures += 1;
+                if failures >= h.guard.heartbeat_failures {
+                    h.end("tracker core gone");
+                    return Ok(());
+                }
+            }
+        }
+    });
+    // Dropping the runtime drops the server and its connections.
+    drop(runtime);
+    host.end("the component stopped");
+    let _ = session.join();
+    let reason = lock(&host.ending)
+        .clone()
+        .unwrap_or_else(|| "stopped".into());
+    let unsaved = lock(&host.active)
+        .as_mut()
+        .map(|a| a.observer.unsaved())
+        .unwrap_or_default();
+    host.log(&format!("observer ends: {reason}"));
+    served?;
+    Ok(ComponentEnd { reason, unsaved })
+}
+
+/// The session thread: takes updates off the queue, runs the observer, feeds the sink.
+fn session_loop(host: &Host) {
+    let mut last_update = Instant::now();
+    let mut dropped_seen = 0u64;
+    let mut events = Vec::new();
+    loop {
+        let next = {
+            let mut q = lock(&host.queue);
+            if q.updates.is_empty() && !host.stop.load(Ordering::SeqCst) {
+                q = host
+                    .ready
+                    .wait_timeout(q, Duration::from_millis(20))
+                    .map(|(g, _)| g)
+                    .unwrap_or_else(|e| e.into_inner().0);
+            }
+            let dropped = q.dropped;
+            (q.updates.pop_front(), dropped)
+        };
+        let mut active = lock(&host.active);
+        if host.stop.load(Ordering::SeqCst) {
+            if let Some(a) = active.as_mut() {
+                let reason = lock(&host.ending)
+                    .clone()
+                    .unwrap_or_else(|| "stopped".into());
+                a.observer.finish(&reason, &mut events);
+                deliver(host, a, &mut events);
+            }
+            return;
+        }
+        let Some(a) = active.as_mut() else {
+            continue;
+        };
+        match next {
+            (Some(e), dropped) => {
+                last_update = Instant::now();
+                if dropped != dropped_seen {
+                    dropped_seen = dropped;
+                    a.observer
+                        .note("updates_dropped_queue_full", dropped.into());
+                }
+                a.observer.set_robot_connected(a.sink.connected());
+                let pilot: &mut PilotMaker<'_> = &mut a.pilot;
+                a.observer.on_update(&e, pilot, &mut events);
+                if e.target_fps > 0.0 {
+                    let frame = e.last_features.as_ref().map_or(0, |f| f.frame_number);
+                    a.sink.tick(f64::from(frame) / f64::from(e.target_fps));
+                }
+            }
+            (None, _) => a
+                .observer
+                .on_silence(last_update.elapsed().as_secs_f64(), &mut events),
+        }
+        deliver(host, a, &mut events);
+    }
+}
+
+fn deliver(host: &Host, a: &mut Active, events: &mut Vec<Event>) {
+    for e in events.drain(..) {
+        match e {
+            Event::Command(m) => a.sink.command(&m),
+            Event::Log(l) => host.log(&l),
+            Event::Started(_) | Event::Ended(_) => {}
+        }
+    }
+}

@@ -1,0 +1,129 @@
+//! fishprobe as a BioTracker v4 observer: the lab's tracker sends every tracked frame to
+//! fishprobe, which runs the live trial protocol on it and drives the robot.
+//!
+//! BioTracker v4's core starts its components and calls them over gRPC on loopback
+//! (`biotracker.Observer/set_config` once, then `update` per frame). This module holds what
+//! does not depend on the transport: the messages ([`schema`]), reading robot and fish out of
+//! an update and following the recording ([`frames`]), and the trial logic on top of the
+//! bridge's [`crate::session::Session`] ([`observer`]). The component's settings are the
+//! `config_json` of its entry in BioTracker's config file ([`ObserverSettings`]).
+
+pub mod component;
+pub mod frames;
+pub mod grpc;
+pub mod observer;
+pub mod schema;
+
+pub use frames::{EntityIds, Expected};
+pub use observer::{Event, Observer};
+
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// The observer component's settings: the `config_json` of its entry in BioTracker's config
+/// file. Unknown keys are refused (a misspelt key would otherwise be silently ignored).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObserverSettings {
+    /// The policy that drives the robot, as `live serve --policy` takes it: a training run's
+    /// folder, a policy file (`.fpnn`, `.onnx`), or `scripted:<name>`.
+    pub policy: String,
+    /// Where trial files go (`<out>/<Policy>__Real/`); relative to BioTracker's config file's
+    /// folder, where the core starts its components.
+    pub out: PathBuf,
+    /// The robot's entity id in BioTracker.
+    pub robot_id: u32,
+    /// The fish's entity ids, in the order of the policy's observation (one for the paper's
+    /// single fish).
+    pub fish_ids: Vec<u32>,
+    /// Where the robot sink listens for the lab's robot program (default `127.0.0.1:27350`,
+    /// loopback).
+    #[serde(default = "default_sink")]
+    pub robot_sink: SocketAddr,
+    /// Shared secret a robot program must send to the sink; required when `robot_sink` is
+    /// not on loopback.
+    #[serde(default)]
+    pub robot_sink_token: Option<String>,
+    /// The tracker core's address, for the heartbeat (default `127.0.0.1:27342`, the core's
+    /// default `--port`).
+    #[serde(default = "default_core")]
+    pub core: SocketAddr,
+    /// Trials follow BioTracker's recording: one starts when recording starts and ends when
+    /// it stops (default). Off: a trial starts at the first update.
+    #[serde(default = "yes")]
+    pub follow_recording: bool,
+    /// Run even when the tracker's `target_fps` differs from the rate the policy was trained
+    /// at (the trial file records the tracker's rate). Off by default: the policy's sense of
+    /// time comes from that rate.
+    #[serde(default)]
+    pub accept_other_fps: bool,
+    /// A settings file for the trial protocol (TOML, the settings of `fishprobe live serve
+    /// --config`); absent: the paper's protocol. Its `fish_count` follows `fish_ids`.
+    #[serde(default)]
+    pub config: Option<PathBuf>,
+}
+
+fn default_sink() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], 27350))
+}
+
+fn default_core() -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], 27342))
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl ObserverSettings {
+    /// Reads the settings from a component's `config_json`.
+    pub fn from_json(config_json: &str) -> Result<Self, String> {
+        let s: Self = serde_json::from_str(config_json)
+            .map_err(|e| format!("the component's config_json: {e}"))?;
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// The entity ids.
+    pub fn ids(&self) -> EntityIds {
+        EntityIds {
+            robot: self.robot_id,
+            fish: self.fish_ids.clone(),
+        }
+    }
+
+    /// Checks what can be checked without loading anything.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.policy.trim().is_empty() {
+            return Err(
+                "`policy` is empty: name a training run, a policy file or scripted:<name>".into(),
+            );
+        }
+        if self.fish_ids.len() > fishprobe_sim::MAX_FISH {
+            return Err(format!(
+                "{} fish entity ids; at most {} fish",
+                self.fish_ids.len(),
+                fishprobe_sim::MAX_FISH
+            ));
+        }
+        self.ids().validate()?;
+        if self
+            .robot_sink_token
+            .as_deref()
+            .is_some_and(|t| t.trim().is_empty())
+        {
+            return Err("`robot_sink_token` is empty".into());
+        }
+        if !self.robot_sink.ip().is_loopback() && self.robot_sink_token.is_none() {
+            return Err(format!(
+                "the robot sink listens on {} (not loopback): set `robot_sink_token`",
+                self.robot_sink
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;
