@@ -584,15 +584,30 @@ fn the_core_dying_mid_trial_stops_the_robot_and_keeps_the_trial_with_the_reason(
     .unwrap();
     let robot = robot_program(sink);
     let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
+    let lost = [f32::NAN; 3];
     let start = Instant::now();
-    for k in 0..50u32 {
+    let mut stale_sent = 0;
+    for k in 0..70u32 {
         let due = start + Duration::from_secs_f64(f64::from(k) / f64::from(FPS));
         std::thread::sleep(due.saturating_duration_since(Instant::now()));
+        // The robot is not tracked from frame 30 to 49 (0.8 s, past the 0.5 s stale time).
+        let robot = if (30..50).contains(&k) { lost } else { r };
         rt.block_on(client.call::<Experiment, Empty>(
             grpc::UPDATE_PATH,
-            experiment(RecordingState::Recording, k, r, f),
+            experiment(RecordingState::Recording, k, robot, f),
         ))
         .unwrap();
+        // Late and repeated frames, as overlapping updates arrive.
+        if k % 10 == 5 {
+            for late in [k, k - 1] {
+                rt.block_on(client.call::<Experiment, Empty>(
+                    grpc::UPDATE_PATH,
+                    experiment(RecordingState::Recording, late, r, f),
+                ))
+                .unwrap();
+                stale_sent += 1;
+            }
+        }
     }
     core.kill();
     let status = wait_exit(&mut child, Duration::from_secs(3));
@@ -607,7 +622,22 @@ fn the_core_dying_mid_trial_stops_the_robot_and_keeps_the_trial_with_the_reason(
     let t = fishprobe_io::read_trial(&out.join("GoalSeeker__Real/2026-12-07_fake.hdf5")).unwrap();
     let record: serde_json::Value = serde_json::from_str(&t.task.unwrap().config_json).unwrap();
     assert_eq!(record["front_end"]["ended_because"], "tracker core gone");
-    assert_eq!(t.entities[0].positions.len(), 50);
+    assert_eq!(t.entities[0].positions.len(), 70);
+    // Every late or repeated frame dropped and counted.
+    assert_eq!(record["front_end"]["stale_updates_dropped"], stale_sent);
+    // The robot was stopped at the first frame its gap reached 0.5 s: last seen at frame 29,
+    // stopped at frame 42 (1.68 s - 1.16 s = 0.52 s), and the gap recorded.
+    let stops = record["stops"].as_array().unwrap();
+    assert!(
+        stops.iter().any(
+            |s| s["frame"] == 42 && s["reason"].as_str().unwrap().contains("robot not tracked")
+        ),
+        "{stops:?}"
+    );
+    assert_eq!(
+        record["tracking_gaps_frames"],
+        serde_json::json!([[29, 50]])
+    );
     let last = robot.lock().unwrap().last().cloned().unwrap_or_default();
     assert!(
         last.contains("\"stop\":true") && last.contains("tracker core gone"),
