@@ -103,6 +103,37 @@ fn bench_sim_prints_throughput_and_machine() {
 }
 
 #[test]
+fn bench_observer_measures_update_round_trips_and_the_components_cpu() {
+    let o = fishprobe(&["bench", "observer", "--json", "--seconds", "1"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    // At 25 Hz for a second: about 25 updates, each answered, the slowest no faster than the
+    // median; the component used some CPU, less than the whole machine.
+    let paced = &rows[0];
+    let n = paced["updates"].as_u64().unwrap();
+    assert!((20..=30).contains(&n), "{paced}");
+    let (p50, p99) = (
+        paced["p50_us"].as_f64().unwrap(),
+        paced["p99_us"].as_f64().unwrap(),
+    );
+    assert!(p50 > 0.0 && p99 >= p50, "{paced}");
+    let cpu = paced["cpu_share_of_one_core"].as_f64().unwrap();
+    assert!(cpu > 0.0 && cpu < 2.0, "{paced}");
+    // Unpaced, the core's calls come far faster than the tracker's rate.
+    assert!(
+        rows[1]["updates_per_s"].as_f64().unwrap() > 100.0,
+        "{}",
+        rows[1]
+    );
+    assert!(v["command"]
+        .as_str()
+        .unwrap()
+        .starts_with("fishprobe bench observer"));
+}
+
+#[test]
 fn config_show_round_trips_through_check() {
     for (flag, ext) in [("--toml", "toml"), ("--json", "json")] {
         let args: Vec<&str> = if flag == "--toml" {

@@ -196,6 +196,10 @@ fn absurd_numbers_are_refused_before_any_work() {
         &["bench", "ood", "--seconds", "1e300"],
         "--seconds must lie in [0.1, 600], got 1e300",
     );
+    refused(
+        &["bench", "observer", "--seconds", "1e300"],
+        "--seconds must lie in [1, 600], got 1e300",
+    );
     refused(&["bench", "sim", "--envs", "0"], "--envs must lie in");
     refused(
         &["bench", "train", "--iterations", "1000000"],

@@ -8,10 +8,12 @@ use std::time::Instant;
 
 use super::emit;
 
+mod observer;
 mod ood;
 mod sim;
 mod stats;
 mod train;
+use observer::bench_observer;
 use ood::bench_ood;
 use sim::bench_sim;
 use stats::bench_stats;
@@ -80,6 +82,20 @@ enum BenchWhat {
         /// Seconds of measurement per row.
         #[arg(long, default_value_t = 2.0)]
         seconds: f64,
+    },
+    /// The BioTracker observer component (`live biotracker`, its own process) as the tracker
+    /// core sees it: `update` round trips (p50, p99, worst) and the component's CPU share of
+    /// one core, at the lab's 25 Hz and as fast as answered.
+    Observer {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Seconds of measurement per load.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// The policy in control (as `live serve --policy`).
+        #[arg(long, default_value = "scripted:goal-seeker")]
+        policy: String,
     },
     /// Simulation throughput per rule-based model: the robot under random 1 Hz commands,
     /// observation encoded once per action; one core, then all cores.
@@ -154,6 +170,11 @@ pub fn run(a: BenchArgs) -> Result<()> {
             members,
             seconds,
         } => bench_ood(json, members, seconds),
+        BenchWhat::Observer {
+            json,
+            seconds,
+            policy,
+        } => bench_observer(json, seconds, &policy),
     }
 }
 
