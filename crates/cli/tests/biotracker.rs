@@ -242,34 +242,20 @@ fn wait_exit(child: &mut Child, within: Duration) -> Option<std::process::ExitSt
     None
 }
 
+/// A bridge for one trial of `protocol` into `out`.
+fn one_trial_bridge(out: &Path, port: u16, protocol: &Path) -> Child {
+    common::bridge(
+        out,
+        port,
+        &["--trials", "1", "--config", protocol.to_str().unwrap()],
+    )
+}
+
 /// A recorded trial of the short protocol (the virtual lab through a bridge with it).
 fn record_trial(d: &Path, protocol: &Path) -> PathBuf {
     let port = free_addr().port();
     let out = d.join("recorded");
-    let mut bridge = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
-        .args([
-            "live",
-            "serve",
-            "--policy",
-            "scripted:goal-seeker",
-            "--listen",
-            &format!("127.0.0.1:{port}"),
-            "--trials",
-            "1",
-            "--config",
-            protocol.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    while TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(start.elapsed() < Duration::from_secs(20));
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let mut bridge = one_trial_bridge(&out, port, protocol);
     let o = fishprobe(&[
         "lab",
         "--policy",
@@ -288,30 +274,7 @@ fn record_trial(d: &Path, protocol: &Path) -> PathBuf {
 fn replayed(d: &Path, file: &Path, protocol: &Path) -> fishprobe_io::TrialFile {
     let port = free_addr().port();
     let out = d.join("replayed");
-    let mut bridge = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
-        .args([
-            "live",
-            "serve",
-            "--policy",
-            "scripted:goal-seeker",
-            "--listen",
-            &format!("127.0.0.1:{port}"),
-            "--trials",
-            "1",
-            "--config",
-            protocol.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    while TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(start.elapsed() < Duration::from_secs(20));
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let mut bridge = one_trial_bridge(&out, port, protocol);
     let o = fishprobe(&[
         "live",
         "replay",

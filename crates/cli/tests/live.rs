@@ -5,10 +5,9 @@
 mod common;
 
 use common::{fishprobe, fresh_dir as dir, stderr, stdout};
-use std::net::{TcpListener, TcpStream};
+use std::net::TcpListener;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Child, Command};
 
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
@@ -18,35 +17,9 @@ fn free_port() -> u16 {
         .port()
 }
 
-/// `fishprobe live serve` in the background, waited for until it accepts connections.
+/// The bridge for `trials` trials into `out`.
 fn bridge(out: &Path, trials: usize, port: u16) -> Child {
-    let child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
-        .args([
-            "live",
-            "serve",
-            "--policy",
-            "scripted:goal-seeker",
-            "--listen",
-            &format!("127.0.0.1:{port}"),
-            "--trials",
-            &trials.to_string(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let start = Instant::now();
-    // A probe connection that never says hello is not a trial.
-    while TcpStream::connect(("127.0.0.1", port)).is_err() {
-        assert!(
-            start.elapsed() < Duration::from_secs(20),
-            "the bridge did not start"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    child
+    common::bridge(out, port, &["--trials", &trials.to_string()])
 }
 
 fn trials_in(d: &Path) -> Vec<PathBuf> {

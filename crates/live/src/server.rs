@@ -127,6 +127,19 @@ fn refuse(mut stream: TcpStream, reason: String) {
     let _ = stream.shutdown(std::net::Shutdown::Both);
 }
 
+impl TrialOutcome {
+    /// What a finished session produced, kept as `kept`.
+    pub(crate) fn of(kept: &Kept, session: &Session) -> Self {
+        Self {
+            file: kept.written().map(Path::to_path_buf),
+            goals_reached: session.goals_reached(),
+            complete: session.is_done(),
+            frames: session.frames(),
+            warning: kept.warning(),
+        }
+    }
+}
+
 /// Whether an address is on this machine only.
 pub fn is_loopback(addr: &SocketAddr) -> bool {
     addr.ip().is_loopback()
@@ -512,7 +525,6 @@ fn run_trial(
             }
         }
     }
-    let complete = session.is_done();
     let label = if session.kind() == fishprobe_io::TrialKind::Virtual {
         "virtual guppy"
     } else {
@@ -540,16 +552,7 @@ fn run_trial(
         );
     }
     drain(&mut stream);
-    TrialOutcome {
-        file: match &kept {
-            Kept::InMemory { .. } => None,
-            k => k.written().map(Path::to_path_buf),
-        },
-        goals_reached: session.goals_reached(),
-        complete,
-        frames: session.frames(),
-        warning,
-    }
+    TrialOutcome::of(&kept, &session)
 }
 
 /// The bridge's answers to one read from the client: the session's replies (in lockstep with

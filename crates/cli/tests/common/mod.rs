@@ -3,7 +3,8 @@
 #![allow(dead_code)] // each test file uses a subset
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 /// Runs the `fishprobe` binary.
 pub fn fishprobe(args: &[&str]) -> Output {
@@ -86,4 +87,35 @@ impl Drop for TornFile {
             let _ = w.join();
         }
     }
+}
+
+/// `fishprobe live serve --policy scripted:goal-seeker --out OUT` on `127.0.0.1:PORT` in the
+/// background (`extra`: more arguments), waited for until it accepts connections.
+pub fn bridge(out: &Path, port: u16, extra: &[&str]) -> Child {
+    let child = Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args([
+            "live",
+            "serve",
+            "--policy",
+            "scripted:goal-seeker",
+            "--listen",
+        ])
+        .arg(format!("127.0.0.1:{port}"))
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the fishprobe binary runs");
+    let start = Instant::now();
+    // A probe connection that never says hello is not a trial.
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the bridge did not start"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child
 }

@@ -5,7 +5,7 @@
 use super::frames::{check_experiment, frame_of, EntityIds, Expected, RecordingGate, Step};
 use super::schema::{Experiment, SkeletonDescriptor};
 use crate::error::LiveError;
-use crate::keep::{Keeper, Kept};
+use crate::keep::Keeper;
 use crate::protocol::{Phase, ServerMsg};
 use crate::server::{check_provenance, next_free, TrialOutcome};
 use crate::session::{LiveConfig, Session};
@@ -190,14 +190,12 @@ impl Observer {
             reason,
             session.goals_reached(),
         )));
-        let complete = session.is_done();
         let kept = self
             .keeper
             .keep(&trial.file, session.trial_file("live guppy"));
         self.keeper.retry();
-        let warning = kept.warning();
-        if let Some(w) = &warning {
-            out.push(Event::Log(w.clone()));
+        if let Some(w) = kept.warning() {
+            out.push(Event::Log(w));
         }
         out.push(Event::Log(format!(
             "trial ended ({reason}): {} frames, {} goals reached{}",
@@ -206,16 +204,7 @@ impl Observer {
             kept.written()
                 .map_or_else(String::new, |f| format!(", written to {}", f.display()))
         )));
-        out.push(Event::Ended(TrialOutcome {
-            file: match &kept {
-                Kept::InMemory { .. } => None,
-                k => k.written().map(Path::to_path_buf),
-            },
-            goals_reached: session.goals_reached(),
-            complete,
-            frames: session.frames(),
-            warning,
-        }));
+        out.push(Event::Ended(TrialOutcome::of(&kept, session)));
     }
 
     /// Trials that could not be written anywhere (held in memory).
