@@ -452,6 +452,16 @@ fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
     let e = bad(config_json(&d.join("t"), &protocol, sink, core.addr)
         .replace("scripted:goal-seeker", "/nonexistent/policy"));
     assert!(e.message().contains("/nonexistent/policy"), "{e:?}");
+    // An output directory another command writes into (a bridge serving there): refused.
+    let taken = d.join("taken");
+    let mut other = common::bridge(&taken, free_addr().port(), &[]);
+    let e = bad(config_json(&taken, &protocol, sink, core.addr));
+    let _ = other.kill();
+    let _ = other.wait();
+    assert!(
+        e.message().contains("in use by") && e.message().contains("live serve"),
+        "{e:?}"
+    );
     rt.block_on(client.call::<ComponentConfig, Empty>(
         grpc::SET_CONFIG_PATH,
         ComponentConfig {

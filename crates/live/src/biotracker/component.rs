@@ -100,6 +100,9 @@ pub type Loader = dyn Fn(&ObserverSettings) -> Result<Prepared, String> + Send +
 
 struct Active {
     settings: ObserverSettings,
+    /// The output directory's one-writer lock (as `live serve` takes it), held while
+    /// configured: two commands writing trials into one directory would mix them.
+    lock: fishprobe_io::DirLock,
     observer: Observer,
     sink: RobotSink,
     pilot: Box<dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + Send>,
@@ -202,17 +205,27 @@ impl ObserverCalls for Host {
             Ok(o) => o,
             Err(e) => return refuse(e.to_string()),
         };
-        // The same sink address keeps its sink (and its robot program's connection).
-        let old = active.take();
-        let sink = match old {
-            Some(a)
-                if a.settings.robot_sink == settings.robot_sink
-                    && a.settings.robot_sink_token == settings.robot_sink_token =>
-            {
-                a.sink
+        // The same output directory keeps its lock, the same sink address its sink (and its
+        // robot program's connection); what changes is let go before it is taken anew.
+        let (old_lock, old_sink) = match active.take() {
+            Some(a) => {
+                let same_out = a.settings.out == settings.out;
+                let same_sink = a.settings.robot_sink == settings.robot_sink
+                    && a.settings.robot_sink_token == settings.robot_sink_token;
+                (same_out.then_some(a.lock), same_sink.then_some(a.sink))
             }
-            old => {
-                drop(old);
+            None => (None, None),
+        };
+        let out_lock = match old_lock {
+            Some(l) => l,
+            None => match fishprobe_io::DirLock::acquire(&settings.out, "live biotracker") {
+                Ok(l) => l,
+                Err(e) => return refuse(e.to_string()),
+            },
+        };
+        let sink = match old_sink {
+            Some(s) => s,
+            None => {
                 let listener = match TcpListener::bind(settings.robot_sink) {
                     Ok(l) => l,
                     Err(e) => return refuse(format!("robot sink on {}: {e}", settings.robot_sink)),
@@ -239,6 +252,7 @@ impl ObserverCalls for Host {
         ));
         *active = Some(Active {
             settings,
+            lock: out_lock,
             observer,
             sink,
             pilot: prepared.pilot,
