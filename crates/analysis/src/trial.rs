@@ -15,52 +15,10 @@
 
 use crate::config::AnalysisConfig;
 use fishprobe_io::{read_trial, Entity, TrialFile, TrialKind};
-use fishprobe_sim::wrap_angle;
 use std::path::{Path, PathBuf};
 
-/// The nine per-frame metrics, in the order of [`TrialData::metrics`].
-pub const METRICS: [&str; 9] = [
-    "iid",
-    "iid_change",
-    "alignment",
-    "fish_speed",
-    "fish_turn",
-    "fish_goal_distance",
-    "fish_faces_robot",
-    "wall_distance",
-    "wall_alignment",
-];
-
-/// The group metrics (trials with two or more fish), in the order following the nine of
-/// [`METRICS`] in [`TrialData::metrics`]: polarisation (|mean heading|), milling (Couzin's
-/// group angular momentum), mean nearest-neighbour distance (cm), group spread (mean distance
-/// from the centroid, cm), robot-to-centroid distance (cm), and the fraction of the fish within
-/// `AnalysisConfig::robot_reach_cm` of the robot.
-pub const GROUP_METRICS: [&str; 6] = [
-    "polarisation",
-    "milling",
-    "mean_nnd",
-    "group_spread",
-    "robot_centroid_distance",
-    "fish_near_robot",
-];
-
-/// Every metric name, pair metrics first: index `m` of [`TrialData::metrics`] is `ALL_METRICS[m]`.
-pub const ALL_METRICS: [&str; METRICS.len() + GROUP_METRICS.len()] = all_metrics();
-
-const fn all_metrics() -> [&'static str; METRICS.len() + GROUP_METRICS.len()] {
-    let mut out = [""; METRICS.len() + GROUP_METRICS.len()];
-    let mut i = 0;
-    while i < out.len() {
-        out[i] = if i < METRICS.len() {
-            METRICS[i]
-        } else {
-            GROUP_METRICS[i - METRICS.len()]
-        };
-        i += 1;
-    }
-    out
-}
+use crate::metric::{Compute, GroupFrame, PairFrame, METRIC_TABLE};
+pub use crate::metric::{ALL_METRICS, GROUP_METRICS, METRICS};
 
 /// What the analysis needs of one trial.
 #[derive(Debug, Clone, PartialEq)]
@@ -299,37 +257,31 @@ fn per_frame_metrics(
     let hr = headings(robot);
     let p = |e: &Entity, i: usize| [f64::from(e.positions[i][0]), f64::from(e.positions[i][1])];
     let n = frames.saturating_sub(start) * fish.len();
-    let mut m: Vec<Vec<f64>> = (0..9).map(|_| Vec::with_capacity(n)).collect();
+    let pair: Vec<fn(&PairFrame) -> Option<f64>> = METRIC_TABLE
+        .iter()
+        .filter_map(|m| match m.compute {
+            Compute::Pair(f) => Some(f),
+            Compute::Group(_) => None,
+        })
+        .collect();
+    let mut m: Vec<Vec<f64>> = pair.iter().map(|_| Vec::with_capacity(n)).collect();
     for (&fish, hf) in fish.iter().zip(fish_headings) {
-        let iid_at = |i: usize| {
-            let (a, b) = (p(robot, i), p(fish, i));
-            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
-        };
         for i in start..frames {
-            let (r, f) = (p(robot, i), p(fish, i));
-            let (th_r, th_f) = (f64::from(hr[i]), f64::from(hf[i]));
-            let iid = iid_at(i);
-            m[0].push(iid);
-            if i + 1 < frames {
-                m[1].push((iid_at(i + 1) - iid) * rate);
-                let f2 = p(fish, i + 1);
-                m[3].push(((f2[0] - f[0]).powi(2) + (f2[1] - f[1]).powi(2)).sqrt() * rate);
-                m[4].push(f64::from(wrap_angle(hf[i + 1] - hf[i])) * rate);
+            let frame = PairFrame {
+                robot: p(robot, i),
+                fish: p(fish, i),
+                robot_heading: f64::from(hr[i]),
+                fish_heading: hf[i],
+                next: (i + 1 < frames).then(|| (p(robot, i + 1), p(fish, i + 1), hf[i + 1])),
+                goal: active[i],
+                half: [hx, hy],
+                rate,
+            };
+            for (values, compute) in m.iter_mut().zip(&pair) {
+                if let Some(v) = compute(&frame) {
+                    values.push(v);
+                }
             }
-            m[2].push((th_r - th_f).cos());
-            let g = active[i];
-            m[5].push(((f[0] - f64::from(g[0])).powi(2) + (f[1] - f64::from(g[1])).powi(2)).sqrt());
-            if iid > 1e-9 {
-                m[6].push((th_f.cos() * (r[0] - f[0]) + th_f.sin() * (r[1] - f[1])) / iid);
-            }
-            let (dx, dy) = (hx - f[0].abs(), hy - f[1].abs());
-            m[7].push(dx.min(dy));
-            // |ê_f · t|: along a left/right wall t = (0, 1), along a top/bottom wall t = (1, 0).
-            m[8].push(if dx <= dy {
-                th_f.sin().abs()
-            } else {
-                th_f.cos().abs()
-            });
         }
     }
     for v in &mut m {
@@ -350,7 +302,15 @@ fn group_metrics(
     cfg: &AnalysisConfig,
 ) -> Vec<Vec<f64>> {
     use fishprobe_sim::{group_order, robot_to_group, AgentState};
-    let mut m: Vec<Vec<f64>> = (0..GROUP_METRICS.len())
+    let group: Vec<fn(&GroupFrame) -> Option<f64>> = METRIC_TABLE
+        .iter()
+        .filter_map(|m| match m.compute {
+            Compute::Group(f) => Some(f),
+            Compute::Pair(_) => None,
+        })
+        .collect();
+    let mut m: Vec<Vec<f64>> = group
+        .iter()
         .map(|_| Vec::with_capacity(frames.saturating_sub(start)))
         .collect();
     let mut now = vec![AgentState::default(); fish.len()];
@@ -359,16 +319,16 @@ fn group_metrics(
             let [x, y] = f.positions[i];
             *a = AgentState::at(x, y, h[i]);
         }
-        if let Some(g) = group_order(&now) {
-            m[0].push(f64::from(g.polarisation));
-            m[1].push(f64::from(g.milling));
-            m[2].push(f64::from(g.mean_nnd_cm));
-            m[3].push(f64::from(g.spread_cm));
+        if let Some(order) = group_order(&now) {
             let [x, y] = robot.positions[i];
-            let r = AgentState::at(x, y, 0.0);
-            if let Some((d, near)) = robot_to_group(&r, &now, cfg.robot_reach_cm) {
-                m[4].push(f64::from(d));
-                m[5].push(f64::from(near));
+            let frame = GroupFrame {
+                order,
+                robot: robot_to_group(&AgentState::at(x, y, 0.0), &now, cfg.robot_reach_cm),
+            };
+            for (values, compute) in m.iter_mut().zip(&group) {
+                if let Some(v) = compute(&frame) {
+                    values.push(v);
+                }
             }
         }
     }

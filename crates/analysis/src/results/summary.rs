@@ -34,10 +34,11 @@ impl Results {
             s += &super::seeds_table::summary_markdown(&self.seeds, &self.config);
         }
         if !self.mean_ranks.is_empty() {
+            let pairs = crate::count_word(crate::METRICS.len());
             let over = if self.metric_gaps.len() > crate::METRICS.len() {
-                "the nine pair and the group metrics"
+                format!("the {pairs} pair and the group metrics")
             } else {
-                "the nine metrics"
+                format!("the {pairs} metrics")
             };
             s += &format!("## Per-metric gaps: mean rank over {over} (1 = closest to reality)\n\n| policy | mean rank |\n|---|---|\n");
             for (p, r) in &self.mean_ranks {

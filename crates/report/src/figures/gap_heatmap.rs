@@ -1,11 +1,11 @@
-//! Fig. 4: the sim-to-real gap heatmap, policies x (goals + nine metrics).
+//! Fig. 4: the sim-to-real gap heatmap, policies x (goals + the metrics).
 
 use super::prelude::*;
 
 /// The pair metrics (a study with groups has more columns).
-const METRICS_IN_PAIRS: usize = 9;
+const METRICS_IN_PAIRS: usize = fishprobe_analysis::METRICS.len();
 
-/// Fig. 4: sim-to-real gap heatmap, policies × (goals + nine metrics).
+/// Fig. 4: sim-to-real gap heatmap, policies × (goals + the per-frame metrics).
 pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
     let r = d.results.as_ref()?;
     let mg = (!r.metric_gaps.is_empty()).then_some(&r.metric_gaps);
@@ -169,13 +169,20 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
         name: "gap_heatmap",
         title: "Sim-to-real gap per policy and metric".into(),
         caption: {
+            let pairs = fishprobe_analysis::count_word(METRICS_IN_PAIRS);
             let (metrics, over) = if columns.len() > METRICS_IN_PAIRS + 1 {
                 (
-                    "the nine per-frame behaviour metrics and the six group metrics",
-                    "all metrics",
+                    format!(
+                        "the {pairs} per-frame behaviour metrics and the {} group metrics",
+                        fishprobe_analysis::count_word(fishprobe_analysis::GROUP_METRICS.len())
+                    ),
+                    "all metrics".to_string(),
                 )
             } else {
-                ("nine per-frame behaviour metrics", "the nine metrics")
+                (
+                    format!("{pairs} per-frame behaviour metrics"),
+                    format!("the {pairs} metrics"),
+                )
             };
             format!(
                 "Rows: policies (each trained on one candidate model). Columns: the gap in goals \
@@ -189,4 +196,55 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
         },
         svg: svg.finish(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fishprobe_analysis::results::{MetricGap, Results};
+    use fishprobe_analysis::{ALL_METRICS, METRIC_LABELS};
+
+    /// A study with a gap for every metric of the table: the heatmap and the page's gap table
+    /// show each one under its label. A metric added to the table but dropped by a figure or a
+    /// table fails here.
+    #[test]
+    fn every_metric_of_the_table_is_in_the_heatmap_and_the_gap_table() {
+        let gap = |m: usize| MetricGap {
+            median: m as f64,
+            ci: [0.0, m as f64 + 1.0],
+            normalized: 0.5,
+            rank: 1.0,
+        };
+        let mut results = Results::default();
+        for (m, id) in ALL_METRICS.iter().enumerate() {
+            for p in ["Zone", "Force"] {
+                results
+                    .metric_gaps
+                    .entry((*id).to_string())
+                    .or_default()
+                    .insert(p.to_string(), gap(m));
+            }
+        }
+        let d = StudyData {
+            results: Some(results),
+            ..StudyData::default()
+        };
+        let fig = gap_heatmap(&d).expect("a heatmap");
+        let page = crate::html::Page {
+            data: &d,
+            figures: Vec::new(),
+            report_dir: std::path::Path::new("."),
+            version: "test",
+        };
+        let mut table = String::new();
+        page.metric_gaps(&mut table);
+        for label in METRIC_LABELS {
+            let esc = label.replace('&', "&amp;");
+            assert!(fig.svg.contains(&esc), "the heatmap lacks {label}");
+            assert!(table.contains(&esc), "the gap table lacks {label}");
+        }
+        assert!(fig
+            .caption
+            .contains("the nine per-frame behaviour metrics and the six group metrics"));
+    }
 }

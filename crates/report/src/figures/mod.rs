@@ -53,25 +53,10 @@ pub struct Figure {
     pub svg: String,
 }
 
-/// Metric labels with units, in [`fishprobe_analysis::ALL_METRICS`] order: the nine pair
-/// metrics, then the six group metrics (present only in studies with groups).
-pub const METRIC_LABELS: [&str; 15] = [
-    "IID (cm)",
-    "IID change (cm/s)",
-    "alignment (cos)",
-    "fish speed (cm/s)",
-    "fish turn (rad/s)",
-    "fish-goal dist. (cm)",
-    "fish faces robot (cos)",
-    "wall distance (cm)",
-    "wall alignment (|cos|)",
-    "polarisation",
-    "milling",
-    "mean NND (cm)",
-    "group spread (cm)",
-    "robot-centroid dist. (cm)",
-    "fish near robot (frac.)",
-];
+/// Metric labels with units, in [`fishprobe_analysis::ALL_METRICS`] order (from the analysis's
+/// metric table): the pair metrics, then the group metrics (present only in studies with
+/// groups).
+pub use fishprobe_analysis::METRIC_LABELS;
 
 pub(crate) fn arm_label(d: &StudyData) -> &'static str {
     match d.arm.as_deref() {

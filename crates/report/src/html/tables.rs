@@ -67,7 +67,7 @@ impl Page<'_> {
     }
 
     /// The per-metric gaps and ranks (table and heatmap).
-    pub(super) fn metric_gaps(&self, o: &mut String) {
+    pub(crate) fn metric_gaps(&self, o: &mut String) {
         let d = self.data;
         let r = d.results.as_ref();
         // Per-metric gaps.
