@@ -437,8 +437,9 @@ fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
     let mut client = rt.block_on(connect(address));
 
     // A config that is not ours, and one that names a missing policy: refused with reasons.
+    let probe = client.clone();
     let bad = |json: String| {
-        rt.block_on(client.clone().call::<ComponentConfig, Empty>(
+        rt.block_on(probe.clone().call::<ComponentConfig, Empty>(
             grpc::SET_CONFIG_PATH,
             ComponentConfig {
                 config_json: json,
@@ -470,6 +471,16 @@ fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
         },
     ))
     .unwrap();
+
+    // A new config whose robot-sink port is taken: refused, and the one before stays.
+    let taken_port = TcpListener::bind("127.0.0.1:0").unwrap();
+    let e = bad(config_json(
+        &d.join("t"),
+        &protocol,
+        taken_port.local_addr().unwrap(),
+        core.addr,
+    ));
+    assert!(e.message().contains("robot sink on"), "{e:?}");
 
     // Garbage where the features should be: an error, not a crash.
     let garbage = Raw {
@@ -531,6 +542,11 @@ fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
     assert!(child.try_wait().unwrap().is_none(), "the observer died");
     let _ = child.kill();
     let _ = child.wait();
+    // The flood's frames made a trial under the config that stayed.
+    assert!(
+        d.join("t/GoalSeeker__Real/2026-12-07_fake.hdf5").exists(),
+        "no trial under the kept config"
+    );
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(!text.contains("panicked"), "{text}");
 }

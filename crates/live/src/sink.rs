@@ -47,8 +47,14 @@ struct State {
 struct Shared {
     state: Mutex<State>,
     stop: AtomicBool,
-    token: Option<String>,
+    token: Mutex<Option<String>>,
+    /// Handshakes in progress (off loopback), at most [`MAX_HANDSHAKES`].
+    handshakes: std::sync::atomic::AtomicUsize,
 }
+
+/// Robot programs that may be sending their token at once; more are refused at once, so idle
+/// connections cannot hold the sink.
+const MAX_HANDSHAKES: usize = 8;
 
 /// The sink; see the module's docs. Dropping it stops listening and closes the client.
 pub struct RobotSink {
@@ -102,7 +108,8 @@ impl RobotSink {
         let shared = Arc::new(Shared {
             state: Mutex::new(State::default()),
             stop: AtomicBool::new(false),
-            token,
+            token: Mutex::new(token),
+            handshakes: std::sync::atomic::AtomicUsize::new(0),
         });
         let sh = Arc::clone(&shared);
         let accept = std::thread::Builder::new()
@@ -132,6 +139,19 @@ impl RobotSink {
         let mut st = self.lock();
         st.current = Some(line.clone());
         write_or_drop(&mut st, &line);
+    }
+
+    /// Sets the token the next robot program must send (off loopback a token is required, so
+    /// `None` is ignored there).
+    pub fn set_token(&self, token: Option<String>) {
+        if token.is_none() && !self.addr.ip().is_loopback() {
+            return;
+        }
+        *self
+            .shared
+            .token
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = token;
     }
 
     /// Sends a tick for the tracking frame at `t`.
@@ -172,9 +192,9 @@ fn write_or_drop(st: &mut State, line: &str) {
     }
 }
 
-fn accept_loop(listener: &TcpListener, sh: &Shared) {
+fn accept_loop(listener: &TcpListener, sh: &Arc<Shared>) {
     while !sh.stop.load(Ordering::SeqCst) {
-        let mut stream = match listener.accept() {
+        let stream = match listener.accept() {
             Ok((s, _)) => s,
             Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
                 std::thread::sleep(Duration::from_millis(10));
@@ -188,38 +208,57 @@ fn accept_loop(listener: &TcpListener, sh: &Shared) {
         let _ = stream.set_nonblocking(false);
         let _ = stream.set_nodelay(true);
         let _ = stream.set_write_timeout(Some(WRITE_TIMEOUT));
-        let busy = sh
-            .state
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .client
-            .is_some();
-        if busy {
-            refuse(
-                stream,
-                "busy: another robot program is connected to this sink",
-            );
+        if lock(&sh.state).client.is_some() {
+            refuse(stream, BUSY);
             continue;
         }
-        if let Some(token) = &sh.token {
-            if !token_ok(&stream, token) {
-                refuse(stream, "missing or wrong token");
-                continue;
-            }
-        }
-        let mut st = sh.state.lock().unwrap_or_else(PoisonError::into_inner);
-        if st.client.is_some() {
-            drop(st);
-            refuse(
-                stream,
-                "busy: another robot program is connected to this sink",
-            );
+        let token = lock(&sh.token).clone();
+        let Some(token) = token else {
+            admit(sh, stream);
+            continue;
+        };
+        // Each token is read on a thread of its own, so a peer that says nothing delays no
+        // one; at most MAX_HANDSHAKES wait at once.
+        if sh.handshakes.fetch_add(1, Ordering::SeqCst) >= MAX_HANDSHAKES {
+            sh.handshakes.fetch_sub(1, Ordering::SeqCst);
+            refuse(stream, "too many robot programs connecting at once");
             continue;
         }
-        let first = st.current.clone().unwrap_or_else(stop_line);
-        if stream.write_all(first.as_bytes()).is_ok() {
-            st.client = Some(stream);
+        let sh = Arc::clone(sh);
+        let spawned = std::thread::Builder::new()
+            .name("robot-sink-hello".into())
+            .spawn(move || {
+                if token_ok(&stream, &token) {
+                    admit(&sh, stream);
+                } else {
+                    refuse(stream, "missing or wrong token");
+                }
+                sh.handshakes.fetch_sub(1, Ordering::SeqCst);
+            });
+        if spawned.is_err() {
+            // Out of threads: the connection was dropped with the closure.
+            continue;
         }
+    }
+}
+
+const BUSY: &str = "busy: another robot program is connected to this sink";
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Makes `stream` the sink's robot program (if none is), sending it the current state first.
+fn admit(sh: &Shared, mut stream: TcpStream) {
+    let mut st = lock(&sh.state);
+    if st.client.is_some() {
+        drop(st);
+        refuse(stream, BUSY);
+        return;
+    }
+    let first = st.current.clone().unwrap_or_else(stop_line);
+    if stream.write_all(first.as_bytes()).is_ok() {
+        st.client = Some(stream);
     }
 }
 
@@ -343,6 +382,9 @@ mod tests {
             .write_all(b"{\"type\":\"robot\",\"token\":\"guess\"}\n")
             .expect("writes");
         assert!(read_line(&mut wrong).contains("wrong token"));
+        // A peer that connects and says nothing delays no one.
+        let _silent = connect(sink.local_addr());
+        let asked = Instant::now();
         let mut right = connect(sink.local_addr());
         right
             .get_mut()
@@ -350,5 +392,21 @@ mod tests {
             .expect("writes");
         let first = read_line(&mut right);
         assert!(first.contains(r#""stop":true"#), "{first}");
+        assert!(
+            asked.elapsed() < Duration::from_secs(2),
+            "{:?}",
+            asked.elapsed()
+        );
+        // A new token applies to the next program.
+        sink.set_token(Some("n3w".into()));
+        drop(right);
+        sink.tick(2.0);
+        sink.tick(2.04);
+        wait_connected(&sink, false);
+        let mut old = connect(sink.local_addr());
+        old.get_mut()
+            .write_all(b"{\"type\":\"robot\",\"token\":\"s3cret\"}\n")
+            .expect("writes");
+        assert!(read_line(&mut old).contains("wrong token"));
     }
 }

@@ -205,37 +205,48 @@ impl ObserverCalls for Host {
             Ok(o) => o,
             Err(e) => return refuse(e.to_string()),
         };
-        // The same output directory keeps its lock, the same sink address its sink (and its
-        // robot program's connection); what changes is let go before it is taken anew.
-        let (old_lock, old_sink) = match active.take() {
-            Some(a) => {
-                let same_out = a.settings.out == settings.out;
-                let same_sink = a.settings.robot_sink == settings.robot_sink
-                    && a.settings.robot_sink_token == settings.robot_sink_token;
-                (same_out.then_some(a.lock), same_sink.then_some(a.sink))
-            }
-            None => (None, None),
-        };
-        let out_lock = match old_lock {
-            Some(l) => l,
-            None => match fishprobe_io::DirLock::acquire(&settings.out, "live biotracker") {
-                Ok(l) => l,
+        // The same output directory keeps its lock, the same sink its robot program's
+        // connection. What is new is taken before the old is let go, so a refusal (a directory
+        // in use, a port taken) leaves the component as it was configured.
+        let (same_out, same_sink) = active.as_ref().map_or((false, false), |a| {
+            (
+                a.settings.out == settings.out,
+                a.settings.robot_sink == settings.robot_sink,
+            )
+        });
+        let new_lock = if same_out {
+            None
+        } else {
+            match fishprobe_io::DirLock::acquire(&settings.out, "live biotracker") {
+                Ok(l) => Some(l),
                 Err(e) => return refuse(e.to_string()),
-            },
+            }
         };
-        let sink = match old_sink {
-            Some(s) => s,
-            None => {
-                let listener = match TcpListener::bind(settings.robot_sink) {
-                    Ok(l) => l,
-                    Err(e) => return refuse(format!("robot sink on {}: {e}", settings.robot_sink)),
-                };
-                match RobotSink::start(listener, settings.robot_sink_token.clone()) {
-                    Ok(s) => s,
-                    Err(e) => return refuse(e.to_string()),
+        let old = active.take();
+        let new_sink = if same_sink {
+            None
+        } else {
+            let started = TcpListener::bind(settings.robot_sink)
+                .map_err(|e| format!("robot sink on {}: {e}", settings.robot_sink))
+                .and_then(|l| {
+                    RobotSink::start(l, settings.robot_sink_token.clone())
+                        .map_err(|e| e.to_string())
+                });
+            match started {
+                Ok(s) => Some(s),
+                Err(why) => {
+                    *active = old;
+                    return refuse(why);
                 }
             }
         };
+        let (out_lock, sink) = match (old, new_lock, new_sink) {
+            (Some(a), l, s) => (l.unwrap_or(a.lock), s.unwrap_or(a.sink)),
+            (None, Some(l), Some(s)) => (l, s),
+            (None, _, _) => return refuse("internal: nothing to configure from".into()),
+        };
+        // A kept sink takes the new token for the next program that connects.
+        sink.set_token(settings.robot_sink_token.clone());
         *lock(&self.core) = settings.core;
         self.log(&format!(
             "configured ({}): policy {}, robot id {}, fish ids {:?}, robot sink {}, trials {}",
