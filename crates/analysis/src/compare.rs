@@ -5,17 +5,14 @@
 use crate::config::AnalysisConfig;
 use crate::results::*;
 use crate::study::{StudyFiles, REALITY_ARMS};
-use crate::trial::{load_trial, TrialData, ALL_METRICS, METRICS};
+use crate::trial::{load_trial, Loaded, TrialData, ALL_METRICS, METRICS};
 use fishprobe_sim::{stream, SimRng};
 use fishprobe_stats as st;
 use rayon::prelude::*;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use crate::conditions::{fish_counts, groups_check, mixed_policies, other_weights, weights_of};
-
-/// Trials by file; failed loads carry the reason.
-type Loaded = HashMap<PathBuf, Result<TrialData, String>>;
 
 fn rng(seed: u64, label: &str) -> SimRng {
     stream(seed, label, 0)

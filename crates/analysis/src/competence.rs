@@ -7,13 +7,11 @@
 use crate::config::AnalysisConfig;
 use crate::results::{Competence, Results, Skipped};
 use crate::study::StudyFiles;
-use crate::trial::TrialData;
+pub(crate) use crate::trial::Loaded;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 pub use crate::results::plus_minus;
-
-pub(crate) type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
 
 /// Goals per episode of a set of episodes: what a competence ratio and its standard error
 /// are made of.

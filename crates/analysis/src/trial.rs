@@ -20,6 +20,10 @@ use std::path::{Path, PathBuf};
 use crate::metric::{Compute, GroupFrame, PairFrame, METRIC_TABLE};
 pub use crate::metric::{ALL_METRICS, GROUP_METRICS, METRICS};
 
+/// Trials by file, as the analysis loads them once for all its comparisons; a failed load
+/// carries the reason.
+pub(crate) type Loaded = std::collections::HashMap<PathBuf, Result<TrialData, String>>;
+
 /// What the analysis needs of one trial.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrialData {
