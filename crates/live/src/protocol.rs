@@ -158,6 +158,24 @@ pub enum ServerMsg {
     },
 }
 
+impl ServerMsg {
+    /// A stop outside a trial's schedule (before a trial, at its end, on a refusal): the robot
+    /// holds still, and `reason` says why.
+    pub fn stop_outside_trial(t: f64, reason: &str, goals_reached: u32) -> Self {
+        ServerMsg::Command {
+            t,
+            seq: None,
+            turn: 0.0,
+            stop: true,
+            reason: Some(reason.to_string()),
+            phase: Phase::Done,
+            released: false,
+            active_goal: None,
+            goals_reached,
+        }
+    }
+}
+
 /// Parses one line from the lab side.
 pub fn parse_client(line: &str) -> Result<ClientMsg, String> {
     serde_json::from_str(line.trim()).map_err(|e| {

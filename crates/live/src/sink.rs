@@ -73,17 +73,7 @@ impl std::fmt::Debug for RobotSink {
 }
 
 fn stop_line() -> String {
-    to_line(&ServerMsg::Command {
-        t: 0.0,
-        seq: None,
-        turn: 0.0,
-        stop: true,
-        reason: Some("no command yet".into()),
-        phase: crate::protocol::Phase::Done,
-        released: false,
-        active_goal: None,
-        goals_reached: 0,
-    })
+    to_line(&ServerMsg::stop_outside_trial(0.0, "no command yet", 0))
 }
 
 impl RobotSink {

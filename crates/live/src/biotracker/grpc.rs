@@ -79,6 +79,26 @@ where
     }
 }
 
+/// Answers one unary call of `req` with `handle`: the request (at most `max_message_bytes`,
+/// else an error without decoding it) in, `Empty` or the handler's error out.
+fn unary<M, B, F>(
+    req: http::Request<B>,
+    max_message_bytes: usize,
+    handle: F,
+) -> BoxFuture<http::Response<tonic::body::Body>>
+where
+    M: prost::Message + Default + Send + 'static,
+    B: http_body::Body + Send + 'static,
+    B::Error: Into<BoxError> + Send,
+    F: FnMut(M) -> Result<(), Status> + Send + 'static,
+{
+    Box::pin(async move {
+        let mut grpc = tonic::server::Grpc::new(tonic_prost::ProstCodec::<Empty, M>::default())
+            .max_decoding_message_size(max_message_bytes);
+        Ok(grpc.unary(Unary(handle), req).await)
+    })
+}
+
 impl<B> tower_service::Service<http::Request<B>> for ObserverService
 where
     B: http_body::Body + Send + 'static,
@@ -96,21 +116,8 @@ where
         let calls = Arc::clone(&self.calls);
         let max = self.max_message_bytes;
         match req.uri().path() {
-            SET_CONFIG_PATH => Box::pin(async move {
-                let mut grpc = tonic::server::Grpc::new(tonic_prost::ProstCodec::<
-                    Empty,
-                    ComponentConfig,
-                >::default())
-                .max_decoding_message_size(max);
-                Ok(grpc.unary(Unary(move |c| calls.set_config(c)), req).await)
-            }),
-            UPDATE_PATH => Box::pin(async move {
-                let mut grpc = tonic::server::Grpc::new(
-                    tonic_prost::ProstCodec::<Empty, Experiment>::default(),
-                )
-                .max_decoding_message_size(max);
-                Ok(grpc.unary(Unary(move |e| calls.update(e)), req).await)
-            }),
+            SET_CONFIG_PATH => unary(req, max, move |c: ComponentConfig| calls.set_config(c)),
+            UPDATE_PATH => unary(req, max, move |e: Experiment| calls.update(e)),
             other => {
                 let status = Status::unimplemented(format!(
                     "fishprobe's observer serves set_config and update, not {other}"
@@ -141,11 +148,8 @@ where
 
     fn call(&mut self, req: http::Request<B>) -> Self::Future {
         if req.uri().path() == HEARTBEAT_PATH {
-            Box::pin(async move {
-                let mut grpc =
-                    tonic::server::Grpc::new(tonic_prost::ProstCodec::<Empty, Empty>::default());
-                Ok(grpc.unary(Unary(|_: Empty| Ok(())), req).await)
-            })
+            // An empty message: the smallest limit the codec takes.
+            unary(req, 4096, |_: Empty| Ok(()))
         } else {
             let status = Status::unimplemented("this stand-in core answers heartbeat only");
             Box::pin(async move { Ok(status.into_http()) })

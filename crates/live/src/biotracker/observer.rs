@@ -6,7 +6,7 @@ use super::frames::{check_experiment, frame_of, EntityIds, Expected, RecordingGa
 use super::schema::{Experiment, SkeletonDescriptor};
 use crate::error::LiveError;
 use crate::keep::Keeper;
-use crate::protocol::{Phase, ServerMsg};
+use crate::protocol::ServerMsg;
 use crate::server::{check_provenance, next_free, TrialOutcome};
 use crate::session::{LiveConfig, Session};
 use fishprobe_io::{Arm, StudyLayout};
@@ -185,7 +185,7 @@ impl Observer {
             trial.absences.push([a, trial.last_t]);
         }
         session.note("robot_program_absent_s", serde_json::json!(trial.absences));
-        out.push(Event::Command(stop_command(
+        out.push(Event::Command(ServerMsg::stop_outside_trial(
             trial.last_t,
             reason,
             session.goals_reached(),
@@ -225,7 +225,7 @@ impl Observer {
             out.push(Event::Log(format!(
                 "refused, the robot stays stopped: {why}"
             )));
-            out.push(Event::Command(stop_command(0.0, &why, 0)));
+            out.push(Event::Command(ServerMsg::stop_outside_trial(0.0, &why, 0)));
             self.refusal = Some(why);
         }
     }
@@ -311,21 +311,6 @@ impl Observer {
         if trial.session.is_done() {
             self.finish("the protocol's control time is over", out);
         }
-    }
-}
-
-/// A stop for the robot outside a trial's schedule.
-fn stop_command(t: f64, reason: &str, goals_reached: u32) -> ServerMsg {
-    ServerMsg::Command {
-        t,
-        seq: None,
-        turn: 0.0,
-        stop: true,
-        reason: Some(reason.to_string()),
-        phase: Phase::Done,
-        released: false,
-        active_goal: None,
-        goals_reached,
     }
 }
 
