@@ -110,7 +110,7 @@ fn bench_observer_measures_update_round_trips_and_the_components_cpu() {
     let rows = v["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 2);
     // At 25 Hz for a second: about 25 updates, each answered, the slowest no faster than the
-    // median; the component used some CPU, less than the whole machine.
+    // median; the component used CPU, less than the whole machine.
     let paced = &rows[0];
     let n = paced["updates"].as_u64().unwrap();
     assert!((20..=30).contains(&n), "{paced}");
@@ -119,8 +119,11 @@ fn bench_observer_measures_update_round_trips_and_the_components_cpu() {
         paced["p99_us"].as_f64().unwrap(),
     );
     assert!(p50 > 0.0 && p99 >= p50, "{paced}");
+    // The kernel counts CPU time in 10 ms ticks: a second at 25 Hz may show none.
     let cpu = paced["cpu_share_of_one_core"].as_f64().unwrap();
-    assert!(cpu > 0.0 && cpu < 2.0, "{paced}");
+    assert!((0.0..2.0).contains(&cpu), "{paced}");
+    let flooded = rows[1]["cpu_share_of_one_core"].as_f64().unwrap();
+    assert!(flooded > 0.0 && flooded < 2.0, "{}", rows[1]);
     // Unpaced, the core's calls come far faster than the tracker's rate.
     assert!(
         rows[1]["updates_per_s"].as_f64().unwrap() > 100.0,
