@@ -7,7 +7,7 @@
 mod common;
 
 use common::{fishprobe, fresh_dir as dir, stderr};
-use fishprobe_live::biotracker::grpc::{self, Client, HeartbeatService};
+use fishprobe_live::biotracker::grpc::{self, Client};
 use fishprobe_live::biotracker::schema::{
     Arena, ComponentConfig, Empty, Experiment, Feature, Features, RecordingConfig, RecordingState,
     SkeletonDescriptor, SkeletonNode,
@@ -57,7 +57,7 @@ impl FakeCore {
             let rt = runtime();
             rt.spawn(grpc::serve(
                 listener,
-                HeartbeatService,
+                grpc::heartbeat_service(),
                 std::future::pending(),
             ));
             let _ = rt.block_on(rx);

@@ -5,7 +5,7 @@
 //! Nothing here writes to stdout or stderr: they are pipes into the core's log and fail once the
 //! core dies. Everything the component has to say goes to its log file.
 
-use super::grpc::{self, Client, ObserverCalls, ObserverService};
+use super::grpc::{self, Client, ObserverCalls};
 use super::observer::{Event, Observer, PilotMaker};
 use super::schema::{ComponentConfig, Experiment};
 use super::{Expected, ObserverSettings};
@@ -348,7 +348,7 @@ pub fn run(
             .spawn(move || session_loop(&host))
             .map_err(|e| LiveError::Net(format!("session thread: {e}")))?
     };
-    let service = ObserverService::new(host.clone(), guard.max_message_bytes);
+    let service = grpc::observer_service(host.clone(), guard.max_message_bytes);
     let served = runtime.block_on(async {
         // The server runs until the runtime is dropped: no graceful shutdown, which would wait
         // for the core's connections to close (a hung core never closes them).

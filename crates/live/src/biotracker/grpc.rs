@@ -21,7 +21,6 @@ pub const UPDATE_PATH: &str = "/biotracker.Observer/update";
 /// `biotracker.BioTracker/heartbeat`.
 pub const HEARTBEAT_PATH: &str = "/biotracker.BioTracker/heartbeat";
 
-type BoxError = Box<dyn std::error::Error + Send + Sync>;
 type BoxFuture<T> = Pin<Box<dyn Future<Output = Result<T, std::convert::Infallible>> + Send>>;
 
 /// What answers the observer's two calls. Both must return at once: the core calls `update`
@@ -33,77 +32,109 @@ pub trait ObserverCalls: Send + Sync + 'static {
     fn update(&self, experiment: Experiment) -> Result<(), Status>;
 }
 
-/// The `biotracker.Observer` service over an [`ObserverCalls`].
+/// One method's handler: the HTTP request in, the gRPC answer out.
+type Handler = dyn Fn(http::Request<tonic::body::Body>) -> BoxFuture<http::Response<tonic::body::Body>>
+    + Send
+    + Sync;
+
+/// A gRPC service of unary methods, each a path and a handler that answers at once: the
+/// observer, the stand-in core's heartbeat, and whatever else a test needs to serve (a
+/// feature detector, say). Any other path is answered `unimplemented`, naming the ones served.
 #[derive(Clone)]
-pub struct ObserverService {
-    calls: Arc<dyn ObserverCalls>,
-    max_message_bytes: usize,
+pub struct Methods {
+    what: &'static str,
+    routes: Vec<(&'static str, Arc<Handler>)>,
 }
 
-impl std::fmt::Debug for ObserverService {
+impl std::fmt::Debug for Methods {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("ObserverService")
-            .field("max_message_bytes", &self.max_message_bytes)
+        let paths: Vec<&str> = self.routes.iter().map(|(p, _)| *p).collect();
+        f.debug_struct("Methods")
+            .field("what", &self.what)
+            .field("paths", &paths)
             .finish()
     }
 }
 
-impl ObserverService {
-    /// The service; a request larger than `max_message_bytes` is answered with an error
-    /// without being decoded.
-    pub fn new(calls: Arc<dyn ObserverCalls>, max_message_bytes: usize) -> Self {
+impl Methods {
+    /// No methods yet; `what` names the service in the answer to an unknown path.
+    pub fn new(what: &'static str) -> Self {
         Self {
-            calls,
-            max_message_bytes,
+            what,
+            routes: Vec::new(),
         }
+    }
+
+    /// Adds the unary method `path`: a request of at most `max_message_bytes` (a larger one
+    /// is answered with an error without being decoded) is decoded and handed to `handle`.
+    #[must_use]
+    pub fn unary<M1, M2, F>(
+        mut self,
+        path: &'static str,
+        max_message_bytes: usize,
+        handle: F,
+    ) -> Self
+    where
+        M1: prost::Message + Default + Send + 'static,
+        M2: prost::Message + Send + 'static,
+        F: Fn(M1) -> Result<M2, Status> + Send + Sync + 'static,
+    {
+        let handle = Arc::new(handle);
+        let route = move |req: http::Request<tonic::body::Body>| -> BoxFuture<_> {
+            let handle = Arc::clone(&handle);
+            Box::pin(async move {
+                let mut grpc =
+                    tonic::server::Grpc::new(tonic_prost::ProstCodec::<M2, M1>::default())
+                        .max_decoding_message_size(max_message_bytes);
+                Ok(grpc.unary(Unary(move |m| handle(m)), req).await)
+            })
+        };
+        self.routes.push((path, Arc::new(route)));
+        self
     }
 }
 
-/// A unary method as a tower service: the message in, `Empty` or an error out, at once.
+/// The `biotracker.Observer` service over an [`ObserverCalls`]; a request larger than
+/// `max_message_bytes` is answered with an error without being decoded.
+pub fn observer_service(calls: Arc<dyn ObserverCalls>, max_message_bytes: usize) -> Methods {
+    let other = Arc::clone(&calls);
+    Methods::new("fishprobe's observer")
+        .unary(SET_CONFIG_PATH, max_message_bytes, move |c| {
+            calls.set_config(c).map(|()| Empty {})
+        })
+        .unary(UPDATE_PATH, max_message_bytes, move |e| {
+            other.update(e).map(|()| Empty {})
+        })
+}
+
+/// The core's heartbeat, as a stand-in for BioTracker's core: answers
+/// `biotracker.BioTracker/heartbeat` and nothing else.
+pub fn heartbeat_service() -> Methods {
+    // An empty message: the smallest limit the codec takes.
+    Methods::new("this stand-in core").unary(HEARTBEAT_PATH, 4096, |_: Empty| Ok(Empty {}))
+}
+
+/// A unary method as a tower service: the message in, the answer or an error out, at once.
 struct Unary<F>(F);
 
-impl<M, F> tower_service::Service<Request<M>> for Unary<F>
+impl<M1, M2, F> tower_service::Service<Request<M1>> for Unary<F>
 where
-    F: FnMut(M) -> Result<(), Status>,
+    F: FnMut(M1) -> Result<M2, Status>,
 {
-    type Response = Response<Empty>;
+    type Response = Response<M2>;
     type Error = Status;
-    type Future = std::future::Ready<Result<Response<Empty>, Status>>;
+    type Future = std::future::Ready<Result<Response<M2>, Status>>;
 
     fn poll_ready(&mut self, _cx: &mut Context<'_>) -> Poll<Result<(), Status>> {
         Poll::Ready(Ok(()))
     }
 
-    fn call(&mut self, request: Request<M>) -> Self::Future {
-        std::future::ready((self.0)(request.into_inner()).map(|()| Response::new(Empty {})))
+    fn call(&mut self, request: Request<M1>) -> Self::Future {
+        std::future::ready((self.0)(request.into_inner()).map(Response::new))
     }
 }
 
-/// Answers one unary call of `req` with `handle`: the request (at most `max_message_bytes`,
-/// else an error without decoding it) in, `Empty` or the handler's error out.
-fn unary<M, B, F>(
-    req: http::Request<B>,
-    max_message_bytes: usize,
-    handle: F,
-) -> BoxFuture<http::Response<tonic::body::Body>>
-where
-    M: prost::Message + Default + Send + 'static,
-    B: http_body::Body + Send + 'static,
-    B::Error: Into<BoxError> + Send,
-    F: FnMut(M) -> Result<(), Status> + Send + 'static,
-{
-    Box::pin(async move {
-        let mut grpc = tonic::server::Grpc::new(tonic_prost::ProstCodec::<Empty, M>::default())
-            .max_decoding_message_size(max_message_bytes);
-        Ok(grpc.unary(Unary(handle), req).await)
-    })
-}
-
-impl<B> tower_service::Service<http::Request<B>> for ObserverService
-where
-    B: http_body::Body + Send + 'static,
-    B::Error: Into<BoxError> + Send,
-{
+impl tower_service::Service<http::Request<tonic::body::Body>> for Methods {
     type Response = http::Response<tonic::body::Body>;
     type Error = std::convert::Infallible;
     type Future = BoxFuture<Self::Response>;
@@ -112,48 +143,18 @@ where
         Poll::Ready(Ok(()))
     }
 
-    fn call(&mut self, req: http::Request<B>) -> Self::Future {
-        let calls = Arc::clone(&self.calls);
-        let max = self.max_message_bytes;
-        match req.uri().path() {
-            SET_CONFIG_PATH => unary(req, max, move |c: ComponentConfig| calls.set_config(c)),
-            UPDATE_PATH => unary(req, max, move |e: Experiment| calls.update(e)),
-            other => {
-                let status = Status::unimplemented(format!(
-                    "fishprobe's observer serves set_config and update, not {other}"
-                ));
-                Box::pin(async move { Ok(status.into_http()) })
-            }
+    fn call(&mut self, req: http::Request<tonic::body::Body>) -> Self::Future {
+        let path = req.uri().path();
+        if let Some((_, route)) = self.routes.iter().find(|(p, _)| *p == path) {
+            return route(req);
         }
-    }
-}
-
-/// The core's heartbeat, as a stand-in for BioTracker's core: answers
-/// `biotracker.BioTracker/heartbeat` and nothing else.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct HeartbeatService;
-
-impl<B> tower_service::Service<http::Request<B>> for HeartbeatService
-where
-    B: http_body::Body + Send + 'static,
-    B::Error: Into<BoxError> + Send,
-{
-    type Response = http::Response<tonic::body::Body>;
-    type Error = std::convert::Infallible;
-    type Future = BoxFuture<Self::Response>;
-
-    fn poll_ready(&mut self, _cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
-        Poll::Ready(Ok(()))
-    }
-
-    fn call(&mut self, req: http::Request<B>) -> Self::Future {
-        if req.uri().path() == HEARTBEAT_PATH {
-            // An empty message: the smallest limit the codec takes.
-            unary(req, 4096, |_: Empty| Ok(()))
-        } else {
-            let status = Status::unimplemented("this stand-in core answers heartbeat only");
-            Box::pin(async move { Ok(status.into_http()) })
-        }
+        let served: Vec<&str> = self.routes.iter().map(|(p, _)| *p).collect();
+        let status = Status::unimplemented(format!(
+            "{} serves {}, not {path}",
+            self.what,
+            served.join(" and ")
+        ));
+        Box::pin(async move { Ok(status.into_http()) })
     }
 }
 

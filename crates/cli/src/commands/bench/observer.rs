@@ -6,7 +6,7 @@
 
 use super::{emit, machine};
 use anyhow::{bail, Context, Result};
-use fishprobe_live::biotracker::grpc::{self, Client, HeartbeatService};
+use fishprobe_live::biotracker::grpc::{self, Client};
 use fishprobe_live::biotracker::schema::{
     Arena, ComponentConfig, Empty, Experiment, Feature, Features, RecordingConfig, RecordingState,
     SkeletonDescriptor, SkeletonNode,
@@ -102,7 +102,7 @@ pub(super) fn bench_observer(json: bool, seconds: f64, policy: &str) -> Result<(
     let core = core_listener.local_addr()?;
     rt.spawn(grpc::serve(
         core_listener,
-        HeartbeatService,
+        grpc::heartbeat_service(),
         std::future::pending(),
     ));
     let (address, sink) = (free_addr()?, free_addr()?);
