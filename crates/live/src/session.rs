@@ -286,6 +286,17 @@ impl Session {
         self.goals_reached
     }
 
+    /// Sets the trial's time zero, before its first frame (by default the first frame's time
+    /// is). A tracker that numbers a recording's frames from 0 may deliver frame 1 or later
+    /// first; with its frame 0 as time zero, the trial file's frame k is the recording's frame
+    /// k and the frames before the first delivered are tracking gaps (NaN), as frames the
+    /// tracker skips are. Ignored once a frame was accepted, and for a time that is not finite.
+    pub fn set_origin(&mut self, t0: f64) {
+        if self.accepted == 0 && t0.is_finite() {
+            self.t0 = Some(t0);
+        }
+    }
+
     /// Frames stored so far.
     pub fn frames(&self) -> usize {
         self.robot.len()
@@ -735,6 +746,31 @@ mod tests {
         assert_eq!(task.goal_frames, vec![150]);
         assert_eq!(task.command_frames.len(), 6);
         assert_eq!(f.entities[0].positions.len(), 250);
+    }
+
+    #[test]
+    fn a_set_origin_makes_the_first_frame_delivered_the_frame_of_its_time() {
+        let mut s =
+            Session::new(short(), TaskParams::default(), Box::new(Straight), "lab").unwrap();
+        s.set_origin(0.0);
+        // The recording's frames 2, 3, 4 (0 and 1 never delivered).
+        for k in 2..5 {
+            let _ = s.on_message(frame(
+                f64::from(k) * 0.04,
+                Some((1.0, k as f32)),
+                Some((10.0, 0.0)),
+            ));
+        }
+        // Too late once a frame was accepted: the time zero stays.
+        s.set_origin(7.0);
+        let _ = s.on_message(frame(0.2, Some((1.0, 5.0)), Some((10.0, 0.0))));
+        let f = s.trial_file("Guppy");
+        let robot = &f.entities[0].positions;
+        assert_eq!(robot.len(), 6);
+        assert!(robot[0][0].is_nan() && robot[1][0].is_nan());
+        for (k, p) in robot.iter().enumerate().skip(2) {
+            assert_eq!(*p, [1.0, k as f32], "frame {k}");
+        }
     }
 
     #[test]

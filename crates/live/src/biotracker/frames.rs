@@ -168,6 +168,11 @@ pub enum Step {
     Start {
         /// The recording's `base_path` stem.
         stem: Option<String>,
+        /// The trial's time zero (s): the recording's frame 0 when following the recording
+        /// (the core's first tracked frame of a recording is often frame 1 or later; counted
+        /// from frame 0, the trial file's frame k is the recording's frame k, as in the
+        /// tracker's own track and video), else the first frame's time.
+        origin: f64,
         /// The frame's time (s).
         t: f64,
     },
@@ -264,7 +269,11 @@ impl RecordingGate {
                     .recording_config
                     .as_ref()
                     .and_then(|c| stem_of(&c.base_path));
-                return Step::Start { stem, t };
+                return Step::Start {
+                    stem,
+                    origin: 0.0,
+                    t,
+                };
             }
             if self.in_trial && !recording {
                 self.in_trial = false;
@@ -273,7 +282,11 @@ impl RecordingGate {
         } else if !self.in_trial && !self.last_t.is_finite() {
             self.in_trial = true;
             self.last_t = t;
-            return Step::Start { stem: None, t };
+            return Step::Start {
+                stem: None,
+                origin: t,
+                t,
+            };
         }
         if !self.in_trial {
             return Step::Idle;
@@ -462,12 +475,14 @@ mod tests {
             g.step(&update(RecordingState::Initial, 101, vec![])),
             Step::Idle
         );
-        // Recording: frame numbers restart at 0.
+        // Recording: frame numbers restart at 0, and the trial's time zero is frame 0 even
+        // when the first frame tracked is a later one.
         assert_eq!(
-            g.step(&update(RecordingState::Recording, 0, vec![])),
+            g.step(&update(RecordingState::Recording, 1, vec![])),
             Step::Start {
                 stem: Some("2026-12-07_10-00-00".into()),
-                t: 0.0
+                origin: 0.0,
+                t: 0.04
             }
         );
         assert_eq!(
@@ -513,7 +528,11 @@ mod tests {
         let mut g = RecordingGate::new(false);
         assert_eq!(
             g.step(&update(RecordingState::Initial, 50, vec![])),
-            Step::Start { stem: None, t: 2.0 }
+            Step::Start {
+                stem: None,
+                origin: 2.0,
+                t: 2.0
+            }
         );
         assert_eq!(
             g.step(&update(RecordingState::Initial, 51, vec![])),

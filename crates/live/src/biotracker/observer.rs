@@ -146,8 +146,8 @@ impl Observer {
         }
         match self.gate.step(e) {
             Step::Idle | Step::Stale => {}
-            Step::Start { stem, t } => {
-                if let Some(why) = self.start(e, skeleton, stem.as_deref(), pilot, out) {
+            Step::Start { stem, origin, t } => {
+                if let Some(why) = self.start(e, skeleton, stem.as_deref(), origin, pilot, out) {
                     self.gate.close();
                     self.refuse(why, out);
                     return;
@@ -236,6 +236,7 @@ impl Observer {
         e: &Experiment,
         skeleton: SkeletonDescriptor,
         stem: Option<&str>,
+        origin: f64,
         pilot: &mut PilotMaker<'_>,
         out: &mut Vec<Event>,
     ) -> Option<String> {
@@ -250,6 +251,7 @@ impl Observer {
             Ok(s) => s,
             Err(err) => return Some(err.to_string()),
         };
+        session.set_origin(origin);
         session.note("tracker", "BioTracker v4 (observer component)".into());
         session.note("tracker_target_fps", f64::from(e.target_fps).into());
         if e.target_fps != self.expected.fps {
