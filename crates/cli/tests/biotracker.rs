@@ -6,37 +6,21 @@
 
 mod common;
 
+use common::tracker::{
+    config_json, free_addr, one_trial_bridge, record_trial, recorded_poses, robot_program, runtime,
+    wait_exit, FPS, PROTOCOL,
+};
 use common::{fishprobe, fresh_dir as dir, stderr};
 use fishprobe_live::biotracker::grpc::{self, Client};
 use fishprobe_live::biotracker::schema::{
     Arena, ComponentConfig, Empty, Experiment, Feature, Features, RecordingConfig, RecordingState,
     SkeletonDescriptor, SkeletonNode,
 };
-use std::io::{BufRead, BufReader};
-use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
+use std::net::{SocketAddr, TcpListener};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tonic::Code;
-
-/// The short protocol of these tests: 2 s of habituation, 6 s of control.
-const PROTOCOL: &str = "habituation_s = 2.0\nrelease_s = 1.0\ncontrol_s = 6.0\n";
-const FPS: f32 = 25.0;
-
-fn free_addr() -> SocketAddr {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-}
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
 
 /// The core's heartbeat on a thread of its own; `kill` (or dropping the value) ends it as a
 /// dying process would.
@@ -115,19 +99,6 @@ fn observer(address: SocketAddr, core: SocketAddr, log: &Path, launcher: bool) -
         .unwrap()
 }
 
-fn config_json(out: &Path, protocol: &Path, sink: SocketAddr, core: SocketAddr) -> String {
-    serde_json::json!({
-        "policy": "scripted:goal-seeker",
-        "out": out,
-        "robot_id": 1,
-        "fish_ids": [2],
-        "robot_sink": sink.to_string(),
-        "core": core.to_string(),
-        "config": protocol,
-    })
-    .to_string()
-}
-
 /// A connected client, retried until the observer serves (it starts in well under 20 s).
 async fn connect(addr: SocketAddr) -> Client {
     let start = Instant::now();
@@ -146,23 +117,6 @@ async fn connect(addr: SocketAddr) -> Client {
         );
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-}
-
-/// Robot and fish poses (x, y, heading) per frame of a recorded trial, with the headings
-/// `fishprobe live replay` sends.
-fn recorded_poses(file: &Path) -> Vec<([f32; 3], [f32; 3])> {
-    let t = fishprobe_io::read_trial(file).unwrap();
-    let robot = t.robot().unwrap();
-    let fish = t.fish().next().unwrap();
-    let rh = robot.headings_from_motion(0.1);
-    let fh = fish.headings_checked(0.1, std::f32::consts::FRAC_PI_2).0;
-    (0..robot.frames().min(fish.frames()))
-        .map(|k| {
-            let r = robot.positions[k];
-            let f = fish.positions[k];
-            ([r[0], r[1], rh[k]], [f[0], f[1], fh[k]])
-        })
-        .collect()
 }
 
 fn feature(id: u32, p: [f32; 3]) -> Feature {
@@ -206,68 +160,6 @@ fn experiment(state: RecordingState, frame: u32, robot: [f32; 3], fish: [f32; 3]
             center_index: 1,
         }),
     }
-}
-
-/// Lines the robot program read from the sink, collected on a thread.
-fn robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<String>>> {
-    let lines = Arc::new(Mutex::new(Vec::new()));
-    let keep = Arc::clone(&lines);
-    std::thread::spawn(move || {
-        let start = Instant::now();
-        let s = loop {
-            match TcpStream::connect(sink) {
-                Ok(s) => break s,
-                Err(_) if start.elapsed() < Duration::from_secs(20) => {
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-                Err(e) => panic!("the robot sink never listened: {e}"),
-            }
-        };
-        for l in BufReader::new(s).lines() {
-            let Ok(l) = l else { break };
-            keep.lock().unwrap().push(l);
-        }
-    });
-    lines
-}
-
-fn wait_exit(child: &mut Child, within: Duration) -> Option<std::process::ExitStatus> {
-    let start = Instant::now();
-    while start.elapsed() < within {
-        if let Some(s) = child.try_wait().unwrap() {
-            return Some(s);
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    None
-}
-
-/// A bridge for one trial of `protocol` into `out`.
-fn one_trial_bridge(out: &Path, port: u16, protocol: &Path) -> Child {
-    common::bridge(
-        out,
-        port,
-        &["--trials", "1", "--config", protocol.to_str().unwrap()],
-    )
-}
-
-/// A recorded trial of the short protocol (the virtual lab through a bridge with it).
-fn record_trial(d: &Path, protocol: &Path) -> PathBuf {
-    let port = free_addr().port();
-    let out = d.join("recorded");
-    let mut bridge = one_trial_bridge(&out, port, protocol);
-    let o = fishprobe(&[
-        "lab",
-        "--policy",
-        "scripted:goal-seeker",
-        "--connect",
-        &format!("127.0.0.1:{port}"),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(wait_exit(&mut bridge, Duration::from_secs(20)).is_some());
-    out.join("GoalSeeker__VirtualLab/trial_000.hdf5")
 }
 
 /// What `live replay` makes of a trial file with the same protocol.
@@ -410,8 +302,12 @@ fn a_recording_through_the_observer_makes_the_trial_replay_makes_and_the_core_go
     assert!(died.elapsed() <= Duration::from_secs(3));
     let log_text = std::fs::read_to_string(&log).unwrap();
     assert!(log_text.contains("tracker core gone"), "{log_text}");
+    // Between trials too, the robot program hears why fishprobe goes.
     let last = robot.lock().unwrap().last().cloned().unwrap_or_default();
-    assert!(last.contains("\"stop\":true"), "{last}");
+    assert!(
+        last.contains("\"stop\":true") && last.contains("tracker core gone"),
+        "{last}"
+    );
 }
 
 /// A message with a field of the given number holding raw bytes: garbage where the observer

@@ -119,3 +119,5 @@ pub fn bridge(out: &Path, port: u16, extra: &[&str]) -> Child {
     }
     child
 }
+
+pub mod tracker;

@@ -9,6 +9,7 @@ use super::grpc::{self, Client, ObserverCalls};
 use super::observer::{Event, Observer, PilotMaker};
 use super::schema::{ComponentConfig, Experiment};
 use super::{Expected, ObserverSettings};
+use crate::protocol::ServerMsg;
 use crate::session::LiveConfig;
 use crate::sink::RobotSink;
 use crate::LiveError;
@@ -438,6 +439,12 @@ fn session_loop(host: &Host) {
                     .clone()
                     .unwrap_or_else(|| "stopped".into());
                 a.observer.finish(&reason, &mut events);
+                if !events.iter().any(|e| matches!(e, Event::Command(_))) {
+                    // No trial to end: the robot program still hears why fishprobe goes.
+                    events.push(Event::Command(ServerMsg::stop_outside_trial(
+                        0.0, &reason, 0,
+                    )));
+                }
                 deliver(host, a, &mut events);
             }
             return;
