@@ -250,12 +250,14 @@ impl ObserverCalls for Host {
         sink.set_token(settings.robot_sink_token.clone());
         *lock(&self.core) = settings.core;
         self.log(&format!(
-            "configured ({}): policy {}, robot id {}, fish ids {:?}, robot sink {}, trials {}",
+            "configured ({}): policy {}, robot id {}, fish ids {:?}, robot sink {}, core {}, \
+             trials {}",
             config.id,
             settings.policy,
             settings.robot_id,
             settings.fish_ids,
             sink.local_addr(),
+            settings.core,
             if settings.follow_recording {
                 "follow the recording"
             } else {
@@ -337,7 +339,9 @@ pub fn run(
         ending: Mutex::new(None),
         stop: AtomicBool::new(false),
     });
-    host.log(&format!("observer listening on {addr}; core {core}"));
+    host.log(&format!(
+        "observer listening on {addr}; core {core} until the config names one"
+    ));
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
