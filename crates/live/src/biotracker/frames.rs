@@ -188,6 +188,13 @@ pub enum Step {
     Stale,
 }
 
+/// Frame numbers from here up, during a recording, are frames tracked before it started. The
+/// core numbers a recording's frames as `frame - start` in 32 bits, `start` being the frame it
+/// showed when recording began; a frame whose tracking was still running then is older, and
+/// its number wraps to just below 2^32 (a release build; a debug build of the core panics).
+/// A real recording reaches 2^31 frames after 2.7 years at 25 Hz.
+pub const WRAPPED_FRAME: u32 = 1 << 31;
+
 /// Follows BioTracker's recording and frame numbers: which update starts a trial, which ends
 /// it, which frames are stale, and each frame's time (`frame_number / target_fps`; the frame
 /// number restarts at 0 when a recording starts).
@@ -241,6 +248,11 @@ impl RecordingGate {
     pub fn step(&mut self, e: &Experiment) -> Step {
         let recording = e.recording_state == RecordingState::Recording as i32;
         let frame = e.last_features.as_ref().map_or(0, |f| f.frame_number);
+        if recording && frame >= WRAPPED_FRAME {
+            // Tracked before the recording started: not a frame of it (nor its start).
+            self.stale += 1;
+            return Step::Stale;
+        }
         let fps = f64::from(e.target_fps);
         let changed = e.recording_state != self.state;
         self.state = e.recording_state;
@@ -511,6 +523,13 @@ mod tests {
             g.step(&update(RecordingState::Finished, 5, vec![])),
             Step::Idle
         );
+        // A frame tracked before the next recording, numbered by the core's wrapped
+        // subtraction: dropped, and the recording still starts at its first real frame.
+        assert_eq!(
+            g.step(&update(RecordingState::Recording, u32::MAX, vec![])),
+            Step::Stale
+        );
+        assert_eq!(g.stale(), 3);
         // The next recording starts the next trial; one closed from outside waits for it.
         assert!(matches!(
             g.step(&update(RecordingState::Recording, 0, vec![])),
