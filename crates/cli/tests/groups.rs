@@ -73,8 +73,8 @@ fn collective_and_bench_refuse_bad_groups() {
     for (args, needle) in [
         (vec!["collective", "--fish", "1"], "fish"),
         (vec!["collective", "--fish", "100000"], "fish"),
-        (vec!["collective", "--turn-rate", "fast"], "--turn-rate"),
-        (vec!["collective", "--seeds", "0"], "--seeds"),
+        (vec!["collective", "--turn-rate", "fast"], "turn_rate"),
+        (vec!["collective", "--seeds", "0"], "seeds must lie in"),
         (
             vec!["collective", "--orientation=-1", "--seconds", "1"],
             "orientation_zone_cm",
@@ -83,11 +83,11 @@ fn collective_and_bench_refuse_bad_groups() {
         // A flag of the other model's sweep would be ignored: refused.
         (
             vec!["collective", "--alignment", "0.5"],
-            "add --model force",
+            "set model to force",
         ),
         (
             vec!["collective", "--model", "force", "--orientation", "1"],
-            "--orientation sweeps M_Zone",
+            "orientation sweeps M_Zone",
         ),
         (
             vec!["collective", "--model", "force", "--alignment", "2.5"],

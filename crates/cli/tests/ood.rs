@@ -192,7 +192,8 @@ fn the_loop_measures_every_gap_resumes_and_refuses_other_settings() {
     let o = fishprobe(&loop_args);
     assert!(!o.status.success());
     assert!(
-        stderr(&o).contains("the loop was begun by another fishprobe; use another --out")
+        stderr(&o)
+            .contains("the loop was begun by another fishprobe; use another output directory")
             && stderr(&o).contains("started by trainer revision 1"),
         "{}",
         stderr(&o)
@@ -1100,7 +1101,7 @@ fn the_support_command_checks_its_estimators_and_bad_input_is_refused() {
             "--out",
             s(&x),
         ]),
-        "--model is required",
+        "model is required unless policy is a training directory",
     );
     refused(
         fishprobe(&[

@@ -31,6 +31,23 @@ pub fn minutes_in_range(minutes: f64) -> bool {
         && minutes <= f64::from(MAX_MINUTES)
 }
 
+/// Checks the minutes setting `setting` (an episode length): one second to 24 hours
+/// ([`minutes_in_range`]), the value shown as it was given.
+pub fn check_minutes<T>(setting: &str, minutes: T) -> Result<(), fishprobe_sim::ConfigError>
+where
+    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+{
+    if minutes_in_range(minutes.into()) {
+        return Ok(());
+    }
+    Err(fishprobe_sim::ConfigError::new(
+        "",
+        setting,
+        fishprobe_sim::params::check::shown(minutes),
+        &format!("must lie in {MINUTES_RANGE}"),
+    ))
+}
+
 /// Refuses an output directory that already holds an evaluation (trial files
 /// `<prefix>_*.hdf5` or a `summary.csv`): writing into it would overwrite some of the earlier
 /// trials and leave the others beside the new ones, so that a later analysis would count both

@@ -15,7 +15,7 @@ pub enum LiveError {
     #[error("the bridge refused the trial: {0}")]
     Refused(String),
     /// Listening beyond loopback without a token.
-    #[error("listening on {addr} (not loopback) needs --allow-remote and a --token")]
+    #[error("listening on {addr} (not loopback) needs a token")]
     Unsafe {
         /// The address.
         addr: String,

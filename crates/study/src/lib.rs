@@ -40,8 +40,6 @@ pub mod config;
 mod error;
 mod manifest;
 pub mod plan;
-pub mod reference;
-pub mod research;
 mod scheduler;
 pub mod slurm;
 mod steps;
@@ -96,7 +94,7 @@ impl Study {
             for sub in ["train", "validation"] {
                 if !d.join(sub).is_dir() {
                     return Err(StudyError::Input(format!(
-                        "--convnet-data {}: needs {sub}/ with pair recordings",
+                        "the ConvNet fitting data {}: needs {sub}/ with pair recordings",
                         d.display()
                     )));
                 }

@@ -171,10 +171,9 @@ fn fit_convnet_step(
     say: &mut impl FnMut(&str),
 ) -> Result<(), StepError> {
     let c = &study.cfg;
-    let data = study
-        .convnet_data
-        .as_ref()
-        .ok_or_else(|| StepError::Missing("no --convnet-data".into()))?;
+    let data = study.convnet_data.as_ref().ok_or_else(|| {
+        StepError::Missing("no ConvNet fitting data (the study's convnet_data)".into())
+    })?;
     let command = format!(
         "fishprobe fit-convnet --data {} --validation {} --seed {}",
         data.join("train").display(),

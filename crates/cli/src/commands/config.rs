@@ -147,7 +147,7 @@ pub fn run(a: ConfigArgs) -> Result<()> {
             };
             emit(&text)
         }
-        ConfigWhat::Reference => emit(&fishprobe_study::reference::reference()),
+        ConfigWhat::Reference => emit(&fishprobe_research::reference::reference()),
         ConfigWhat::Check { file } => {
             let s = SimSettings::load(&file)?;
             emit(&format!(

@@ -208,9 +208,10 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
     }
     let remote_ok = a.allow_remote && a.token.is_some();
     if !(is_loopback(&a.listen) || remote_ok) {
-        bail!(fishprobe_live::LiveError::Unsafe {
-            addr: a.listen.to_string()
-        });
+        bail!(
+            "listening on {} (not loopback) needs --allow-remote and a --token",
+            a.listen
+        );
     }
     let opts = ServeOptions {
         live: live_config(a.config.as_deref())?,

@@ -79,19 +79,19 @@ enum Command {
     Assay(assay::AssayArgs),
     /// The fidelity sweep: probes trained under each reading of what the paper leaves open,
     /// scored against the paper's simulation results.
-    Fidelity(fishprobe_study::research::fidelity::FidelityArgs),
+    Fidelity(research::FidelityFlags),
     /// Groups in open water: Couzin's collective states of M_Zone (its phase picture) and
     /// M_Force's order over alignment.
-    Collective(fishprobe_study::research::collective::CollectiveArgs),
+    Collective(research::CollectiveFlags),
     /// What an OOD policy (`train --task ood`) drives the fish into: support scores next to
     /// the training data's and a lead-to-goal policy's, example episodes, a data wishlist.
-    OodReport(fishprobe_study::research::ood_report::OodReportArgs),
+    OodReport(research::OodReportFlags),
     /// The OOD idea tested in silico: fit M_ConvNet on narrow virtual-guppy data, add data
     /// recorded under an OOD or a lead-to-goal policy, and compare the refitted models' gaps.
     OodLoop(research::OodLoopArgs),
     /// The support model of a data-driven fish model's training recordings (what the OOD
     /// objective scores against), with its check on held-out and unseen situations.
-    Support(fishprobe_study::research::support::SupportArgs),
+    Support(research::SupportFlags),
     /// Export a trained policy as ONNX (observation in, turn angle out).
     Export(export::ExportArgs),
     /// Analyse a study directory: every measure and test of the paper (SPEC §8).
@@ -110,7 +110,13 @@ enum Command {
 
 /// The commands that check the method itself or explore the paper's outlook, rather than run
 /// it: listed apart in `--help`, under their own heading, and run like every other command.
-const RESEARCH_COMMANDS: &[&str] = &["fidelity", "collective", "support", "ood-loop"];
+const RESEARCH_COMMANDS: &[&str] = &[
+    "fidelity",
+    "collective",
+    "support",
+    "ood-report",
+    "ood-loop",
+];
 
 /// The heading `--help` lists [`RESEARCH_COMMANDS`] under.
 pub const RESEARCH_HEADING: &str =
@@ -192,10 +198,13 @@ pub fn resolve_jobs(jobs: Option<usize>) -> anyhow::Result<Option<usize>> {
 
 /// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
 pub fn with_jobs<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> anyhow::Result<T> {
-    Ok(fishprobe_study::research::on_threads(
-        resolve_jobs(jobs)?,
-        f,
-    )?)
+    match resolve_jobs(jobs)? {
+        None => Ok(f()),
+        Some(n) => Ok(rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()?
+            .install(f)),
+    }
 }
 
 /// Takes the one-writer lock of an output directory for the whole command (see
@@ -221,12 +230,19 @@ pub fn note(line: &str) {
 }
 
 /// Checks a `--minutes` value: one second to 24 hours
-/// ([`fishprobe_study::research::check_minutes`]).
+/// ([`fishprobe_learn::evaluate::minutes_in_range`]), shown as it was typed.
 pub fn check_minutes<T>(flag: &str, m: T) -> anyhow::Result<()>
 where
     T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
 {
-    Ok(fishprobe_study::research::check_minutes(flag, m)?)
+    use fishprobe_learn::evaluate::{minutes_in_range, MINUTES_RANGE};
+    if !minutes_in_range(m.into()) {
+        anyhow::bail!(
+            "{flag} must lie in {MINUTES_RANGE}, got {}",
+            fishprobe_sim::params::check::shown(m)
+        );
+    }
+    Ok(())
 }
 
 /// Refuses a study path that is not a directory, saying whether it is missing or a file.
@@ -245,13 +261,18 @@ pub fn check_study_dir(study: &std::path::Path) -> anyhow::Result<()> {
     }
 }
 
-/// Refuses a list option that names one value twice
-/// ([`fishprobe_study::research::no_repeats`]).
+/// Refuses a list option that names one value twice (`--model Zone Zone`): each value is one
+/// replicate, cell or row, and a repeat would count the same one twice.
 pub fn no_repeats<T: PartialEq + std::fmt::Display>(
     flag: &str,
     values: &[T],
 ) -> anyhow::Result<()> {
-    Ok(fishprobe_study::research::no_repeats(flag, values)?)
+    for (i, v) in values.iter().enumerate() {
+        if values[..i].contains(v) {
+            anyhow::bail!("{flag} names {v} twice: name each once");
+        }
+    }
+    Ok(())
 }
 
 /// The controller of a `--policy` argument, sampling its actions with `stochastic`

@@ -2,7 +2,7 @@
 //! M_Zone fish, the validation that the group version of the model shows his four collective
 //! states, and for M_Force the polarisation over its alignment strength (Klamser et al. 2021).
 
-use crate::research::{bail, Context, ResearchError, Result};
+use crate::{bail, Context, ResearchError, Result};
 use fishprobe_models::collective::{
     couzin_zone, run as run_group, CollectiveParams, CollectiveState, PhaseGrid, Swimmer,
     COUZIN_TURN_RATE_RAD_S,
@@ -15,7 +15,6 @@ use std::path::PathBuf;
 
 /// The model whose groups are swept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum GroupModel {
     /// M_Zone over Couzin's orientation and attraction widths.
     Zone,
@@ -24,45 +23,52 @@ pub enum GroupModel {
 }
 
 /// What `fishprobe collective` sweeps, and where its output goes.
-#[derive(Debug, Clone)]
-#[cfg_attr(feature = "cli", derive(clap::Args))]
-pub struct CollectiveArgs {
+#[derive(Debug, Clone, PartialEq)]
+pub struct CollectiveSettings {
     /// The model.
-    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = GroupModel::Zone))]
     pub model: GroupModel,
     /// Fish per group.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 50))]
     pub fish: u32,
     /// Seeds per cell.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 3))]
     pub seeds: u64,
     /// Simulated seconds per run (the first half is left out as burn-in).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 150.0))]
     pub seconds: f32,
-    // The sweeps' flags have no clap default, so that a flag of the other model's sweep is
-    // refused instead of ignored; their defaults are the constants below, shown in the help.
+    // The sweeps are unset by default, so that a value of the other model's sweep is refused
+    // instead of ignored; their defaults are the constants below.
     /// M_Zone: orientation widths Δr_o (cm), comma-separated [default: 0,1,2,4,8,12,16,20,30]
-    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
     pub orientation: Option<Vec<f32>>,
     /// M_Zone: attraction widths Δr_a (cm), comma-separated [default: 4,8,14,20,28,40]
-    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
     pub attraction: Option<Vec<f32>>,
     /// M_Zone: maximum turning rate in rad/s, or `couzin` (40°/s) or `paper` (10 rad/s)
     /// [default: couzin]
-    #[cfg_attr(feature = "cli", arg(long))]
     pub turn_rate: Option<String>,
     /// M_Force: alignment strengths μ_alg, comma-separated [default: 0,0.05,0.1,0.2,0.3,0.6]
-    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
     pub alignment: Option<Vec<f32>>,
     /// Master seed.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub seed: u64,
     /// Write the picture (collective-phase.svg/.png) and the numbers (collective.json) here.
-    #[cfg_attr(feature = "cli", arg(long))]
     pub out: Option<PathBuf>,
     /// Print JSON instead of a table.
-    #[cfg_attr(feature = "cli", arg(long))]
     pub json: bool,
+}
+
+impl Default for CollectiveSettings {
+    /// The command's defaults (`fishprobe collective` without flags).
+    fn default() -> Self {
+        Self {
+            model: GroupModel::Zone,
+            fish: 50,
+            seeds: 3,
+            seconds: 150.0,
+            orientation: None,
+            attraction: None,
+            turn_rate: None,
+            alignment: None,
+            seed: 0,
+            out: None,
+            json: false,
+        }
+    }
 }
 
 /// Most runs one invocation may ask for (cells x seeds).
@@ -70,11 +76,11 @@ const MAX_RUNS: usize = 10_000;
 
 /// M_Zone's default orientation widths Δr_o (cm): Couzin et al. 2002's range, from none to
 /// wider than the attraction zones.
-const ORIENTATION_CM: &[f32] = &[0.0, 1.0, 2.0, 4.0, 8.0, 12.0, 16.0, 20.0, 30.0];
+pub const ORIENTATION_CM: &[f32] = &[0.0, 1.0, 2.0, 4.0, 8.0, 12.0, 16.0, 20.0, 30.0];
 /// M_Zone's default attraction widths Δr_a (cm).
-const ATTRACTION_CM: &[f32] = &[4.0, 8.0, 14.0, 20.0, 28.0, 40.0];
+pub const ATTRACTION_CM: &[f32] = &[4.0, 8.0, 14.0, 20.0, 28.0, 40.0];
 /// M_Force's default alignment strengths μ_alg (per frame), around the published 0.1.
-const ALIGNMENT: &[f32] = &[0.0, 0.05, 0.1, 0.2, 0.3, 0.6];
+pub const ALIGNMENT: &[f32] = &[0.0, 0.05, 0.1, 0.2, 0.3, 0.6];
 
 /// The sweep's values: the flags given, else the defaults.
 struct Sweep {
@@ -86,19 +92,19 @@ struct Sweep {
 impl Sweep {
     /// Refuses a flag of the other model's sweep, which would otherwise be ignored
     /// (`collective --alignment 0.5` without `--model force` swept M_Zone).
-    fn of(a: &CollectiveArgs) -> Result<Self> {
+    fn of(a: &CollectiveSettings) -> Result<Self> {
         let zone_flags = [
-            ("--orientation", a.orientation.is_some()),
-            ("--attraction", a.attraction.is_some()),
-            ("--turn-rate", a.turn_rate.is_some()),
+            ("orientation", a.orientation.is_some()),
+            ("attraction", a.attraction.is_some()),
+            ("turn_rate", a.turn_rate.is_some()),
         ];
         match a.model {
             GroupModel::Zone if a.alignment.is_some() => {
-                bail!("--alignment sweeps M_Force: add --model force (this run sweeps M_Zone)")
+                bail!("alignment sweeps M_Force: set model to force (this run sweeps M_Zone)")
             }
             GroupModel::Force => {
                 if let Some((flag, _)) = zone_flags.iter().find(|(_, given)| *given) {
-                    bail!("{flag} sweeps M_Zone: leave out --model force (this run sweeps M_Force)")
+                    bail!("{flag} sweeps M_Zone: set model to zone (this run sweeps M_Force)")
                 }
             }
             GroupModel::Zone => {}
@@ -114,9 +120,9 @@ impl Sweep {
 
 /// Runs the sweep, writes the picture and numbers into `--out` when given, and returns the
 /// table (or JSON) to show. `progress(done, total)` is called after each run, from any thread.
-pub fn run(a: &CollectiveArgs, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<String> {
+pub fn run(a: &CollectiveSettings, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<String> {
     if a.seeds == 0 || a.seeds > 100 {
-        bail!("--seeds must lie in [1, 100], got {}", a.seeds);
+        bail!("seeds must lie in [1, 100], got {}", a.seeds);
     }
     let p = CollectiveParams {
         fish: a.fish,
@@ -126,7 +132,7 @@ pub fn run(a: &CollectiveArgs, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<S
     };
     p.validate("")
         .map_err(ResearchError::msg)
-        .context("--fish/--seconds")?;
+        .context("fish, seconds")?;
     let sweep = Sweep::of(a)?;
     let turn = match a.turn_rate.as_deref().unwrap_or("couzin") {
         "couzin" => COUZIN_TURN_RATE_RAD_S,
@@ -136,7 +142,7 @@ pub fn run(a: &CollectiveArgs, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<S
             .ok()
             .filter(|v| v.is_finite() && *v > 0.0)
             .with_context(|| {
-                format!("--turn-rate must be `couzin`, `paper` or a positive number, got `{x}`")
+                format!("turn_rate must be `couzin`, `paper` or a positive number, got `{x}`")
             })?,
     };
     let swimmers = swimmers(a, &sweep, turn)?;
@@ -169,7 +175,7 @@ pub fn run(a: &CollectiveArgs, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<S
 
 /// The swimmers of the sweep, each with its parameter values: M_Zone over the grid of
 /// orientation and attraction widths (turning at `turn` rad/s), or M_Force over the alignments.
-fn swimmers(a: &CollectiveArgs, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
+fn swimmers(a: &CollectiveSettings, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32>, Swimmer)>> {
     Ok(match a.model {
         GroupModel::Zone => {
             let mut v = Vec::new();
@@ -196,7 +202,7 @@ fn swimmers(a: &CollectiveArgs, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32
                     ..ForceParams::default()
                 })
                 .map_err(ResearchError::msg)
-                .with_context(|| format!("--alignment {al}"))?;
+                .with_context(|| format!("alignment {al}"))?;
                 Ok((vec![al], s))
             })
             .collect::<Result<_>>()?,
@@ -205,7 +211,7 @@ fn swimmers(a: &CollectiveArgs, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec<f32
 
 /// M_Zone's phase grid: the picture and numbers into `--out`, the table (or JSON) printed.
 fn zone_output(
-    a: &CollectiveArgs,
+    a: &CollectiveSettings,
     sweep: &Sweep,
     p: &CollectiveParams,
     turn: f32,
@@ -261,7 +267,7 @@ fn zone_output(
 
 /// M_Force's order over alignment: the numbers into `--out`, the table (or JSON) printed.
 fn force_output(
-    a: &CollectiveArgs,
+    a: &CollectiveSettings,
     swimmers: &[(Vec<f32>, Swimmer)],
     cells: &[Vec<CollectiveState>],
 ) -> Result<String> {
@@ -300,26 +306,4 @@ fn force_output(
         );
     }
     Ok(t)
-}
-
-#[cfg(all(test, feature = "cli"))]
-mod tests {
-    use super::*;
-    use clap::CommandFactory as _;
-
-    #[derive(clap::Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: CollectiveArgs,
-    }
-
-    #[test]
-    fn the_help_shows_the_default_sweeps() {
-        let help = Cli::command().render_long_help().to_string();
-        for d in [ORIENTATION_CM, ATTRACTION_CM, ALIGNMENT] {
-            let shown: Vec<String> = d.iter().map(f32::to_string).collect();
-            let shown = format!("[default: {}]", shown.join(","));
-            assert!(help.contains(&shown), "{shown} not in\n{help}");
-        }
-    }
 }

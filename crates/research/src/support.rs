@@ -2,7 +2,7 @@
 //! validated on held-out recordings and on situations the data lacks, with the two estimators
 //! compared.
 
-use crate::research::{bail, Context, Result, Runner};
+use crate::{bail, Context, Result, Runner};
 use fishprobe_learn::bc::{
     build_support, file_names, load_pairs, pairs_or_shared, CloneConfig, PairDataset,
 };
@@ -15,44 +15,51 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// Which model's support `fishprobe support` builds, from which recordings, and how it is checked.
-#[derive(Debug, Clone)]
-#[cfg_attr(feature = "cli", derive(clap::Args))]
-pub struct SupportArgs {
+#[derive(Debug, Clone, PartialEq)]
+pub struct SupportSettings {
     /// The model: `ConvNet` (shipped weights), a ConvNet weights file (`--model
     /// convnet:FILE`) or `onnx:FILE` (a model of the view contract).
-    #[cfg_attr(feature = "cli", arg(long, default_value = "ConvNet"))]
     pub model: String,
     /// The model's training recordings (pair files; with --robot-as-partner also files of
     /// one fish with the robot). Default: guppy-pairs/legacy/train of the shared data.
-    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
     pub data: Vec<PathBuf>,
     /// Held-out recordings for the check. Default: guppy-pairs/legacy/validation.
-    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
     pub validation: Vec<PathBuf>,
     /// Estimator written to the file (`knn` or `gmm`); both are compared.
-    #[cfg_attr(feature = "cli", arg(long, default_value = "knn"))]
     pub estimator: Estimator,
     /// Learn from files of one fish with the robot too (the fish's frames, the robot as
     /// its neighbour).
-    #[cfg_attr(feature = "cli", arg(long))]
     pub robot_as_partner: bool,
     /// The support file to write. Default: beside the weights (`FILE.support.json`); the
     /// shipped ConvNet needs an explicit path.
-    #[cfg_attr(feature = "cli", arg(long))]
     pub out: Option<PathBuf>,
     /// Partners farther than this (cm) are embedded as not seen (0: every partner the view
     /// shows; see `support.partner_range_cm` in docs/settings.md).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = SupportConfig::default().partner_range_cm))]
     pub partner_range_cm: f32,
     /// Seed of the reference and calibration draws.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub seed: u64,
     /// Synthetic views per kind of unseen situation in the check.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 2000))]
     pub synthetic: usize,
     /// Print the check as JSON.
-    #[cfg_attr(feature = "cli", arg(long))]
     pub json: bool,
+}
+
+impl Default for SupportSettings {
+    /// The command's defaults (`fishprobe support` without flags).
+    fn default() -> Self {
+        Self {
+            model: "ConvNet".into(),
+            data: Vec::new(),
+            validation: Vec::new(),
+            estimator: Estimator::Knn,
+            robot_as_partner: false,
+            out: None,
+            partner_range_cm: SupportConfig::default().partner_range_cm,
+            seed: 0,
+            synthetic: 2000,
+            json: false,
+        }
+    }
 }
 
 /// The model spec a `--model` names, and the SHA-256 of its weights.
@@ -151,22 +158,22 @@ fn check(
 
 /// Builds the support file, checks both estimators, and returns the check to show (a table,
 /// or JSON with `json`); skipped recordings go to `by` as warnings.
-pub fn run(a: &SupportArgs, by: Runner) -> Result<String> {
+pub fn run(a: &SupportSettings, by: Runner) -> Result<String> {
     if a.synthetic == 0 || a.synthetic > 1_000_000 {
-        bail!("--synthetic must lie in [1, 1000000], got {}", a.synthetic);
+        bail!("synthetic must lie in [1, 1000000], got {}", a.synthetic);
     }
     SupportConfig {
         partner_range_cm: a.partner_range_cm,
         ..SupportConfig::default()
     }
     .validate()
-    .context("--partner-range-cm")?;
+    .context("partner_range_cm")?;
     let (spec, hash) = model_of(&a.model)?;
     let out = match (&a.out, spec.support_path()?) {
         (Some(p), _) => p.clone(),
         (None, Some(p)) => p,
         (None, None) => bail!(
-            "the shipped ConvNet's support is shipped with it; give --out to build another \
+            "the shipped ConvNet's support is shipped with it; name an output file to build another \
              (e.g. crates/models/assets/convnet.support.json)"
         ),
     };

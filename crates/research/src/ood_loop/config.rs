@@ -1,6 +1,6 @@
 //! The closed loop's settings, and the names of the further probes' directories they imply.
 
-use crate::research::{bail, Context, Result};
+use crate::{bail, Context, Result};
 use fishprobe_learn::PpoConfig;
 use fishprobe_sim::params::check;
 use fishprobe_sim::OodScore;
@@ -85,8 +85,8 @@ impl OodLoopConfig {
                 self.train_steps
             );
         }
-        crate::research::check_minutes("episode_minutes", self.episode_minutes)?;
-        crate::research::check_minutes("gap_minutes", self.gap_minutes)?;
+        fishprobe_learn::evaluate::check_minutes("episode_minutes", self.episode_minutes)?;
+        fishprobe_learn::evaluate::check_minutes("gap_minutes", self.gap_minutes)?;
         // The support's own bound, checked before any recording rather than at the first fit.
         check::within(
             "",

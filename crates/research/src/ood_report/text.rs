@@ -4,7 +4,7 @@
 use fishprobe_analysis::ood::Distribution;
 use std::path::{Path, PathBuf};
 
-use super::{OodReport, OodReportArgs};
+use super::{OodReport, OodReportSettings};
 
 fn pct(v: f64) -> String {
     format!("{:.1} %", 100.0 * v)
@@ -78,7 +78,7 @@ fn sources_text(r: &OodReport) -> String {
 }
 
 /// The command that makes this report again.
-fn command_line(a: &OodReportArgs) -> String {
+fn command_line(a: &OodReportSettings) -> String {
     let paths = |v: &[PathBuf]| {
         v.iter()
             .map(|p| p.display().to_string())
@@ -246,7 +246,7 @@ fn disagreement_section(r: &OodReport) -> String {
     )
 }
 
-pub(super) fn markdown(r: &OodReport, a: &OodReportArgs) -> String {
+pub(super) fn markdown(r: &OodReport, a: &OodReportSettings) -> String {
     format!(
         "# What the OOD policy finds\n\n\
          Fish model: {}. OOD policy: {}. Lead-to-goal policy: {}. {}, every fish view scored \

@@ -2,26 +2,29 @@
 //! calls: the fidelity sweep ([`fidelity`]), groups in open water ([`collective`]), the support
 //! of a data-driven model's training views ([`support`]), what an OOD policy drives the fish
 //! into ([`ood_report`]) and the OOD idea tested in silico ([`ood_loop`]). Each takes its
-//! settings, does the work (writing its files), and returns what to show; the `fishprobe`
-//! command line only parses, calls and prints. With the `cli` feature their settings structs
-//! also derive `clap::Args`, so the command line's flags and help are these fields and docs.
+//! plain settings (validated here, field by field, naming the setting), does the work (writing
+//! its files), and returns what to show; the `fishprobe` command line maps its flags onto the
+//! settings once, calls and prints.
 //!
 //! ```no_run
-//! use fishprobe_study::research::ood_loop::{self, OodLoopConfig};
+//! use fishprobe_research::ood_loop::{self, OodLoopConfig};
 //!
 //! let cfg = OodLoopConfig { rounds: 3, ..OodLoopConfig::default() };
 //! let notes = |line: &str| eprintln!("{line}");
-//! let by = fishprobe_study::research::Runner { build: "0.1.0", command: "", notes: &notes };
+//! let by = fishprobe_research::Runner { build: "0.1.0", command: "", notes: &notes };
 //! let md = ood_loop::run("loop".as_ref(), &[0, 1, 2], &cfg, by)?;
 //! println!("{md}");
-//! # Ok::<(), fishprobe_study::research::ResearchError>(())
+//! # Ok::<(), fishprobe_research::ResearchError>(())
 //! ```
+
+#![warn(missing_docs)]
 
 pub mod collective;
 mod error;
 pub mod fidelity;
 pub mod ood_loop;
 pub mod ood_report;
+pub mod reference;
 pub mod support;
 
 pub(crate) use error::bail;
@@ -46,25 +49,9 @@ impl Runner<'_> {
     }
 }
 
-/// Checks a minutes value (a flag or setting named `what`): one second to 24 hours
-/// ([`fishprobe_learn::evaluate::minutes_in_range`]), shown in the type it was given in.
-pub fn check_minutes<T>(what: &str, m: T) -> Result<()>
-where
-    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
-{
-    use fishprobe_learn::evaluate::{minutes_in_range, MINUTES_RANGE};
-    if !minutes_in_range(m.into()) {
-        bail!(
-            "{what} must lie in {MINUTES_RANGE}, got {}",
-            fishprobe_sim::params::check::shown(m)
-        );
-    }
-    Ok(())
-}
-
-/// Refuses a list (the flag `what`) that names one value twice (`--seeds 1 1`): each value is
-/// one replicate, cell or row, and a repeat would count the same one twice.
-pub fn no_repeats<T: PartialEq + std::fmt::Display>(what: &str, values: &[T]) -> Result<()> {
+/// Refuses a list (the setting `what`) that names one value twice: each value is one
+/// replicate, cell or row, and a repeat would count the same one twice.
+pub(crate) fn no_repeats<T: PartialEq + std::fmt::Display>(what: &str, values: &[T]) -> Result<()> {
     for (i, v) in values.iter().enumerate() {
         if values[..i].contains(v) {
             bail!("{what} names {v} twice: name each once");
@@ -74,7 +61,7 @@ pub fn no_repeats<T: PartialEq + std::fmt::Display>(what: &str, values: &[T]) ->
 }
 
 /// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
-pub fn on_threads<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+pub(crate) fn on_threads<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
     match jobs {
         None => Ok(f()),
         Some(n) => Ok(rayon::ThreadPoolBuilder::new()

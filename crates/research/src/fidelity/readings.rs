@@ -2,7 +2,7 @@
 //! merged field by field into the defaults, alone or combined (`a+b`), and the paper's
 //! simulation results the scoreboard compares a cell with.
 
-use crate::research::{ResearchError, Result};
+use crate::{ResearchError, Result};
 use fishprobe_learn::PpoConfig;
 use serde_json::{json, Value};
 

@@ -15,7 +15,7 @@
 //! Every stage leaves its files in the output directory and is skipped when they are there, so
 //! an interrupted loop resumes.
 
-use crate::research::{bail, Context, ResearchError, Result, Runner};
+use crate::{bail, Context, ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{metric_gap, pooled_metrics, quantile, score_trials, share_at_least};
 use fishprobe_analysis::{load_trial, AnalysisConfig};
 use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress, FitRequest};
@@ -139,7 +139,7 @@ fn train(
     if policy.exists() {
         Trainer::recorded_spec(dir)?
             .check_revision(dir)
-            .context("the loop was begun by another fishprobe; use another --out")?;
+            .context("the loop was begun by another fishprobe; use another output directory")?;
     } else {
         let mut t = if dir.join("params.json").exists() {
             Trainer::resume(dir, build)?
@@ -378,9 +378,9 @@ fn probe_gaps(
 pub fn run(out: &Path, seeds: &[u64], cfg: &OodLoopConfig, by: Runner) -> Result<String> {
     cfg.validate()?;
     if seeds.is_empty() || seeds.len() > 100 {
-        bail!("--seeds takes 1 to 100 seeds, got {}", seeds.len());
+        bail!("seeds: 1 to 100 seeds, got {}", seeds.len());
     }
-    super::no_repeats("--seeds", seeds)?;
+    super::no_repeats("seeds", seeds)?;
     let _lock = fishprobe_io::DirLock::acquire(out, "ood-loop")?;
     let settings = serde_json::to_string_pretty(cfg)? + "\n";
     let recorded = out.join("settings.json");
@@ -390,13 +390,13 @@ pub fn run(out: &Path, seeds: &[u64], cfg: &OodLoopConfig, by: Runner) -> Result
         Ok(old) => {
             let old: OodLoopConfig = serde_json::from_str(&old).with_context(|| {
                 format!(
-                    "{} is not the settings of a loop this fishprobe can resume; use another --out",
+                    "{} is not the settings of a loop this fishprobe can resume; use another output directory",
                     recorded.display()
                 )
             })?;
             if old != *cfg {
                 bail!(
-                    "{} holds a loop with other settings ({}); use another --out",
+                    "{} holds a loop with other settings ({}); use another output directory",
                     out.display(),
                     recorded.display()
                 );

@@ -116,7 +116,7 @@ pub fn reference() -> String {
         "How the lead-to-goal policy's percentile is measured and the reward shaped from it; \
          each field has a `--ood-yardstick-*` flag except `seed`.",
     );
-    section::<crate::research::ood_loop::OodLoopConfig>(
+    section::<crate::ood_loop::OodLoopConfig>(
         &mut o,
         "The in-silico OOD loop (`fishprobe ood-loop --config FILE`)",
         "Budget and design of the closed loop with the virtual guppy as the real fish.",
@@ -327,10 +327,9 @@ mod tests {
             "yardstick",
             |p| p.validate().is_ok(),
         ));
-        sections.push(plain::<crate::research::ood_loop::OodLoopConfig>(
-            "ood_loop",
-            |p| p.validate().is_ok(),
-        ));
+        sections.push(plain::<crate::ood_loop::OodLoopConfig>("ood_loop", |p| {
+            p.validate().is_ok()
+        }));
         sections.push(plain::<fishprobe_analysis::AnalysisConfig>(
             "analysis",
             |p| p.validate().is_ok(),

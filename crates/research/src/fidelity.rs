@@ -4,7 +4,7 @@
 //! approach assay and the scripted baselines, and prints a scoreboard against the paper.
 //! Resumable: a finished cell is read back, an interrupted training resumes.
 
-use crate::research::{bail, on_threads, Context, ResearchError, Result, Runner};
+use crate::{bail, on_threads, Context, ResearchError, Result, Runner};
 use fishprobe_analysis::competence::{plus_minus, ratio_se, GoalStats};
 use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
 use fishprobe_learn::{Evaluation, PolicyController, PpoConfig, RunSpec, Trainer};
@@ -17,40 +17,44 @@ mod readings;
 use readings::{paper, with, Combo, READINGS};
 
 /// Which readings and models the sweep runs, with what budget, and where.
-#[derive(Debug, Clone)]
-#[cfg_attr(feature = "cli", derive(clap::Args))]
-pub struct FidelityArgs {
+#[derive(Debug, Clone, PartialEq)]
+pub struct FidelitySettings {
     /// Readings to run, comma-separated (default: all; `--list` names them); `a+b` combines
     /// readings (their overrides merged, on the models both apply to).
-    #[cfg_attr(feature = "cli", arg(long, value_delimiter = ','))]
     pub readings: Vec<String>,
     /// Models, comma-separated (a reading that changes one model runs only on it).
-    #[cfg_attr(
-        feature = "cli",
-        arg(long, value_delimiter = ',', default_value = "Follow,Zone,Force")
-    )]
     pub models: Vec<String>,
     /// PPO preset every reading starts from.
-    #[cfg_attr(feature = "cli", arg(long, default_value = "paper"))]
     pub preset: String,
     /// Evaluation episodes of 15 minutes per cell (paper: 18).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 18))]
     pub episodes: usize,
     /// Approach-assay episodes of 2 minutes per cell (SPEC choice: 10).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 10))]
     pub approach_episodes: usize,
     /// Master seed.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub seed: u64,
     /// Where the runs and `scoreboard.md` / `scoreboard.json` go.
-    #[cfg_attr(feature = "cli", arg(long, default_value = "fidelity"))]
     pub out: PathBuf,
     /// List the readings and exit.
-    #[cfg_attr(feature = "cli", arg(long))]
     pub list: bool,
     /// Threads (default: all cores).
-    #[cfg_attr(feature = "cli", arg(long))]
     pub jobs: Option<usize>,
+}
+
+impl Default for FidelitySettings {
+    /// The command's defaults (`fishprobe fidelity` without flags).
+    fn default() -> Self {
+        Self {
+            readings: Vec::new(),
+            models: ["Follow", "Zone", "Force"].map(String::from).to_vec(),
+            preset: "paper".into(),
+            episodes: 18,
+            approach_episodes: 10,
+            seed: 0,
+            out: PathBuf::from("fidelity"),
+            list: false,
+            jobs: None,
+        }
+    }
 }
 
 /// The fish model, PPO and environment settings of reading `r` for `model` under `preset`.
@@ -62,7 +66,7 @@ fn cell_settings(
     let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
     spec.validate()?;
     let Some(base_ppo) = PpoConfig::preset_for(preset, spec.is_expensive()) else {
-        bail!("unknown --preset `{preset}`");
+        bail!("unknown preset `{preset}`");
     };
     let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)()))?;
     ppo.validate()?;
@@ -77,7 +81,7 @@ fn cell_settings(
 }
 
 /// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
-fn cell(a: &FidelityArgs, r: &Combo, model: &str, dir: &Path, by: Runner) -> Result<Value> {
+fn cell(a: &FidelitySettings, r: &Combo, model: &str, dir: &Path, by: Runner) -> Result<Value> {
     let (spec, ppo, env) = cell_settings(&a.preset, r, model)?;
     // A finished cell is read back only if it was made with these settings (a default that
     // changed since, or another --preset, must not pass for this reading).
@@ -210,8 +214,8 @@ fn finished_cell(dir: &Path, settings: &Value, by: Runner) -> Result<Option<Valu
                 return Ok(Some(v));
             }
             bail!(
-                "{} holds a cell made with other settings (another --preset, --episodes or \
-                 --seed, or fishprobe's defaults or trainer changed since): use another --out \
+                "{} holds a cell made with other settings (another preset, episodes or \
+                 seed, or fishprobe's defaults or trainer changed since): use another output directory \
                  or remove it",
                 dir.display()
             );
@@ -223,7 +227,7 @@ fn finished_cell(dir: &Path, settings: &Value, by: Runner) -> Result<Option<Valu
 /// Trains the cell's probe in `train_dir` (resuming a run of this cell's settings: the fish
 /// model, PPO and environment of [`cell_settings`]).
 fn train_cell(
-    a: &FidelityArgs,
+    a: &FidelitySettings,
     r: &Combo,
     model: &str,
     train_dir: &Path,
@@ -247,8 +251,8 @@ fn train_cell(
         let old = Trainer::recorded_spec(train_dir)?;
         if !old.same_run(&run_spec) {
             bail!(
-                "{} holds a partly trained policy made with other settings (another --preset or \
-                 --seed, or fishprobe's defaults or trainer changed since): use another --out or \
+                "{} holds a partly trained policy made with other settings (another preset or \
+                 seed, or fishprobe's defaults or trainer changed since): use another output directory or \
                  remove it",
                 train_dir.display()
             );
@@ -334,7 +338,7 @@ fn scoreboard(rows: &[Value]) -> String {
 
 /// Runs the sweep (or, with `list`, lists the readings), writing every cell and the
 /// scoreboard files under `out`, and returns this run's scoreboard; progress goes to `by`.
-pub fn run(a: &FidelityArgs, by: Runner) -> Result<String> {
+pub fn run(a: &FidelitySettings, by: Runner) -> Result<String> {
     if a.list {
         let mut s = String::new();
         for r in READINGS {
@@ -348,13 +352,13 @@ pub fn run(a: &FidelityArgs, by: Runner) -> Result<String> {
         return Ok(s);
     }
     if !(1..=1000).contains(&a.episodes) || !(1..=1000).contains(&a.approach_episodes) {
-        bail!("--episodes and --approach-episodes must lie in [1, 1000]");
+        bail!("episodes and approach_episodes must lie in [1, 1000]");
     }
     for m in &a.models {
-        ModelSpec::by_name(m).with_context(|| format!("--models {m}"))?;
+        ModelSpec::by_name(m).with_context(|| format!("models: {m}"))?;
     }
-    super::no_repeats("--models", &a.models)?;
-    super::no_repeats("--readings", &a.readings)?;
+    super::no_repeats("models", &a.models)?;
+    super::no_repeats("readings", &a.readings)?;
     let chosen: Vec<Combo> = if a.readings.is_empty() {
         READINGS
             .iter()
@@ -406,7 +410,7 @@ pub fn run(a: &FidelityArgs, by: Runner) -> Result<String> {
 /// from earlier runs with other readings or models), sorted by reading and model, so that the
 /// scoreboard files hold the whole directory. A cell made with another seed or episode count
 /// gets it appended to its reading's name.
-fn with_finished_cells(a: &FidelityArgs, rows: &[Value]) -> Vec<Value> {
+fn with_finished_cells(a: &FidelitySettings, rows: &[Value]) -> Vec<Value> {
     let key = |v: &Value| {
         (
             v["reading"].as_str().unwrap_or("").to_string(),

@@ -121,7 +121,7 @@ impl ResearchError {
 /// Returns a [`ResearchError::Refused`] made from a format string.
 macro_rules! bail {
     ($($t:tt)*) => {
-        return Err($crate::research::ResearchError::Refused(format!($($t)*)))
+        return Err($crate::ResearchError::Refused(format!($($t)*)))
     };
 }
 pub(crate) use bail;

@@ -4,7 +4,7 @@
 //! training support, and writes the distributions, example episodes, and a ranked data
 //! wishlist.
 
-use crate::research::{bail, on_threads, Context, ResearchError, Result, Runner};
+use crate::{bail, on_threads, Context, ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{
     disagreement_of_trials, disagreement_of_views, distribution, quantile, score_recorded,
     score_views, share_at_least, share_beyond_interval, trial_views, wishlist, Distribution,
@@ -25,48 +25,36 @@ use text::{markdown, summary};
 
 /// Which policies `fishprobe ood-report` runs or scores, against what, and where the report goes.
 #[derive(Debug, Clone)]
-#[cfg_attr(feature = "cli", derive(clap::Args))]
-pub struct OodReportArgs {
+pub struct OodReportSettings {
     /// The OOD policy: a directory from `fishprobe train --task ood` (or `onnx:FILE`). With
     /// `--trials`, only names the policy the trials were recorded with (and, as a training
     /// directory, the fish model and its yardstick).
-    #[cfg_attr(feature = "cli", arg(long, required_unless_present = "trials"))]
     pub policy: Option<String>,
     /// Recorded trials of the OOD policy to score instead of simulating its episodes: trial
     /// files or directories of them (`*.hdf5`, `*.h5`), e.g. live trials (`fishprobe live`)
     /// or the virtual lab's (`fishprobe lab`): how far the fish in those recordings went
     /// outside the model's training support. At most 1000 files.
-    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
     pub trials: Vec<PathBuf>,
     /// Recorded trials of the lead-to-goal policy, scored instead of simulating `--compare`'s
     /// episodes (as `--trials`).
-    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
     pub compare_trials: Vec<PathBuf>,
     /// The lead-to-goal policy to compare with (a training directory, `onnx:FILE` or
     /// `scripted:NAME`). Default: `scripted:fetch-and-lead`.
-    #[cfg_attr(feature = "cli", arg(long, default_value = "scripted:fetch-and-lead"))]
     pub compare: String,
     /// The fish model (default: the one the OOD policy was trained against).
-    #[cfg_attr(feature = "cli", arg(long))]
     pub model: Option<String>,
     /// The model's training recordings, for their score distribution (default: the shared
     /// guppy pairs when the model is the shipped ConvNet and they are found; else none).
-    #[cfg_attr(feature = "cli", arg(long, num_args = 1..))]
     pub data: Vec<PathBuf>,
     /// Episodes per policy.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 6))]
     pub episodes: usize,
     /// Minutes per episode (the evaluation task: random starts, corner goals).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 5.0))]
     pub minutes: f32,
     /// Master seed of the episodes (both policies get the same ones).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub seed: u64,
     /// Report directory (report.md, ood.json, figures, the episodes' trial files).
-    #[cfg_attr(feature = "cli", arg(long))]
     pub out: PathBuf,
     /// Print ood.json instead of the summary.
-    #[cfg_attr(feature = "cli", arg(long))]
     pub json: bool,
 }
 
@@ -266,11 +254,11 @@ fn recorded_run(
 /// Runs (or scores the recorded trials of) the OOD and the lead-to-goal policy, writes
 /// `report.md`, `ood.json`, the figures and the episodes' trial files into `out`, and returns
 /// the summary (or, with `json`, `ood.json`) to show; progress goes to `by`.
-pub fn run(a: &OodReportArgs, by: Runner) -> Result<String> {
+pub fn run(a: &OodReportSettings, by: Runner) -> Result<String> {
     if a.episodes == 0 || a.episodes > 1000 {
-        bail!("--episodes must lie in [1, 1000], got {}", a.episodes);
+        bail!("episodes must lie in [1, 1000], got {}", a.episodes);
     }
-    super::check_minutes("--minutes", a.minutes)?;
+    fishprobe_learn::evaluate::check_minutes("minutes", a.minutes)?;
     let policy = a.policy.as_deref();
     let recorded = policy
         .and_then(run_dir)
@@ -279,7 +267,7 @@ pub fn run(a: &OodReportArgs, by: Runner) -> Result<String> {
     let model = match (&a.model, &recorded) {
         (Some(m), _) => ModelSpec::by_name(m)?,
         (None, Some(spec)) => spec.model.clone(),
-        (None, None) => bail!("--model is required unless --policy is a training directory"),
+        (None, None) => bail!("model is required unless policy is a training directory"),
     };
     let support = model
         .support()
@@ -290,22 +278,22 @@ pub fn run(a: &OodReportArgs, by: Runner) -> Result<String> {
         .map(|s| s.env.clone())
         .unwrap_or_else(EnvConfig::default);
     let ood_src = match (a.trials.is_empty(), policy) {
-        (false, _) => Source::Recorded(recorded_files(&a.trials, "--trials")?),
+        (false, _) => Source::Recorded(recorded_files(&a.trials, "trials")?),
         (true, Some(p)) => Source::Simulated(
             fishprobe_learn::controller(p, false)
-                .with_context(|| format!("loading --policy {p}"))?,
+                .with_context(|| format!("loading the policy {p}"))?,
         ),
-        (true, None) => bail!("--policy or --trials is required"),
+        (true, None) => bail!("policy or trials is required"),
     };
     // Read before the episodes: a corrupt record fails at once, not after minutes.
     let trained = policy.map(trained_yardstick).transpose()?.flatten();
     let goal_src = if a.compare_trials.is_empty() {
         Source::Simulated(
             fishprobe_learn::controller(&a.compare, false)
-                .with_context(|| format!("loading --compare {}", a.compare))?,
+                .with_context(|| format!("loading the compared policy {}", a.compare))?,
         )
     } else {
-        Source::Recorded(recorded_files(&a.compare_trials, "--compare-trials")?)
+        Source::Recorded(recorded_files(&a.compare_trials, "compare_trials")?)
     };
     let describe = |src: &Source, name: Option<&str>| match src {
         Source::Simulated(c) => format!("{} ({})", name.unwrap_or("?"), c.describe()),
@@ -440,14 +428,15 @@ fn training_scores(
         }
     };
     if data.is_empty() {
-        by.note("note: no training recordings given (--data): the report has no training-data row");
+        by.note("note: no training recordings given (data): the report has no training-data row");
         return Ok((None, None));
     }
     let clone = CloneConfig {
         robot_as_partner: true,
         ..CloneConfig::default()
     };
-    let d = load_pairs(&data, &support.arch(), &clone).context("loading --data")?;
+    let d =
+        load_pairs(&data, &support.arch(), &clone).context("loading the training recordings")?;
     let disagreement =
         ensemble.map(|e| disagreement_of_views(e, "training recordings", &d.x, 50_000));
     Ok((
