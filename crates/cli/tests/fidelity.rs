@@ -178,7 +178,7 @@ fn the_sweep_trains_scores_and_reads_finished_cells_back() {
     let o5 = one("1");
     assert!(
         !o5.status.success()
-            && stderr(&o5).contains("holds a partly trained policy made with other settings"),
+            && stderr(&o5).contains("already holds a training run, of other settings (seed "),
         "{}",
         stderr(&o5)
     );

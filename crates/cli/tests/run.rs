@@ -142,7 +142,7 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(
-        stderr(&o).contains("cannot tell whether the partly trained run is stale (it is kept"),
+        stderr(&o).contains("cannot tell whether the folder holds this run (it is kept"),
         "{}",
         stderr(&o)
     );

@@ -33,6 +33,7 @@ pub mod limits;
 pub mod lock;
 pub mod provenance;
 pub mod robofish;
+pub mod run;
 pub mod scratch;
 pub mod trial;
 
@@ -44,6 +45,7 @@ pub use limits::{read_small_text, read_text_at_most, ReadLimits};
 pub use lock::{DirLock, LockError};
 pub use provenance::{short_sha, Provenance, POLICY_SHA256_KEY};
 pub use robofish::{read_trial, write_atomically, write_trial};
+pub use run::{RunLayout, RunRecord};
 pub use scratch::ScratchDir;
 pub use trial::{
     heading_from_motion, Category, Entity, TaskRecord, TrialFile, TrialKind, TrialMeta,

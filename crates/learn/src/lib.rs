@@ -7,16 +7,14 @@
 //! use fishprobe_models::ModelSpec;
 //! use fishprobe_sim::EnvConfig;
 //!
-//! let spec = RunSpec {
-//!     ppo: PpoConfig::preset("quick").unwrap(),
-//!     env: EnvConfig::default(),
-//!     model: ModelSpec::by_name("Zone")?,
-//!     seed: 1,
-//!     preset: "quick".into(),
-//!     program_version: env!("CARGO_PKG_VERSION").into(),
-//!     program_build: env!("CARGO_PKG_VERSION").into(),
-//!     trainer_revision: fishprobe_learn::TRAINER_REVISION,
-//! };
+//! let spec = RunSpec::new(
+//!     ModelSpec::by_name("Zone")?,
+//!     PpoConfig::preset("quick").unwrap(),
+//!     EnvConfig::default(),
+//!     1,
+//!     "quick",
+//!     env!("CARGO_PKG_VERSION"),
+//! );
 //! let mut run = Trainer::create("runs/zone".as_ref(), spec)?;
 //! while !run.done() {
 //!     let s = run.iterate()?;
@@ -37,6 +35,7 @@ pub mod gae;
 pub mod onnx;
 pub mod policy;
 pub mod ppo;
+pub mod run;
 pub mod trainer;
 pub mod yardstick;
 

@@ -15,7 +15,7 @@ use std::f32::consts::PI;
 use std::path::{Path, PathBuf};
 
 /// Name of the weights file in a policy directory.
-pub const POLICY_FILE: &str = "policy.safetensors";
+pub const POLICY_FILE: &str = fishprobe_io::RunLayout::POLICY;
 /// Format version of policy files.
 pub const POLICY_VERSION: u64 = 1;
 

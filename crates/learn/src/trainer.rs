@@ -1,5 +1,6 @@
-//! A training run on disk: `params.json` (the resolved configuration), `progress.csv` and
-//! `result.json` (one JSON object per iteration), `checkpoints/` and, at the end,
+//! A training run on disk (its names: [`crate::run::RunLayout`]): `params.json` (the resolved
+//! configuration), `progress.csv` and `result.json` (one JSON object per iteration),
+//! `checkpoints/` and, at the end,
 //! `policy.safetensors`. A run interrupted at any moment resumes from its last checkpoint and
 //! ends exactly where an uninterrupted run with the same seed ends: a checkpoint holds the
 //! networks, Adam's moments, the KL coefficient, the sampling RNG and every environment's
@@ -9,6 +10,7 @@ use crate::config::PpoConfig;
 use crate::error::LearnError;
 use crate::policy::GaussianPolicy;
 use crate::ppo::{adapt_kl, collect, update, Rollout, Scratch, UpdateStats};
+use fishprobe_io::RunLayout;
 use fishprobe_models::ModelSpec;
 use fishprobe_nn::store::write_atomic;
 use fishprobe_nn::Adam;
@@ -56,6 +58,29 @@ pub struct RunSpec {
 }
 
 impl RunSpec {
+    /// A run of `model` with these settings, seed and preset, started by the program build
+    /// `build` (what `fishprobe --version` prints) with this fishprobe's version and trainer
+    /// revision.
+    pub fn new(
+        model: ModelSpec,
+        ppo: PpoConfig,
+        env: EnvConfig,
+        seed: u64,
+        preset: impl Into<String>,
+        build: impl Into<String>,
+    ) -> Self {
+        Self {
+            ppo,
+            env,
+            model,
+            seed,
+            preset: preset.into(),
+            program_version: env!("CARGO_PKG_VERSION").into(),
+            program_build: build.into(),
+            trainer_revision: crate::TRAINER_REVISION,
+        }
+    }
+
     /// Checks the run before anything is written: the PPO and environment settings, and, for
     /// the OOD task, that the fish model's support file exists and belongs to its weights (the
     /// reward scores the fish's views against it). `Trainer::create` checks the same; callers
@@ -103,12 +128,12 @@ impl RunSpec {
             b => format!(" (fishprobe {b})"),
         };
         Err(run_err(
-            &dir.join("params.json"),
+            &dir.join(RunLayout::PARAMS),
             format!(
                 "the run was started by {started}{build}; this fishprobe's trainer is revision \
                  {}, whose fixes make the earlier updates wrong, so it does not continue them: \
-                 finish the run with the fishprobe that started it, or train it again (another \
-                 --out, or delete the directory)",
+                 finish the run with the fishprobe that started it, or train it again (in \
+                 another folder, or delete this one)",
                 crate::TRAINER_REVISION
             ),
         ))
@@ -186,22 +211,22 @@ impl Trainer {
         let mut t = Self::build(dir, spec, model)?;
         t.venv.reset(derive_seed(t.spec.seed, "envs", 0))?;
         let params = serde_json::to_string_pretty(&t.spec).map_err(|e| run_err(dir, e))?;
-        write_atomic(&dir.join("params.json"), params.as_bytes())?;
+        write_atomic(&dir.join(RunLayout::PARAMS), params.as_bytes())?;
         write_atomic(
-            &dir.join("progress.csv"),
+            &dir.join(RunLayout::PROGRESS),
             format!("{CSV_HEADER}\n").as_bytes(),
         )?;
-        write_atomic(&dir.join("result.json"), b"")?;
+        write_atomic(&dir.join(RunLayout::RESULT), b"")?;
         Ok(t)
     }
 
     /// An error when `dir` already holds a training run: what [`Trainer::create`] refuses, for
     /// a caller that must know before work of its own (e.g. measuring an OOD yardstick).
     pub fn ensure_new(dir: &Path) -> Result<(), LearnError> {
-        if dir.join("params.json").exists() {
+        if dir.join(RunLayout::PARAMS).exists() {
             return Err(run_err(
                 dir,
-                "already holds a training run (use --resume to continue it, or another --out)",
+                "already holds a training run: resume it, or train in another folder",
             ));
         }
         Ok(())
@@ -271,7 +296,7 @@ impl Trainer {
     pub fn raise_budget(dir: &Path, total_timesteps: u64) -> Result<u64, LearnError> {
         let mut spec = Self::recorded_spec(dir)?;
         spec.check_revision(dir)?;
-        let params = dir.join("params.json");
+        let params = dir.join(RunLayout::PARAMS);
         let had = spec.ppo.total_timesteps;
         if total_timesteps == had {
             return Ok(had);
@@ -311,7 +336,7 @@ impl Trainer {
 
     /// The settings `dir`'s `params.json` records.
     pub fn recorded_spec(dir: &Path) -> Result<RunSpec, LearnError> {
-        let params = dir.join("params.json");
+        let params = dir.join(RunLayout::PARAMS);
         // Bounded: `ood-report --policy P` reads the params.json of a directory a user names.
         let text = fishprobe_io::read_small_text(&params)
             .map_err(|e| run_err(&params, format!("cannot resume: {e}")))?;

@@ -124,7 +124,7 @@ fn train(
     yardstick: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     let resolved = Model::resolve(model)?;
-    let resuming = || resume && out.join("params.json").exists();
+    let resuming = || resume && fishprobe_learn::run::RunLayout::new(&out).holds_run();
     // A new run is checked before its directory is created: a refused `train` leaves none.
     let fresh_spec = || {
         let spec = fresh_run(&resolved.spec, preset, seed, steps, settings, ppo)?;
@@ -180,6 +180,14 @@ fn train(
             Some(s) => s,
             None => fresh_spec()?,
         };
+        use fishprobe_learn::run::{open, OnOther, Opening};
+        if open(&out, &spec, OnOther::Refuse).map_err(learn_err)? == Opening::Resume {
+            return Err(PyValueError::new_err(format!(
+                "{}: already holds a training run of these settings: pass resume=True to \
+                 continue it",
+                out.display()
+            )));
+        }
         let model = resolved.model.clone();
         let measure = measure.as_ref().map(|(p, c)| (p.as_str(), c));
         py.detach(|| fishprobe_learn::yardstick::start_run(&out, spec, model, measure))
@@ -296,16 +304,14 @@ fn fresh_run(
     }
     cfg.validate()
         .map_err(|e| PyValueError::new_err(format!("ppo: {e}")))?;
-    let spec = RunSpec {
-        ppo: cfg,
-        env: env_config(settings, "training", None)?,
-        model: model.clone(),
+    let spec = RunSpec::new(
+        model.clone(),
+        cfg,
+        env_config(settings, "training", None)?,
         seed,
-        preset: preset.to_string(),
-        program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: PY_BUILD.into(),
-        trainer_revision: fishprobe_learn::TRAINER_REVISION,
-    };
+        preset.to_string(),
+        PY_BUILD,
+    );
     // The OOD reward needs the model's support: a missing or foreign file is refused here.
     spec.check().map_err(learn_err)?;
     Ok(spec)

@@ -86,8 +86,8 @@ pub struct ApproachSetup {
 pub struct TrainingLog {
     /// (environment steps, mean return, goals per episode) per iteration.
     pub rows: Vec<(f64, f64, f64)>,
-    /// `params.json`, when present.
-    pub params: Option<Value>,
+    /// The header of `params.json`, when present and readable.
+    pub params: Option<fishprobe_io::RunRecord>,
 }
 
 /// One condition directory of the study.
@@ -530,10 +530,9 @@ fn training_logs(root: &Path, d: &mut StudyData) -> BTreeMap<String, TrainingLog
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let csv = m.join("progress.csv");
-        let params = fishprobe_io::read_small_text(&m.join("params.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<Value>(&t).ok());
+        let run = fishprobe_io::RunLayout::new(&m);
+        let csv = run.progress();
+        let params = run.record().ok();
         match fishprobe_io::read_text_at_most(
             &csv,
             MAX_TRAINING_LOG_BYTES,

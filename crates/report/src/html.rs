@@ -8,7 +8,6 @@ use fishprobe_analysis::results::MeanSd;
 use fishprobe_analysis::ALL_METRICS;
 use fishprobe_io::layout::{Arm, StudyLayout, VIRTUAL_LAB};
 use fishprobe_stats::sample::mean;
-use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::Path;
 

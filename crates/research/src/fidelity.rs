@@ -235,31 +235,20 @@ fn train_cell(
     by: Runner,
 ) -> Result<Trainer> {
     let seed = derive_seed(a.seed, &format!("fidelity/{model}"), 0);
-    let run_spec = RunSpec {
+    let run_spec = RunSpec::new(
+        spec.clone(),
         ppo,
-        env: env.clone(),
-        model: spec.clone(),
+        env.clone(),
         seed,
-        preset: a.preset.clone(),
-        program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: by.build.into(),
-        trainer_revision: fishprobe_learn::TRAINER_REVISION,
-    };
-    let mut t = if train_dir.join("params.json").exists() {
-        // A cell stopped before it finished resumes its training only if that training is
-        // this cell's: resumed with other settings, it would be scored as this reading.
-        let old = Trainer::recorded_spec(train_dir)?;
-        if !old.same_run(&run_spec) {
-            bail!(
-                "{} holds a partly trained policy made with other settings (another preset or \
-                 seed, or fishprobe's defaults or trainer changed since): use another output directory or \
-                 remove it",
-                train_dir.display()
-            );
-        }
-        Trainer::resume(train_dir, by.build)?
-    } else {
-        Trainer::create(train_dir, run_spec)?
+        a.preset.clone(),
+        by.build,
+    );
+    // A cell stopped before it finished resumes its training only if that training is this
+    // cell's: resumed with other settings, it would be scored as this reading.
+    use fishprobe_learn::run::{open, OnOther, Opening};
+    let mut t = match open(train_dir, &run_spec, OnOther::Refuse)? {
+        Opening::Resume => Trainer::resume(train_dir, by.build)?,
+        Opening::Start | Opening::Restarted { .. } => Trainer::create(train_dir, run_spec)?,
     };
     while !t.done() {
         let s = t.iterate()?;
@@ -476,16 +465,7 @@ mod tests {
             let (spec, ppo, env) = cell_settings("paper", &r, "Zone").unwrap();
             assert_eq!(ppo.gamma, gamma, "{readings}");
             assert_eq!(env.task.progress_shaping_gamma, gamma, "{readings}");
-            let run = fishprobe_learn::RunSpec {
-                ppo,
-                env,
-                model: spec,
-                seed: 0,
-                preset: "paper".into(),
-                program_version: "test".into(),
-                program_build: "test".into(),
-                trainer_revision: fishprobe_learn::TRAINER_REVISION,
-            };
+            let run = fishprobe_learn::RunSpec::new(spec, ppo, env, 0, "paper", "test");
             run.check().unwrap();
         }
         // Without the reading the shaping is off and its discount stays the default.

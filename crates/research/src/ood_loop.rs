@@ -135,39 +135,27 @@ fn train(
     dir: &Path,
     build: &str,
 ) -> Result<String> {
-    let policy = dir.join("policy.safetensors");
-    if policy.exists() {
-        Trainer::recorded_spec(dir)?
-            .check_revision(dir)
-            .context("the loop was begun by another fishprobe; use another output directory")?;
-    } else {
-        let mut t = if dir.join("params.json").exists() {
-            Trainer::resume(dir, build)?
-        } else {
-            let mut ppo = PpoConfig::preset(&cfg.ppo_preset).context("preset checked")?;
-            ppo.total_timesteps = cfg.train_steps;
-            let mut env = EnvConfig::default();
-            env.task.objective = objective;
-            env.task.ood_score = cfg.ood_score;
-            Trainer::create(
-                dir,
-                RunSpec {
-                    ppo,
-                    env,
-                    model: model.clone(),
-                    seed,
-                    preset: cfg.ppo_preset.clone(),
-                    program_version: env!("CARGO_PKG_VERSION").into(),
-                    program_build: build.into(),
-                    trainer_revision: fishprobe_learn::TRAINER_REVISION,
-                },
-            )?
-        };
-        while !t.done() {
-            t.iterate()?;
-        }
-        t.finish()?;
+    let mut ppo = PpoConfig::preset(&cfg.ppo_preset).context("preset checked")?;
+    ppo.total_timesteps = cfg.train_steps;
+    let mut env = EnvConfig::default();
+    env.task.objective = objective;
+    env.task.ood_score = cfg.ood_score;
+    let spec = RunSpec::new(model.clone(), ppo, env, seed, cfg.ppo_preset.clone(), build);
+    use fishprobe_learn::run::{open, OnOther, Opening, RunLayout};
+    let opening = open(dir, &spec, OnOther::Refuse)
+        .context("the loop was begun by another fishprobe; use another output directory")?;
+    if opening == Opening::Resume && RunLayout::new(dir).policy().exists() {
+        // Trained in an earlier run of the loop.
+        return Ok(dir.display().to_string());
     }
+    let mut t = match opening {
+        Opening::Resume => Trainer::resume(dir, build)?,
+        Opening::Start | Opening::Restarted { .. } => Trainer::create(dir, spec)?,
+    };
+    while !t.done() {
+        t.iterate()?;
+    }
+    t.finish()?;
     Ok(dir.display().to_string())
 }
 

@@ -61,7 +61,7 @@ pub struct OodReportSettings {
 /// The training run behind a policy argument, if it is one.
 fn run_dir(policy: &str) -> Option<&Path> {
     let p = Path::new(policy);
-    (!policy.contains(':') && p.join("params.json").exists()).then_some(p)
+    (!policy.contains(':') && fishprobe_learn::run::RunLayout::new(p).holds_run()).then_some(p)
 }
 
 /// The report's numbers (ood.json).

@@ -202,8 +202,10 @@ impl Study {
 pub(crate) fn external_policy_sha256(arg: &str) -> String {
     let sha = match arg.strip_prefix("onnx:") {
         Some(p) => fishprobe_models::onnx_sha256(&PathBuf::from(p)).map_err(|e| e.to_string()),
-        None => fishprobe_models::weights_sha256(&PathBuf::from(arg).join("policy.safetensors"))
-            .map_err(|e| e.to_string()),
+        None => {
+            fishprobe_models::weights_sha256(&fishprobe_learn::run::RunLayout::new(arg).policy())
+                .map_err(|e| e.to_string())
+        }
     };
     sha.unwrap_or_else(|e| format!("unreadable: {e}"))
 }

@@ -219,43 +219,29 @@ fn train_step(
     let ppo = c
         .ppo(&c.models[m].spec)
         .ok_or_else(|| StepError::Missing(format!("unknown PPO preset `{}`", c.ppo_preset)))?;
-    let spec = RunSpec {
+    let spec = RunSpec::new(
+        c.models[m].spec.clone(),
         ppo,
-        env: study.env.clone(),
-        model: c.models[m].spec.clone(),
-        seed: derive_seed(c.seed, &format!("train/{}", c.models[m].name), k as u64),
-        preset: c.ppo_preset.clone(),
-        program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: study.program_build.clone(),
-        trainer_revision: fishprobe_learn::TRAINER_REVISION,
-    };
+        study.env.clone(),
+        derive_seed(c.seed, &format!("train/{}", c.models[m].name), k as u64),
+        c.ppo_preset.clone(),
+        study.program_build.clone(),
+    );
     // Resume a run of the same spec; a run of another spec, or one another trainer
     // revision started, is stale and starts over.
-    let params = out.join("params.json");
-    let same = match fishprobe_io::read_small_text(&params) {
-        Ok(t) => serde_json::from_str::<RunSpec>(&t).is_ok_and(|old| old.same_run(&spec)),
-        // No run yet, or one stopped before it wrote its spec: nothing to keep.
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
-        // A spec that cannot be read now (a read error, bytes that are not text):
-        // whether the run is stale is unknown, so it is kept, not deleted with its
-        // finished iterations.
-        Err(e) => {
-            return Err(StepError::io(
-                "cannot tell whether the partly trained run is stale (it is kept; \
-                 delete its directory to train it anew): reading",
-                &params,
-                e,
-            ))
+    use fishprobe_learn::run::{open, OnOther, Opening};
+    let mut t = match open(out, &spec, OnOther::Restart)? {
+        Opening::Resume => {
+            say("resuming from the last checkpoint");
+            Trainer::resume(out, &spec.program_build)?
         }
-    };
-    let mut t = if same {
-        say("resuming from the last checkpoint");
-        Trainer::resume(out, &spec.program_build)?
-    } else {
-        if out.exists() {
-            std::fs::remove_dir_all(out).map_err(|e| StepError::io("removing", out, e))?;
+        Opening::Start | Opening::Restarted { .. } => {
+            // A folder without a run's record holds nothing to keep.
+            if out.exists() {
+                std::fs::remove_dir_all(out).map_err(|e| StepError::io("removing", out, e))?;
+            }
+            Trainer::create(out, spec)?
         }
-        Trainer::create(out, spec)?
     };
     while !t.done() {
         let i = t.iterate()?;

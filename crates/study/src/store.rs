@@ -18,7 +18,7 @@ fn output_valid(study: &Study, s: &Step) -> bool {
     let c = &study.cfg;
     match &s.kind {
         StepKind::FitConvnet => out.join("convnet.safetensors").is_file(),
-        StepKind::Train { .. } => out.join("policy.safetensors").is_file(),
+        StepKind::Train { .. } => fishprobe_learn::run::RunLayout::new(out).policy().is_file(),
         StepKind::Eval { p, m } => files_in(&out) == study.eval_episodes(*p, *m),
         StepKind::Approach { .. } => files_in(&out) == c.approach_episodes,
         StepKind::Baseline { m } => fishprobe_sim::SCRIPTED.iter().all(|name| {

@@ -161,16 +161,14 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
         ppo.total_timesteps = s;
     }
     ppo.validate().context("the PPO settings")?;
-    let spec = RunSpec {
+    let spec = RunSpec::new(
+        settings.fish,
         ppo,
-        env: settings.env,
-        model: settings.fish,
-        seed: a.seed,
-        preset: a.preset.clone(),
-        program_version: env!("CARGO_PKG_VERSION").into(),
-        program_build: super::BUILD.into(),
-        trainer_revision: fishprobe_learn::TRAINER_REVISION,
-    };
+        settings.env,
+        a.seed,
+        a.preset.clone(),
+        super::BUILD,
+    );
     // The OOD reward needs the model's support: a missing or foreign file is refused here.
     spec.check()
         .with_context(|| format!("the run against fish model {}", spec.model.name()))?;
@@ -220,7 +218,8 @@ fn start(out: &Path, f: Fresh) -> Result<Trainer> {
 }
 
 pub fn run(a: TrainArgs) -> Result<()> {
-    let resuming = |a: &TrainArgs| a.resume && a.out.join("params.json").exists();
+    let resuming =
+        |a: &TrainArgs| a.resume && fishprobe_learn::run::RunLayout::new(&a.out).holds_run();
     // A new run is checked before its directory is created: a refused `train` leaves none.
     // A `--resume` into an existing directory takes the lock first: the directory's holder
     // may not have written params.json yet, and the refusal must name the holder, not the
@@ -285,6 +284,13 @@ pub fn run(a: TrainArgs) -> Result<()> {
             Some(f) => f,
             None => fresh_run(&a)?,
         };
+        use fishprobe_learn::run::{open, OnOther, Opening};
+        if open(&a.out, &f.spec, OnOther::Refuse)? == Opening::Resume {
+            bail!(
+                "{}: already holds a training run of these settings: add --resume to continue it",
+                a.out.display()
+            );
+        }
         start(&a.out, f)?
     };
     super::with_jobs(a.jobs, || train_loop(&mut trainer))??;

@@ -5,6 +5,7 @@
 use super::{run_err, Trainer};
 use crate::error::LearnError;
 use crate::policy::GaussianPolicy;
+use fishprobe_io::RunLayout;
 use fishprobe_nn::store::{load, save, write_atomic, Tensors};
 use fishprobe_sim::{EnvSnapshot, SimRng};
 use serde::{Deserialize, Serialize};
@@ -47,7 +48,7 @@ impl Trainer {
 
     pub(super) fn save_checkpoint(&self) -> Result<(), LearnError> {
         let name = format!("ckpt_{:06}", self.iteration);
-        let dir = self.dir.join("checkpoints").join(&name);
+        let dir = self.dir.join(RunLayout::CHECKPOINTS).join(&name);
         self.policy.save(&dir, self.about())?;
         let mut optim = Tensors::new();
         for (k, adam) in [("pi", &self.adam_pi), ("vf", &self.adam_vf)] {
@@ -75,7 +76,7 @@ impl Trainer {
         // The pointer moves last: a crash before this line leaves the previous checkpoint.
         write_atomic(&self.dir.join("checkpoints/latest"), name.as_bytes())?;
         // Keep the two newest checkpoints.
-        let mut all: Vec<PathBuf> = std::fs::read_dir(self.dir.join("checkpoints"))
+        let mut all: Vec<PathBuf> = std::fs::read_dir(self.dir.join(RunLayout::CHECKPOINTS))
             .map_err(|e| run_err(&self.dir, e))?
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.is_dir())
@@ -149,7 +150,7 @@ impl Trainer {
 /// short); beside two or more it was lost, and a `latest` that cannot be read is refused too,
 /// since starting the run over would overwrite its checkpoints and erase its logs.
 pub(super) fn latest_checkpoint(dir: &Path) -> Result<Option<PathBuf>, LearnError> {
-    let checkpoints = dir.join("checkpoints");
+    let checkpoints = dir.join(RunLayout::CHECKPOINTS);
     let latest = checkpoints.join("latest");
     let name = match fishprobe_io::read_small_text(&latest) {
         Ok(name) => name,

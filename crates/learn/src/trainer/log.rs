@@ -3,6 +3,7 @@
 
 use super::{run_err, Trainer};
 use crate::error::LearnError;
+use fishprobe_io::RunLayout;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -176,9 +177,9 @@ impl Trainer {
                 .map_err(|e| run_err(&p, e))?;
             f.write_all(line.as_bytes()).map_err(|e| run_err(&p, e))
         };
-        append("progress.csv", s.csv_row() + "\n")?;
+        append(RunLayout::PROGRESS, s.csv_row() + "\n")?;
         let json = serde_json::to_string(s).map_err(|e| run_err(&self.dir, e))?;
-        append("result.json", json + "\n")
+        append(RunLayout::RESULT, json + "\n")
     }
 
     /// Drops log lines of iterations after the checkpoint (they will be redone).
@@ -188,18 +189,18 @@ impl Trainer {
         };
         for (name, field) in [
             (
-                "progress.csv",
+                RunLayout::PROGRESS,
                 &(|l: &str| l.split(',').next().and_then(|v| v.parse::<u64>().ok()))
                     as &dyn Fn(&str) -> Option<u64>,
             ),
-            ("result.json", &|l: &str| {
+            (RunLayout::RESULT, &|l: &str| {
                 serde_json::from_str::<serde_json::Value>(l)
                     .ok()
                     .and_then(|v| v["iteration"].as_u64())
             }),
         ] {
             let p = self.dir.join(name);
-            filter_log(&p, name == "progress.csv", |line| keep(line, field))?;
+            filter_log(&p, name == RunLayout::PROGRESS, |line| keep(line, field))?;
         }
         Ok(())
     }

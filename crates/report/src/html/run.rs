@@ -14,24 +14,18 @@ impl Page<'_> {
                 .training
                 .iter()
                 .map(|(m, log)| {
-                    let pv = |k: &str| -> String {
-                        log.params
-                            .as_ref()
-                            .and_then(|p| p.get(k))
-                            .map(|v| match v {
-                                Value::String(s) => s.clone(),
-                                other => other.to_string(),
-                            })
-                            .unwrap_or_else(|| "–".into())
+                    let p = log.params.as_ref();
+                    let or_dash = |v: Option<String>| {
+                        v.filter(|v| !v.is_empty()).unwrap_or_else(|| "–".into())
                     };
                     vec![
                         format!("π_{m}"),
-                        pv("seed"),
-                        pv("preset"),
+                        or_dash(p.and_then(|p| p.seed).map(|s| s.to_string())),
+                        or_dash(p.map(|p| p.preset.clone())),
                         log.rows
                             .last()
                             .map_or("–".into(), |r| format!("{:.0}", r.0)),
-                        pv("program_version"),
+                        or_dash(p.map(|p| p.program_version.clone())),
                         r.and_then(|r| r.weights.get(m))
                             .map_or("–".into(), |w| format!("{}…", fishprobe_io::short_sha(w))),
                     ]

@@ -90,16 +90,14 @@ pub(super) fn bench_train(json: bool, iterations: u64, model_name: &str) -> Resu
         ));
         let _ = std::fs::remove_dir_all(&dir);
         let scratch = fishprobe_io::ScratchDir::remove_on_drop(dir.clone());
-        let spec = RunSpec {
-            ppo: PpoConfig::preset_for(preset, model.is_expensive()).context("PPO preset")?,
-            env: fishprobe_sim::EnvConfig::default(),
-            model: model.clone(),
-            seed: 0,
-            preset: preset.into(),
-            program_version: env!("CARGO_PKG_VERSION").into(),
-            program_build: crate::commands::BUILD.into(),
-            trainer_revision: fishprobe_learn::TRAINER_REVISION,
-        };
+        let spec = RunSpec::new(
+            model.clone(),
+            PpoConfig::preset_for(preset, model.is_expensive()).context("PPO preset")?,
+            fishprobe_sim::EnvConfig::default(),
+            0,
+            preset,
+            crate::commands::BUILD,
+        );
         let (total, epochs) = (spec.ppo.total_timesteps, spec.ppo.num_sgd_iter);
         let mut t = Trainer::create(&dir, spec)?;
         let start = Instant::now();
