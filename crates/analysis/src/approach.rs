@@ -114,7 +114,10 @@ fn summary(d: &[(f64, f64)], episodes: usize) -> Approach {
 
 /// The assay's measures over the approach episodes in `files` (as `fishprobe assay approach`
 /// reports them for one policy); an unreadable file is an error naming it.
-pub fn assay_files(files: &[std::path::PathBuf], cfg: &AnalysisConfig) -> Result<Approach, String> {
+pub fn assay_files(
+    files: &[std::path::PathBuf],
+    cfg: &AnalysisConfig,
+) -> Result<Approach, crate::AnalysisError> {
     let mut d = Vec::new();
     for f in files {
         let (_, _, e) = episode(f, cfg).map_err(|why| format!("{}: {why}", f.display()))?;

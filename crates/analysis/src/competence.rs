@@ -92,7 +92,10 @@ pub(crate) fn median_reach(files: &[PathBuf], loaded: &Loaded) -> Option<f64> {
 /// never reached it counts as latest; `None` without trials or when the median trial never
 /// did) of trial files read here, for a command that has just written them: the first file
 /// that cannot be read is an error naming it.
-pub fn median_reach_of(files: &[PathBuf], cfg: &AnalysisConfig) -> Result<Option<f64>, String> {
+pub fn median_reach_of(
+    files: &[PathBuf],
+    cfg: &AnalysisConfig,
+) -> Result<Option<f64>, crate::AnalysisError> {
     let mut loaded = Loaded::new();
     for f in files {
         let t =

@@ -17,6 +17,10 @@ pub enum AnalysisError {
     /// A configuration value is out of range.
     #[error(transparent)]
     Config(#[from] fishprobe_sim::ConfigError),
+    /// The trial data cannot give what was asked (a file that is not a pair, a trial without
+    /// the fish, too few frames for a measure), with the file and the reason.
+    #[error("{0}")]
+    Data(String),
     /// A fish model of a synthetic study.
     #[error(transparent)]
     Model(#[from] fishprobe_models::ModelError),
@@ -34,4 +38,17 @@ pub enum AnalysisError {
         /// Why.
         what: String,
     },
+}
+
+/// A message about the data, made where it is read ([`AnalysisError::Data`]).
+impl From<String> for AnalysisError {
+    fn from(what: String) -> Self {
+        AnalysisError::Data(what)
+    }
+}
+
+impl From<&str> for AnalysisError {
+    fn from(what: &str) -> Self {
+        AnalysisError::Data(what.to_string())
+    }
 }

@@ -175,16 +175,17 @@ pub fn pair_values(p: &PairTrack, cfg: &OfflineConfig) -> PairValues {
 }
 
 /// A real pair from a trial file (exactly two fish, 100 x 100 cm), or why not.
-pub fn real_pair(t: &TrialFile, cfg: &OfflineConfig) -> Result<PairTrack, String> {
+pub fn real_pair(t: &TrialFile, cfg: &OfflineConfig) -> Result<PairTrack, crate::AnalysisError> {
     if (t.world_size_cm[0] - 100.0).abs() > 0.5 || (t.world_size_cm[1] - 100.0).abs() > 0.5 {
         return Err(format!(
             "world size {} x {} cm, not the 100 x 100 cm tank",
             t.world_size_cm[0], t.world_size_cm[1]
-        ));
+        )
+        .into());
     }
     let fish: Vec<&Entity> = t.fish().collect();
     if fish.len() != 2 {
-        return Err(format!("{} fish, not a pair", fish.len()));
+        return Err(format!("{} fish, not a pair", fish.len()).into());
     }
     if fish.iter().any(|f| f.nan_fraction() >= 1.0) {
         return Err("a fish track is all NaN".into());
@@ -201,7 +202,11 @@ pub fn real_pair(t: &TrialFile, cfg: &OfflineConfig) -> Result<PairTrack, String
 }
 
 /// A model pair as long as `real`, from its first tracked poses.
-pub fn simulate_pair(model: &ModelSpec, real: &PairTrack, seed: u64) -> Result<PairTrack, String> {
+pub fn simulate_pair(
+    model: &ModelSpec,
+    real: &PairTrack,
+    seed: u64,
+) -> Result<PairTrack, crate::AnalysisError> {
     let frames = real.pos[0].len().min(real.pos[1].len());
     let start = |f: usize| -> [f32; 3] {
         (0..frames)
@@ -301,7 +306,7 @@ pub fn compare_offline(
     models: &[(String, ModelSpec)],
     cfg: &OfflineConfig,
     seed: u64,
-) -> Result<OfflineResults, String> {
+) -> Result<OfflineResults, crate::AnalysisError> {
     cfg.validate().map_err(|e| e.to_string())?;
     if real.is_empty() {
         return Err("no usable real pair recordings".into());
@@ -323,7 +328,7 @@ pub fn compare_offline(
             .collect(),
     );
     for (name, spec) in models {
-        let sims: Vec<Result<PairValues, String>> = real
+        let sims: Vec<Result<PairValues, crate::AnalysisError>> = real
             .par_iter()
             .enumerate()
             .map(|(i, (_, p))| {
@@ -450,9 +455,9 @@ impl OfflineResults {
 pub type Skips = Vec<(String, String)>;
 
 /// The pairs of `files` (read with `read`), and the files skipped with the reason.
-pub fn read_pairs(
+pub fn read_pairs<E: std::fmt::Display>(
     files: &[PathBuf],
-    read: impl Fn(&std::path::Path) -> Result<TrialFile, String> + Sync,
+    read: impl Fn(&std::path::Path) -> Result<TrialFile, E> + Sync,
     cfg: &OfflineConfig,
 ) -> (Vec<(String, PairTrack)>, Skips) {
     let r: Vec<(String, Result<PairTrack, String>)> = files
@@ -460,7 +465,9 @@ pub fn read_pairs(
         .map(|f| {
             (
                 f.display().to_string(),
-                read(f).and_then(|t| real_pair(&t, cfg)),
+                read(f)
+                    .map_err(|e| e.to_string())
+                    .and_then(|t| real_pair(&t, cfg).map_err(|e| e.to_string())),
             )
         })
         .collect();

@@ -106,7 +106,7 @@ pub fn disagreement_of_trials(
     d: &Disagreement,
     label: &str,
     files: &[PathBuf],
-) -> Result<SourceScores, String> {
+) -> Result<SourceScores, crate::AnalysisError> {
     let parts: Vec<Vec<f32>> = files
         .par_iter()
         .map(|f| {
@@ -157,7 +157,7 @@ pub fn score_trials(
     support: &SupportModel,
     label: &str,
     files: &[PathBuf],
-) -> Result<SourceScores, String> {
+) -> Result<SourceScores, crate::AnalysisError> {
     score_recorded(support, label, files).map(|(s, _)| s)
 }
 
@@ -168,7 +168,7 @@ pub fn score_recorded(
     support: &SupportModel,
     label: &str,
     files: &[PathBuf],
-) -> Result<(SourceScores, Vec<Option<usize>>), String> {
+) -> Result<(SourceScores, Vec<Option<usize>>), crate::AnalysisError> {
     let parts: Vec<(Vec<ScoredView>, Option<usize>)> = files
         .par_iter()
         .map(|f| {
@@ -449,7 +449,7 @@ pub fn wishlist(
 pub fn pooled_metrics(
     files: &[PathBuf],
     cfg: &crate::AnalysisConfig,
-) -> Result<Vec<Vec<f64>>, String> {
+) -> Result<Vec<Vec<f64>>, crate::AnalysisError> {
     let mut pooled = vec![Vec::new(); crate::METRICS.len()];
     for f in files {
         let t = crate::load_trial(f, cfg, true)?;

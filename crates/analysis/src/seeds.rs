@@ -86,7 +86,7 @@ pub(crate) fn seeds(
                         .map_err(|reason| {
                             skipped.push(Skipped {
                                 what: format!("approach_stability/{p}/{name}"),
-                                reason,
+                                reason: reason.to_string(),
                             })
                         })
                         .ok(),

@@ -126,8 +126,10 @@ impl Controller for PolicyController {
         Some(self.fingerprint.clone())
     }
 
-    fn check_observation(&self, dim: usize) -> Result<(), String> {
-        self.policy.check_obs_dim(dim).map_err(|e| e.to_string())
+    fn check_observation(&self, dim: usize) -> Result<(), fishprobe_sim::SimError> {
+        self.policy
+            .check_obs_dim(dim)
+            .map_err(|e| fishprobe_sim::SimError::Controller(e.to_string()))
     }
 
     fn trained_observation(&self) -> Option<ObservationParams> {
@@ -220,7 +222,7 @@ impl Controller for Named {
         self.inner.fingerprint()
     }
 
-    fn check_observation(&self, dim: usize) -> Result<(), String> {
+    fn check_observation(&self, dim: usize) -> Result<(), fishprobe_sim::SimError> {
         self.inner.check_observation(dim)
     }
 
@@ -288,7 +290,9 @@ mod tests {
         let c = save(serde_json::json!({ "observation": headings })).unwrap();
         assert_eq!(c.trained_observation(), Some(headings.clone()));
         assert!(check_controller_observation(&c, &headings).is_ok());
-        let e = check_controller_observation(&c, &centroid).unwrap_err();
+        let e = check_controller_observation(&c, &centroid)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("heading_bins = true (216 floats)"), "{e}");
         assert_eq!(controller_observation(&c, &centroid), headings);
         // No record: the length alone, and a run's headings are not this policy's.
@@ -311,7 +315,9 @@ mod tests {
             previous_block_actions: 5,
             ..headings.clone()
         };
-        let e = check_controller_observation(&c, &back5).unwrap_err();
+        let e = check_controller_observation(&c, &back5)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("previous_block_actions = 1"), "{e}");
         let c = save(serde_json::json!({ "observation": back5 })).unwrap();
         assert!(check_controller_observation(&c, &back5).is_ok());
@@ -351,7 +357,9 @@ mod tests {
         assert_eq!(paper.trained_frames_per_action(), Some(25));
         assert_eq!(controller_env(&paper, &run).frames_per_action, 25);
         assert!(check_controller_rate(&paper, &at(25, 25.0)).is_ok());
-        let e = check_controller_rate(&paper, &at(5, 25.0)).unwrap_err();
+        let e = check_controller_rate(&paper, &at(5, 25.0))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("every 25 frames") && e.contains("run every 5"),
             "{e}"
@@ -377,7 +385,9 @@ mod tests {
         assert_eq!(fast.trained_frame_rate_hz(), Some(50.0));
         assert_eq!(controller_env(&fast, &run).frame_rate_hz, 50.0);
         assert!(check_controller_rate(&fast, &at(25, 50.0)).is_ok());
-        let e = check_controller_rate(&fast, &at(25, 25.0)).unwrap_err();
+        let e = check_controller_rate(&fast, &at(25, 25.0))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("frame_rate_hz = 50") && e.contains("run at 25"),
             "{e}"
@@ -388,7 +398,9 @@ mod tests {
         );
         // An absurd record is shown as people write it, not in thirty digits.
         let absurd = save(serde_json::json!({ "frame_rate_hz": 1e30 })).unwrap();
-        let e = check_controller_rate(&absurd, &at(25, 25.0)).unwrap_err();
+        let e = check_controller_rate(&absurd, &at(25, 25.0))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("frame_rate_hz = 1e30"), "{e}");
         for bad in [
             serde_json::json!(0),

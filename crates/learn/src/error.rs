@@ -18,6 +18,9 @@ pub enum LearnError {
     /// Trial files.
     #[error(transparent)]
     Io(#[from] fishprobe_io::IoError),
+    /// Trial data read for a measure (a yardstick's scores).
+    #[error(transparent)]
+    Analysis(#[from] fishprobe_analysis::AnalysisError),
     /// An ONNX model or policy that cannot be used.
     #[error(transparent)]
     Onnx(#[from] fishprobe_onnx::OnnxError),
@@ -27,6 +30,25 @@ pub enum LearnError {
     /// A training run's directory that cannot be resumed or written.
     #[error("{0}")]
     Run(String),
+    /// A recording that is neither a robofish.io trial file nor of the legacy layout: why, as
+    /// each.
+    #[error("{robofish}; as a legacy file: {legacy}")]
+    NotATrial {
+        /// Why it is not robofish.io.
+        robofish: fishprobe_io::IoError,
+        /// Why it is not the legacy layout.
+        legacy: fishprobe_io::IoError,
+    },
+    /// A PPO update's loss went non-finite (the trainer reports it as divergence).
+    #[error("non-finite loss (surrogate {surrogate}, KL {kl}, value {value})")]
+    NonFiniteLoss {
+        /// The surrogate loss.
+        surrogate: f64,
+        /// The KL divergence.
+        kl: f64,
+        /// The value loss.
+        value: f64,
+    },
     /// Training diverged.
     #[error(
         "training diverged at iteration {iteration}: {what}; the last good checkpoint is kept"

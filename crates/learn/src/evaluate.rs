@@ -146,8 +146,8 @@ pub fn run_episode_with(
     cfg.task.evaluation_episode_actions =
         ((e.minutes * 60.0 / seconds_per_action).ceil() as u32).max(1);
     let mut env = TankEnv::new(cfg.clone(), fish)?;
-    fishprobe_sim::check_controller_observation(c, &cfg.observation).map_err(LearnError::Policy)?;
-    fishprobe_sim::check_controller_rate(c, &cfg).map_err(LearnError::Policy)?;
+    fishprobe_sim::check_controller_observation(c, &cfg.observation)?;
+    fishprobe_sim::check_controller_rate(c, &cfg)?;
     let mut c = c.boxed_clone();
     env.set_start_poses(e.start.clone())?;
     env.set_recording(true);

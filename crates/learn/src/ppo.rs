@@ -271,7 +271,7 @@ pub fn update(
     roll: &mut Rollout,
     rng: &mut SimRng,
     s: &mut Scratch,
-) -> Result<UpdateStats, String> {
+) -> Result<UpdateStats, crate::LearnError> {
     let (n, d, m) = (roll.len(), roll.obs_dim, cfg.sgd_minibatch_size);
     let vf_explained_var = explained_variance(&roll.returns, &roll.values);
     let action_clip_frac =
@@ -327,9 +327,11 @@ pub fn update(
             );
             let (surr, kl, ent, clipped) = pi_sums;
             if !(surr.is_finite() && kl.is_finite() && vf_sum.is_finite()) {
-                return Err(format!(
-                    "non-finite loss (surrogate {surr}, KL {kl}, value {vf_sum})"
-                ));
+                return Err(crate::LearnError::NonFiniteLoss {
+                    surrogate: surr,
+                    kl,
+                    value: vf_sum,
+                });
             }
             stats.policy_loss += (surr / m as f64) as f32;
             stats.vf_loss += (vf_sum / m as f64) as f32;

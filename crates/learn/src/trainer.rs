@@ -418,7 +418,10 @@ impl Trainer {
             &mut self.rng,
             &mut self.scratch,
         )
-        .map_err(|what| LearnError::Diverged { iteration, what })?;
+        .map_err(|e| LearnError::Diverged {
+            iteration,
+            what: e.to_string(),
+        })?;
         if self
             .policy
             .pi

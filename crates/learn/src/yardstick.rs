@@ -137,7 +137,7 @@ pub fn score_policy(
 ) -> Result<ScoredRun, LearnError> {
     let (files, results) = run_episodes(c, e)?;
     Ok(ScoredRun {
-        scores: score_trials(support, label, &files).map_err(LearnError::Policy)?,
+        scores: score_trials(support, label, &files)?,
         goals: crate::goals_mean_sd(&results).0,
         files,
     })
@@ -204,7 +204,7 @@ pub fn measure(
         Scorer::Support(support) => score_policy(c.as_ref(), &e, support, label)?.scores,
         Scorer::Ensemble(d) => {
             let (files, _) = run_episodes(c.as_ref(), &e)?;
-            disagreement_of_trials(d, label, &files).map_err(LearnError::Policy)?
+            disagreement_of_trials(d, label, &files)?
         }
     };
     let score = quantile(&scores.scores, config.quantile);

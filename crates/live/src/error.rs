@@ -31,6 +31,15 @@ pub enum LiveError {
     /// The BioTracker observer's settings do not fit together.
     #[error("observer settings: {0}")]
     Observer(String),
+    /// A component's configuration or entity ids that cannot be used.
+    #[error("{0}")]
+    Settings(String),
+    /// The tracker's state that a trial cannot run on (tank size, rate, ids, skeleton).
+    #[error("{0}")]
+    TrackerState(String),
+    /// A line that is not a message of the live protocol.
+    #[error("{0}")]
+    Malformed(String),
     /// The pilot (policy) could not be made.
     #[error("pilot: {0}")]
     Pilot(String),

@@ -177,10 +177,10 @@ impl ServerMsg {
 }
 
 /// Parses one line from the lab side.
-pub fn parse_client(line: &str) -> Result<ClientMsg, String> {
+pub fn parse_client(line: &str) -> Result<ClientMsg, crate::LiveError> {
     serde_json::from_str(line.trim()).map_err(|e| {
         let head: String = line.chars().take(80).collect();
-        format!("malformed message ({e}): {head}")
+        crate::LiveError::Malformed(format!("malformed message ({e}): {head}"))
     })
 }
 
@@ -225,6 +225,7 @@ mod tests {
         assert!(matches!(lost, ClientMsg::Frame { robot: None, .. }));
         assert!(parse_client(r#"{"type":"dance"}"#)
             .unwrap_err()
+            .to_string()
             .contains("malformed"));
         assert!(parse_client("{not json").is_err());
         assert!(!Pose {

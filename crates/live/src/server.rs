@@ -338,7 +338,7 @@ fn handshake(stream: TcpStream, sh: &Shared<'_>) -> Option<Admitted> {
         }
         match reader.next() {
             Ok(Line::Text(l)) if l.trim().is_empty() => {}
-            Ok(Line::Text(l)) => break parse_client(&l),
+            Ok(Line::Text(l)) => break parse_client(&l).map_err(|e| e.to_string()),
             Ok(Line::Partial | Line::Timeout) => {}
             Ok(Line::Closed) | Err(_) => return None,
             Ok(Line::TooLong(_) | Line::Binary) => break Err("unreadable hello".into()),
@@ -587,7 +587,7 @@ fn replies_to(
                 }
                 r
             }
-            Err(e) => session.on_malformed(&e),
+            Err(e) => session.on_malformed(&e.to_string()),
         },
         Ok(Line::TooLong(len)) => session.on_malformed(&format!(
             "message of more than {max_message_bytes} bytes ({len} read) dropped"

@@ -149,7 +149,7 @@ impl OnnxFish {
             let a = arch_from(meta)?;
             let contract = Contract::fish(a.bins, a.cells());
             grid = Some(a);
-            Ok(contract)
+            Ok::<_, String>(contract)
         })?;
         if !p.sha256.is_empty() && base.sha256() != p.sha256 {
             return Err(OnnxError::Contract {

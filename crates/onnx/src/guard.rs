@@ -65,18 +65,21 @@ impl MemoryBound {
     /// The bound of a file of `file_bytes` bytes: [`MEMORY_ENV`] if set, else
     /// [`Self::BASE_BYTES`] + [`Self::PER_FILE_BYTE`] x the file. A value of the variable that
     /// is not a whole number of MiB in [`Self::ENV_RANGE_MB`] is an error naming it.
-    pub fn for_file(file_bytes: usize) -> Result<Self, String> {
+    pub fn for_file(file_bytes: usize) -> Result<Self, crate::OnnxError> {
         match std::env::var(MEMORY_ENV) {
             Ok(v) => Self::from_setting(Some(&v), file_bytes),
-            Err(std::env::VarError::NotUnicode(_)) => {
-                Err(format!("{MEMORY_ENV} is not valid Unicode"))
-            }
+            Err(std::env::VarError::NotUnicode(_)) => Err(crate::OnnxError::Setting(format!(
+                "{MEMORY_ENV} is not valid Unicode"
+            ))),
             Err(std::env::VarError::NotPresent) => Self::from_setting(None, file_bytes),
         }
     }
 
     /// [`Self::for_file`] with the variable's value given (`None`: not set).
-    pub fn from_setting(setting: Option<&str>, file_bytes: usize) -> Result<Self, String> {
+    pub fn from_setting(
+        setting: Option<&str>,
+        file_bytes: usize,
+    ) -> Result<Self, crate::OnnxError> {
         let Some(v) = setting else {
             return Ok(Self {
                 bytes: Self::BASE_BYTES
@@ -90,9 +93,9 @@ impl MemoryBound {
                 bytes: mb << 20,
                 from_env: true,
             }),
-            _ => Err(format!(
+            _ => Err(crate::OnnxError::Setting(format!(
                 "{MEMORY_ENV} = `{v}`: must be a whole number of MiB in [{lo}, {hi}]"
-            )),
+            ))),
         }
     }
 
@@ -382,7 +385,9 @@ mod tests {
         let b = MemoryBound::from_setting(Some(" 4096 "), 1000).unwrap();
         assert_eq!((b.bytes, b.from_env), (4 << 30, true));
         for bad in ["", "1e3", "-1", "15", "1048577", "lots"] {
-            let e = MemoryBound::from_setting(Some(bad), 1000).unwrap_err();
+            let e = MemoryBound::from_setting(Some(bad), 1000)
+                .unwrap_err()
+                .to_string();
             assert!(
                 e.contains(MEMORY_ENV) && e.contains("[16, 1048576]"),
                 "{bad}: {e}"

@@ -53,6 +53,9 @@ pub const ENGINE: &str = "tract-onnx 0.23.9";
 /// Why an ONNX file cannot be used.
 #[derive(Debug, thiserror::Error)]
 pub enum OnnxError {
+    /// A setting of fishprobe's ONNX limits (an environment variable) that is not one.
+    #[error("{0}")]
+    Setting(String),
     /// The file cannot be read.
     #[error("{}: cannot read: {reason}", path.display())]
     Read {

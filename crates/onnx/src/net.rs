@@ -112,15 +112,15 @@ pub const MAX_NODES: usize = 10_000;
 pub const NODES_ENV: &str = "FISHPROBE_ONNX_MAX_NODES";
 
 /// The node limit: [`NODES_ENV`] if set (`setting`), else [`MAX_NODES`].
-pub fn node_limit(setting: Option<&str>) -> Result<usize, String> {
+pub fn node_limit(setting: Option<&str>) -> Result<usize, crate::OnnxError> {
     let Some(v) = setting else {
         return Ok(MAX_NODES);
     };
     match v.trim().parse::<usize>() {
         Ok(n) if (1..=1_000_000).contains(&n) => Ok(n),
-        _ => Err(format!(
+        _ => Err(crate::OnnxError::Setting(format!(
             "{NODES_ENV} = `{v}`: must be a whole number in [1, 1000000]"
-        )),
+        ))),
     }
 }
 
@@ -194,17 +194,15 @@ pub fn hex(bytes: &[u8]) -> String {
 impl OnnxNet {
     /// Loads `path`, checks it against `contract` and plans it for `batch` rows per run.
     pub fn load(path: &Path, contract: &Contract, batch: usize) -> Result<Self, OnnxError> {
-        Self::load_with(path, batch, |_| Ok(contract.clone()))
+        Self::load_with(path, batch, |_| Ok::<_, OnnxError>(contract.clone()))
     }
 
     /// Like [`OnnxNet::load`], with the contract decided from the file's `metadata_props`
     /// (a fish model's grid may be set there).
-    pub fn load_with(
+    pub fn load_with<E: std::fmt::Display>(
         path: &Path,
         batch: usize,
-        contract_of: impl FnOnce(
-            &std::collections::BTreeMap<String, String>,
-        ) -> Result<Contract, String>,
+        contract_of: impl FnOnce(&std::collections::BTreeMap<String, String>) -> Result<Contract, E>,
     ) -> Result<Self, OnnxError> {
         let bytes = Arc::new(read_model_file(path)?);
         let bound = Self::bound(path, bytes.len())?;
@@ -212,7 +210,7 @@ impl OnnxNet {
         let contract = contract_of(&metadata).map_err(|what| OnnxError::Contract {
             path: path.to_path_buf(),
             expected: "metadata_props fishprobe can use".into(),
-            found: what,
+            found: what.to_string(),
         })?;
         Self::plan(path, bytes, contract, metadata, batch, bound)
     }
@@ -237,7 +235,7 @@ impl OnnxNet {
     fn bound(path: &Path, file_bytes: usize) -> Result<MemoryBound, OnnxError> {
         MemoryBound::for_file(file_bytes).map_err(|what| OnnxError::Limit {
             path: path.to_path_buf(),
-            what,
+            what: what.to_string(),
         })
     }
 
@@ -252,7 +250,7 @@ impl OnnxNet {
         let limit = node_limit(std::env::var(NODES_ENV).ok().as_deref()).map_err(|what| {
             OnnxError::Limit {
                 path: path.to_path_buf(),
-                what,
+                what: what.to_string(),
             }
         })?;
         let parsed = crate::guard::capped(bound.bytes, || {

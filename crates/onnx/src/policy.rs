@@ -54,13 +54,13 @@ impl Controller for OnnxPolicy {
         Some(self.net.sha256().to_string())
     }
 
-    fn check_observation(&self, dim: usize) -> Result<(), String> {
+    fn check_observation(&self, dim: usize) -> Result<(), fishprobe_sim::SimError> {
         match &Contract::policy().input_dims[..] {
             [d] if *d == dim => Ok(()),
-            d => Err(format!(
+            d => Err(fishprobe_sim::SimError::Controller(format!(
                 "{}: the policy reads observations of {d:?} floats, the environment gives {dim}",
                 self.net.path().display()
-            )),
+            ))),
         }
     }
 

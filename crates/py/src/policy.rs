@@ -72,7 +72,7 @@ impl Policy {
         let (n, d) = (shape[0], shape[1]);
         self.ctrl
             .check_observation(d)
-            .map_err(PyValueError::new_err)?;
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
         let obs = obs.as_slice()?;
         if let Some(i) = obs.iter().position(|v| !v.is_finite()) {
             return Err(PyValueError::new_err(format!(

@@ -543,7 +543,7 @@ fn training_logs(root: &Path, d: &mut StudyData) -> BTreeMap<String, TrainingLog
                 Ok(rows) => {
                     out.insert(name, TrainingLog { rows, params });
                 }
-                Err(why) => d.unreadable.push((csv, why)),
+                Err(why) => d.unreadable.push((csv, why.to_string())),
             },
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
                 d.unreadable.push((csv, e.to_string()))
@@ -559,7 +559,11 @@ fn training_logs(root: &Path, d: &mut StudyData) -> BTreeMap<String, TrainingLog
 }
 
 /// Parses a progress CSV into (steps, mean return, goals per episode).
-pub fn parse_progress(text: &str) -> Result<Vec<(f64, f64, f64)>, String> {
+pub fn parse_progress(text: &str) -> Result<Vec<(f64, f64, f64)>, crate::ReportError> {
+    progress_rows(text).map_err(crate::ReportError::Progress)
+}
+
+fn progress_rows(text: &str) -> Result<Vec<(f64, f64, f64)>, String> {
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().ok_or("empty file")?.split(',').collect();
     let col = |names: &[&str]| header.iter().position(|h| names.contains(&h.trim()));
@@ -607,9 +611,11 @@ mod tests {
         assert!(rllib[0].2.is_nan());
         assert!(parse_progress("a,b\n1,2\n")
             .unwrap_err()
+            .to_string()
             .contains("timesteps"));
         assert!(parse_progress("timesteps,episode_return_mean\nx,1\n")
             .unwrap_err()
+            .to_string()
             .contains("line 2"));
     }
 

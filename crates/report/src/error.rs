@@ -5,6 +5,9 @@ use std::path::PathBuf;
 /// An error of the report crate.
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
+    /// A training log (`progress.csv`) that is not one (with why).
+    #[error("{0}")]
+    Progress(String),
     /// The study directory is missing or not a directory.
     #[error("study directory {path}: {what}")]
     Study {

@@ -170,7 +170,7 @@ fn cell(a: &FidelitySettings, r: &Combo, model: &str, dir: &Path, by: Runner) ->
         .into_iter()
         .map(|x| x.file)
         .collect();
-    let ap = assay_files(&files, &AnalysisConfig::default()).map_err(ResearchError::msg)?;
+    let ap = assay_files(&files, &AnalysisConfig::default())?;
     let row = json!({
         "reading": r.name, "model": model, "goals": goals, "goals_sd": sd,
         "time_to_goal_s": ttg, "closest_cm": ap.min_iid, "mean_distance_cm": ap.mean_iid,
@@ -276,7 +276,7 @@ fn reach_columns(dir: &Path) -> Result<(Option<f64>, ScriptedReach)> {
             .filter(|p| p.extension().is_some_and(|x| x == "hdf5"))
             .collect();
         files.sort();
-        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(ResearchError::msg)
+        fishprobe_analysis::competence::median_reach_of(&files, &acfg).map_err(ResearchError::from)
     };
     let mut baselines = std::collections::BTreeMap::new();
     for name in fishprobe_sim::SCRIPTED {

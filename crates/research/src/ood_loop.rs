@@ -168,7 +168,7 @@ fn gap(model: &[Vec<f64>], guppy: &[Vec<f64>], goals: f64, guppy_goals: f64) -> 
 }
 
 fn metric_values(files: &[PathBuf]) -> Result<Vec<Vec<f64>>> {
-    pooled_metrics(files, &AnalysisConfig::default()).map_err(ResearchError::msg)
+    pooled_metrics(files, &AnalysisConfig::default()).map_err(ResearchError::from)
 }
 
 fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path, by: Runner) -> Result<SeedResult> {
@@ -263,8 +263,8 @@ fn one_seed(cfg: &OodLoopConfig, seed: u64, root: &Path, by: Runner) -> Result<S
             &dir.join(format!("data/under-goal{sfx}")),
         )?;
         let support = m_ood.support()?;
-        let ood_scores = score_trials(&support, "ood", &ood_data).map_err(ResearchError::msg)?;
-        let goal_scores = score_trials(&support, "goal", &goal_data).map_err(ResearchError::msg)?;
+        let ood_scores = score_trials(&support, "ood", &ood_data)?;
+        let goal_scores = score_trials(&support, "goal", &goal_data)?;
         shares.push(share_at_least(
             &ood_scores.scores,
             quantile(&goal_scores.scores, 0.95),

@@ -239,7 +239,7 @@ fn recorded_run(
         "scoring {} recorded trials of the {label} ...",
         files.len()
     ));
-    let (scores, goals) = score_recorded(support, label, files).map_err(ResearchError::msg)?;
+    let (scores, goals) = score_recorded(support, label, files)?;
     if scores.scores.is_empty() {
         bail!("the {label}'s recorded trials hold no tracked fish with the robot");
     }

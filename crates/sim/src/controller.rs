@@ -59,7 +59,7 @@ pub trait Controller: Send + Sync + ControllerClone {
         None
     }
     /// Checks that the controller can read observations of `dim` floats.
-    fn check_observation(&self, dim: usize) -> Result<(), String> {
+    fn check_observation(&self, dim: usize) -> Result<(), crate::SimError> {
         let _ = dim;
         Ok(())
     }
@@ -94,10 +94,10 @@ pub trait Controller: Send + Sync + ControllerClone {
 pub fn check_controller_observation(
     c: &dyn Controller,
     obs: &ObservationParams,
-) -> Result<(), String> {
+) -> Result<(), crate::SimError> {
     match c.trained_observation() {
         Some(t) if (t.centroid_bins, t.heading_bins) != (obs.centroid_bins, obs.heading_bins) => {
-            Err(format!(
+            Err(crate::SimError::Controller(format!(
                 "{} was trained with observation.centroid_bins = {} and heading_bins = {} \
                  ({} floats); it is given centroid_bins = {} and heading_bins = {} ({} floats): \
                  run it with the observation settings it was trained with",
@@ -108,17 +108,19 @@ pub fn check_controller_observation(
                 obs.centroid_bins,
                 obs.heading_bins,
                 obs.size()
-            ))
+            )))
         }
-        Some(t) if t.previous_block_actions != obs.previous_block_actions => Err(format!(
-            "{} was trained with observation.previous_block_actions = {} (its motion blocks \
+        Some(t) if t.previous_block_actions != obs.previous_block_actions => {
+            Err(crate::SimError::Controller(format!(
+                "{} was trained with observation.previous_block_actions = {} (its motion blocks \
              look back {} actions); it is given {}: run it with the observation settings it \
              was trained with",
-            c.describe(),
-            t.previous_block_actions,
-            t.previous_block_actions,
-            obs.previous_block_actions
-        )),
+                c.describe(),
+                t.previous_block_actions,
+                t.previous_block_actions,
+                obs.previous_block_actions
+            )))
+        }
         _ => c.check_observation(obs.size()),
     }
 }
@@ -140,21 +142,24 @@ pub fn controller_observation(c: &dyn Controller, run: &ObservationParams) -> Ob
 
 /// Checks that `c` is run at the action rate it was trained at, where it records one: the same
 /// frames per action at the same frame rate.
-pub fn check_controller_rate(c: &dyn Controller, run: &crate::EnvConfig) -> Result<(), String> {
+pub fn check_controller_rate(
+    c: &dyn Controller,
+    run: &crate::EnvConfig,
+) -> Result<(), crate::SimError> {
     let frames_per_action = run.frames_per_action;
     match (c.trained_frames_per_action(), c.trained_frame_rate_hz()) {
-        (Some(t), _) if t != frames_per_action => Err(format!(
+        (Some(t), _) if t != frames_per_action => Err(crate::SimError::Controller(format!(
             "{} was trained to act every {t} frames (frames_per_action = {t}); it is run every \
              {frames_per_action}: run it at the rate it was trained at",
             c.describe()
-        )),
-        (_, Some(hz)) if hz != run.frame_rate_hz => Err(format!(
+        ))),
+        (_, Some(hz)) if hz != run.frame_rate_hz => Err(crate::SimError::Controller(format!(
             "{} was trained at frame_rate_hz = {}; it is run at {}: run it at the frame rate \
              it was trained at",
             c.describe(),
             crate::params::check::shown(hz),
             crate::params::check::shown(run.frame_rate_hz)
-        )),
+        ))),
         _ => Ok(()),
     }
 }

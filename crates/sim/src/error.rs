@@ -56,4 +56,8 @@ pub enum SimError {
     /// Start poses that do not fit the environment.
     #[error("start poses: {0}")]
     StartPoses(String),
+    /// A controller that cannot drive this run: it reads observations of another length or
+    /// layout, or was trained at another action rate.
+    #[error("{0}")]
+    Controller(String),
 }

@@ -100,7 +100,7 @@ pub fn run(a: AssayArgs) -> Result<()> {
     e.env.observation = obs;
     let results = super::with_jobs(None, || fishprobe_learn::evaluate(c.as_ref(), &e))??;
     let files: Vec<PathBuf> = results.iter().map(|r| r.file.clone()).collect();
-    let r = assay_files(&files, &cfg).map_err(anyhow::Error::msg)?;
+    let r = assay_files(&files, &cfg)?;
     let goes = goes_to_fish(&r, &cfg);
     let text = if a.json {
         serde_json::to_string_pretty(&serde_json::json!({

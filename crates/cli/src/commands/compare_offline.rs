@@ -78,7 +78,7 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
         for (f, why) in &skipped {
             say!("warning: skipped {f}: {why}");
         }
-        compare_offline(&real, skipped, &models, &cfg, a.seed).map_err(anyhow::Error::msg)
+        compare_offline(&real, skipped, &models, &cfg, a.seed).map_err(anyhow::Error::from)
     })??;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let _lock = super::lock_out(&a.out, "compare-offline")?;

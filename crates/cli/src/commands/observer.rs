@@ -8,6 +8,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_live::biotracker::component::{self, ComponentGuard, Prepared};
 use fishprobe_live::biotracker::ObserverSettings;
+use fishprobe_live::LiveError;
 use std::net::{SocketAddr, TcpListener};
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -36,11 +37,12 @@ pub(super) struct BiotrackerArgs {
 
 /// What a config entry names, loaded and checked: the protocol settings (`fish_count` from
 /// the fish ids) and the policy, which must fit them.
-fn load(s: &ObserverSettings) -> Result<Prepared, String> {
-    let mut live = super::live::live_config(s.config.as_deref()).map_err(|e| format!("{e:#}"))?;
+fn load(s: &ObserverSettings) -> Result<Prepared, LiveError> {
+    let settings = |e: anyhow::Error| LiveError::Settings(format!("{e:#}"));
+    let mut live = super::live::live_config(s.config.as_deref()).map_err(settings)?;
     live.fish_count = u32::try_from(s.fish_ids.len()).unwrap_or(u32::MAX);
-    live.validate().map_err(|e| e.to_string())?;
-    let mut make = super::live::pilot_factory(&s.policy, &live).map_err(|e| format!("{e:#}"))?;
+    live.validate()?;
+    let mut make = super::live::pilot_factory(&s.policy, &live).map_err(settings)?;
     let default_hz = fishprobe_sim::EnvConfig::default().frame_rate_hz;
     let trained_fps = make()
         .ok()

@@ -38,10 +38,12 @@ impl PairDataset {
 }
 
 /// Reads robofish.io, or else the legacy layout.
-pub fn read_any(path: &Path) -> Result<TrialFile, String> {
+pub fn read_any(path: &Path) -> Result<TrialFile, crate::LearnError> {
     match read_trial(path) {
         Ok(t) => Ok(t),
-        Err(e1) => read_legacy(path).map_err(|e2| format!("{e1}; as a legacy file: {e2}")),
+        Err(robofish) => {
+            read_legacy(path).map_err(|legacy| crate::LearnError::NotATrial { robofish, legacy })
+        }
     }
 }
 
@@ -117,7 +119,7 @@ fn add_file(
     cfg: &CloneConfig,
     d: &mut PairDataset,
 ) -> Result<(), String> {
-    let t = read_any(path)?;
+    let t = read_any(path).map_err(|e| e.to_string())?;
     if (t.world_size_cm[0] - 100.0).abs() > 0.5 || (t.world_size_cm[1] - 100.0).abs() > 0.5 {
         return Err(format!(
             "world size {} x {} cm, not the 100 x 100 cm tank",

@@ -97,7 +97,7 @@ pub struct Prepared {
 
 /// Loads what a config entry names: the policy (checked to fit the fish count) and the
 /// protocol's settings. An error says what is wrong, for the core's user.
-pub type Loader = dyn Fn(&ObserverSettings) -> Result<Prepared, String> + Send + Sync;
+pub type Loader = dyn Fn(&ObserverSettings) -> Result<Prepared, LiveError> + Send + Sync;
 
 struct Active {
     settings: ObserverSettings,
@@ -171,7 +171,7 @@ impl ObserverCalls for Host {
         };
         let settings = match ObserverSettings::from_json(&config.config_json) {
             Ok(s) => s,
-            Err(why) => return refuse(why),
+            Err(why) => return refuse(why.to_string()),
         };
         let mut active = lock(&self.active);
         if let Some(a) = active.as_ref() {
@@ -187,7 +187,7 @@ impl ObserverCalls for Host {
         }
         let prepared = match (self.loader)(&settings) {
             Ok(p) => p,
-            Err(why) => return refuse(why),
+            Err(why) => return refuse(why.to_string()),
         };
         let expected = Expected {
             tank_cm: crate::TANK_CM as u32,

@@ -15,18 +15,20 @@ pub struct EntityIds {
 
 impl EntityIds {
     /// Checks that the ids are distinct and that there is at least one fish.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), crate::LiveError> {
         if self.fish.is_empty() {
-            return Err("no fish entity id: list at least one".into());
+            return Err(crate::LiveError::Settings(
+                "no fish entity id: list at least one".into(),
+            ));
         }
         let mut all = self.fish.clone();
         all.push(self.robot);
         all.sort_unstable();
         if let Some(w) = all.windows(2).find(|w| w[0] == w[1]) {
-            return Err(format!(
+            return Err(crate::LiveError::Settings(format!(
                 "entity id {} is given twice (robot and fish ids must be distinct)",
                 w[0]
-            ));
+            )));
         }
         Ok(())
     }
@@ -108,40 +110,46 @@ pub fn check_experiment(
     e: &Experiment,
     ids: &EntityIds,
     want: &Expected,
-) -> Result<SkeletonDescriptor, String> {
+) -> Result<SkeletonDescriptor, crate::LiveError> {
     match e.arena {
         Some(a) if a.width_cm == want.tank_cm && a.height_cm == want.tank_cm => {}
         Some(a) => {
-            return Err(format!(
+            return Err(crate::LiveError::TrackerState(format!(
                 "the arena is {} x {} cm; the policy was trained for a {t} x {t} cm tank",
                 a.width_cm,
                 a.height_cm,
                 t = want.tank_cm
+            )))
+        }
+        None => {
+            return Err(crate::LiveError::TrackerState(
+                "the tracker sent no arena (tank size)".into(),
             ))
         }
-        None => return Err("the tracker sent no arena (tank size)".into()),
     }
     if !(e.target_fps.is_finite() && e.target_fps > 0.0) {
-        return Err(format!(
+        return Err(crate::LiveError::TrackerState(format!(
             "the tracker's target_fps is {}, not a rate",
             e.target_fps
-        ));
+        )));
     }
     if e.target_fps != want.fps && !want.accept_other_fps {
-        return Err(format!(
+        return Err(crate::LiveError::TrackerState(format!(
             "the tracker runs at target_fps = {} Hz; the policy was trained at {} Hz (set \
              accept_other_fps to run anyway; the trial file records it)",
             e.target_fps, want.fps
-        ));
+        )));
     }
     let Some(skeleton) = e.skeleton else {
-        return Err("the tracker sent no skeleton (front and centre nodes)".into());
+        return Err(crate::LiveError::TrackerState(
+            "the tracker sent no skeleton (front and centre nodes)".into(),
+        ));
     };
     if skeleton.front_index == skeleton.center_index {
-        return Err(format!(
+        return Err(crate::LiveError::TrackerState(format!(
             "the skeleton's front and centre are the same node ({}): no heading",
             skeleton.front_index
-        ));
+        )));
     }
     let missing: Vec<String> = std::iter::once(ids.robot)
         .chain(ids.fish.iter().copied())
@@ -149,11 +157,11 @@ pub fn check_experiment(
         .map(|id| id.to_string())
         .collect();
     if !missing.is_empty() {
-        return Err(format!(
+        return Err(crate::LiveError::TrackerState(format!(
             "entity id(s) {} are not among the tracker's entities {:?}",
             missing.join(", "),
             e.entity_ids
-        ));
+        )));
     }
     Ok(skeleton)
 }
@@ -432,7 +440,7 @@ mod tests {
             accept_other_fps: false,
         };
         let good = update(RecordingState::Initial, 0, vec![]);
-        assert_eq!(check_experiment(&good, &ids(), &want), Ok(SK));
+        assert_eq!(check_experiment(&good, &ids(), &want).ok(), Some(SK));
         let mut e = good.clone();
         e.arena = Some(Arena {
             width_cm: 200,
@@ -440,10 +448,11 @@ mod tests {
         });
         assert!(check_experiment(&e, &ids(), &want)
             .unwrap_err()
+            .to_string()
             .contains("200 x 100"));
         let mut e = good.clone();
         e.target_fps = 30.0;
-        let err = check_experiment(&e, &ids(), &want).unwrap_err();
+        let err = check_experiment(&e, &ids(), &want).unwrap_err().to_string();
         assert!(
             err.contains("30") && err.contains("accept_other_fps"),
             "{err}"
@@ -461,11 +470,13 @@ mod tests {
         e.skeleton = None;
         assert!(check_experiment(&e, &ids(), &want)
             .unwrap_err()
+            .to_string()
             .contains("skeleton"));
         let mut e = good.clone();
         e.entity_ids = vec![1];
         assert!(check_experiment(&e, &ids(), &want)
             .unwrap_err()
+            .to_string()
             .contains("entity id(s) 2"));
         assert!(EntityIds {
             robot: 3,
@@ -473,6 +484,7 @@ mod tests {
         }
         .validate()
         .unwrap_err()
+        .to_string()
         .contains("id 3"));
     }
 

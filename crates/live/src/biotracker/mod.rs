@@ -78,9 +78,9 @@ fn yes() -> bool {
 
 impl ObserverSettings {
     /// Reads the settings from a component's `config_json`.
-    pub fn from_json(config_json: &str) -> Result<Self, String> {
+    pub fn from_json(config_json: &str) -> Result<Self, crate::LiveError> {
         let s: Self = serde_json::from_str(config_json)
-            .map_err(|e| format!("the component's config_json: {e}"))?;
+            .map_err(|e| crate::LiveError::Settings(format!("the component's config_json: {e}")))?;
         s.validate()?;
         Ok(s)
     }
@@ -94,18 +94,18 @@ impl ObserverSettings {
     }
 
     /// Checks what can be checked without loading anything.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), crate::LiveError> {
         if self.policy.trim().is_empty() {
-            return Err(
+            return Err(crate::LiveError::Settings(
                 "`policy` is empty: name a training run, a policy file or scripted:<name>".into(),
-            );
+            ));
         }
         if self.fish_ids.len() > fishprobe_sim::MAX_FISH {
-            return Err(format!(
+            return Err(crate::LiveError::Settings(format!(
                 "{} fish entity ids; at most {} fish",
                 self.fish_ids.len(),
                 fishprobe_sim::MAX_FISH
-            ));
+            )));
         }
         self.ids().validate()?;
         if self
@@ -113,13 +113,15 @@ impl ObserverSettings {
             .as_deref()
             .is_some_and(|t| t.trim().is_empty())
         {
-            return Err("`robot_sink_token` is empty".into());
+            return Err(crate::LiveError::Settings(
+                "`robot_sink_token` is empty".into(),
+            ));
         }
         if !self.robot_sink.ip().is_loopback() && self.robot_sink_token.is_none() {
-            return Err(format!(
+            return Err(crate::LiveError::Settings(format!(
                 "the robot sink listens on {} (not loopback): set `robot_sink_token`",
                 self.robot_sink
-            ));
+            )));
         }
         Ok(())
     }

@@ -79,7 +79,7 @@ impl Observer {
         fallback_dir: Option<PathBuf>,
     ) -> Result<Self, LiveError> {
         live.validate()?;
-        ids.validate().map_err(LiveError::Observer)?;
+        ids.validate()?;
         if ids.fish.len() != live.fish_count as usize {
             return Err(LiveError::Observer(format!(
                 "{} fish entity ids for a protocol of {} fish",
@@ -135,7 +135,7 @@ impl Observer {
         let skeleton = match check_experiment(e, &self.ids, &self.expected) {
             Ok(s) => s,
             Err(why) => {
-                self.refuse(why, out);
+                self.refuse(why.to_string(), out);
                 return;
             }
         };

@@ -398,7 +398,7 @@ fn settings_come_from_the_config_entry_and_mistakes_are_named() {
     assert!(s.follow_recording && !s.accept_other_fps);
     assert_eq!(s.core.to_string(), "127.0.0.1:27342");
     assert!(s.robot_sink.ip().is_loopback());
-    let err = |j: &str| ObserverSettings::from_json(j).unwrap_err();
+    let err = |j: &str| ObserverSettings::from_json(j).unwrap_err().to_string();
     assert!(
         err(r#"{"policy": "p", "out": "o", "robot_id": 1, "fish_ids": [2], "fishids": [3]}"#)
             .contains("unknown field `fishids`")

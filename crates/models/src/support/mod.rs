@@ -73,7 +73,7 @@ pub fn shipped_convnet() -> Result<SupportModel, SupportError> {
         path: "shipped with fishprobe (convnet.support.json)".into(),
         what,
     };
-    let s = SupportModel::from_json(SHIPPED_CONVNET).map_err(invalid)?;
+    let s = SupportModel::from_json(SHIPPED_CONVNET).map_err(|e| invalid(e.to_string()))?;
     if s.model_sha256 != crate::convnet::shipped_sha256() {
         return Err(invalid(
             "built for other weights than the shipped ones".into(),
@@ -190,6 +190,9 @@ impl SupportConfig {
 /// Why a support model cannot be built or used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SupportError {
+    /// A support file's text that is not one (with why).
+    #[error("{0}")]
+    NotASupportFile(String),
     /// Settings out of range.
     #[error(transparent)]
     Config(#[from] ConfigError),

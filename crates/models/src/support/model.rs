@@ -288,7 +288,7 @@ impl SupportModel {
                 path: path.to_path_buf(),
             },
         )?;
-        let s = Self::from_json(&text).map_err(invalid)?;
+        let s = Self::from_json(&text).map_err(|e| invalid(e.to_string()))?;
         if !expected_sha256.is_empty() && s.model_sha256 != expected_sha256 {
             return Err(SupportError::OtherModel {
                 path: path.to_path_buf(),
@@ -301,17 +301,19 @@ impl SupportModel {
     }
 
     /// Parses and checks a support file's text.
-    pub fn from_json(text: &str) -> Result<Self, String> {
-        let mut s: SupportModel =
-            serde_json::from_str(text).map_err(|e| format!("not a fishprobe support file: {e}"))?;
+    pub fn from_json(text: &str) -> Result<Self, SupportError> {
+        let mut s: SupportModel = serde_json::from_str(text).map_err(|e| {
+            SupportError::NotASupportFile(format!("not a fishprobe support file: {e}"))
+        })?;
         if s.format != FORMAT || s.version != VERSION {
-            return Err(format!(
+            return Err(SupportError::NotASupportFile(format!(
                 "format {} version {}, not {FORMAT} version {VERSION}",
                 s.format, s.version
-            ));
+            )));
         }
-        s.config.validate().map_err(|e| e.to_string())?;
-        s.arch().validate().map_err(|e| e.to_string())?;
+        let not_one = |e: &dyn std::fmt::Display| SupportError::NotASupportFile(e.to_string());
+        s.config.validate().map_err(|e| not_one(&e))?;
+        s.arch().validate().map_err(|e| not_one(&e))?;
         let finite = |v: &[f32]| v.iter().all(|x| x.is_finite());
         let ok = finite(&s.mean)
             && finite(&s.std)
@@ -320,16 +322,18 @@ impl SupportModel {
             && s.raw_p95.is_finite()
             && s.raw_p95 > s.raw_median;
         if !ok {
-            return Err("non-finite or degenerate calibration".into());
+            return Err(SupportError::NotASupportFile(
+                "non-finite or degenerate calibration".into(),
+            ));
         }
         match (&s.mixture, s.config.estimator) {
             (None, Estimator::Knn) => {
                 if s.points.len() <= s.config.neighbours || !s.points.iter().all(|p| finite(p)) {
-                    return Err(format!(
+                    return Err(SupportError::NotASupportFile(format!(
                         "{} reference views for {} neighbours, or non-finite ones",
                         s.points.len(),
                         s.config.neighbours
-                    ));
+                    )));
                 }
             }
             (Some(m), Estimator::Gmm) => {
@@ -342,10 +346,14 @@ impl SupportModel {
                     || !m.variances.iter().all(|v| v.iter().all(|&x| x > 0.0))
                     || !finite(&m.log_weights)
                 {
-                    return Err("a malformed mixture".into());
+                    return Err(SupportError::NotASupportFile("a malformed mixture".into()));
                 }
             }
-            _ => return Err("estimator and stored parameters disagree".into()),
+            _ => {
+                return Err(SupportError::NotASupportFile(
+                    "estimator and stored parameters disagree".into(),
+                ))
+            }
         }
         s.index();
         Ok(s)
