@@ -2,7 +2,7 @@
 //! M_Zone fish, the validation that the group version of the model shows his four collective
 //! states, and for M_Force the polarisation over its alignment strength (Klamser et al. 2021).
 
-use crate::{bail, Context, ResearchError, Result};
+use crate::{ResearchError, Result};
 use fishprobe_models::collective::{
     couzin_zone, run as run_group, CollectiveParams, CollectiveState, PhaseGrid, Swimmer,
     COUZIN_TURN_RATE_RAD_S,
@@ -100,11 +100,16 @@ impl Sweep {
         ];
         match a.model {
             GroupModel::Zone if a.alignment.is_some() => {
-                bail!("alignment sweeps M_Force: set model to force (this run sweeps M_Zone)")
+                return Err(ResearchError::Refused(
+                    "alignment sweeps M_Force: set model to force (this run sweeps M_Zone)"
+                        .to_string(),
+                ))
             }
             GroupModel::Force => {
                 if let Some((flag, _)) = zone_flags.iter().find(|(_, given)| *given) {
-                    bail!("{flag} sweeps M_Zone: set model to zone (this run sweeps M_Force)")
+                    return Err(ResearchError::Refused(format!(
+                        "{flag} sweeps M_Zone: set model to zone (this run sweeps M_Force)"
+                    )));
                 }
             }
             GroupModel::Zone => {}
@@ -122,7 +127,10 @@ impl Sweep {
 /// table (or JSON) to show. `progress(done, total)` is called after each run, from any thread.
 pub fn run(a: &CollectiveSettings, progress: &(dyn Fn(u64, u64) + Sync)) -> Result<String> {
     if a.seeds == 0 || a.seeds > 100 {
-        bail!("seeds must lie in [1, 100], got {}", a.seeds);
+        return Err(ResearchError::Refused(format!(
+            "seeds must lie in [1, 100], got {}",
+            a.seeds
+        )));
     }
     let p = CollectiveParams {
         fish: a.fish,
@@ -132,7 +140,7 @@ pub fn run(a: &CollectiveSettings, progress: &(dyn Fn(u64, u64) + Sync)) -> Resu
     };
     p.validate("")
         .map_err(ResearchError::msg)
-        .context("fish, seconds")?;
+        .map_err(|e| ResearchError::within("fish, seconds", e))?;
     let sweep = Sweep::of(a)?;
     let turn = match a.turn_rate.as_deref().unwrap_or("couzin") {
         "couzin" => COUZIN_TURN_RATE_RAD_S,
@@ -141,14 +149,18 @@ pub fn run(a: &CollectiveSettings, progress: &(dyn Fn(u64, u64) + Sync)) -> Resu
             .parse::<f32>()
             .ok()
             .filter(|v| v.is_finite() && *v > 0.0)
-            .with_context(|| {
-                format!("turn_rate must be `couzin`, `paper` or a positive number, got `{x}`")
+            .ok_or_else(|| {
+                ResearchError::Refused(format!(
+                    "turn_rate must be `couzin`, `paper` or a positive number, got `{x}`"
+                ))
             })?,
     };
     let swimmers = swimmers(a, &sweep, turn)?;
     let runs = swimmers.len() * a.seeds as usize;
     if swimmers.is_empty() || runs > MAX_RUNS {
-        bail!("the sweep has {runs} runs; it must have 1 to {MAX_RUNS}");
+        return Err(ResearchError::Refused(format!(
+            "the sweep has {runs} runs; it must have 1 to {MAX_RUNS}"
+        )));
     }
     let done = std::sync::atomic::AtomicU64::new(0);
     let jobs: Vec<(usize, u64)> = (0..swimmers.len())
@@ -185,9 +197,12 @@ fn swimmers(a: &CollectiveSettings, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec
                         max_turn_rate_rad_s: turn,
                         ..couzin_zone(ro, ra)
                     };
-                    let s = Swimmer::zone(zp)
-                        .map_err(ResearchError::msg)
-                        .with_context(|| format!("Δr_o = {}, Δr_a = {}", shown(ro), shown(ra)))?;
+                    let s = Swimmer::zone(zp).map_err(ResearchError::msg).map_err(|e| {
+                        ResearchError::within(
+                            format!("Δr_o = {}, Δr_a = {}", shown(ro), shown(ra)),
+                            e,
+                        )
+                    })?;
                     v.push((vec![ro, ra], s));
                 }
             }
@@ -202,7 +217,7 @@ fn swimmers(a: &CollectiveSettings, sweep: &Sweep, turn: f32) -> Result<Vec<(Vec
                     ..ForceParams::default()
                 })
                 .map_err(ResearchError::msg)
-                .with_context(|| format!("alignment {al}"))?;
+                .map_err(|e| ResearchError::within(format!("alignment {al}"), e))?;
                 Ok((vec![al], s))
             })
             .collect::<Result<_>>()?,
@@ -227,15 +242,22 @@ fn zone_output(
         cohesive_share: p.cohesive_share,
     };
     if let Some(dir) = &a.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| ResearchError::within(format!("creating {}", dir.display()), e))?;
         let fig = fishprobe_report::figures::collective_phase(&grid);
-        fishprobe_report::write_figure(&fig, dir, 2.0)
-            .with_context(|| format!("writing the picture into {}", dir.display()))?;
+        fishprobe_report::write_figure(&fig, dir, 2.0).map_err(|e| {
+            ResearchError::within(format!("writing the picture into {}", dir.display()), e)
+        })?;
         fishprobe_io::write_atomically(
             &dir.join("collective.json"),
             serde_json::to_string_pretty(&grid)?.as_bytes(),
         )
-        .with_context(|| format!("writing {}", dir.join("collective.json").display()))?;
+        .map_err(|e| {
+            ResearchError::within(
+                format!("writing {}", dir.join("collective.json").display()),
+                e,
+            )
+        })?;
     }
     if a.json {
         return Ok(serde_json::to_string_pretty(&grid)? + "\n");
@@ -277,7 +299,8 @@ fn force_output(
         .map(|((k, _), c)| serde_json::json!({"alignment": k[0], "runs": c}))
         .collect();
     if let Some(dir) = &a.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| ResearchError::within(format!("creating {}", dir.display()), e))?;
         fishprobe_io::write_atomically(
             &dir.join("collective-force.json"),
             serde_json::to_string_pretty(&rows)?.as_bytes(),

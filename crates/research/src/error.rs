@@ -65,44 +65,18 @@ pub enum ResearchError {
 /// The result of a research command's work.
 pub type Result<T, E = ResearchError> = std::result::Result<T, E>;
 
-/// Says what was being done when an error happened (the `context` of [`ResearchError`]).
-pub trait Context<T> {
-    /// The error, with `context` in front of it.
-    fn context(self, context: impl Display) -> Result<T>;
-    /// The error, with the context `f` makes in front of it (made only on an error).
-    fn with_context<D: Display>(self, f: impl FnOnce() -> D) -> Result<T>;
-}
-
-impl<T, E: Into<ResearchError>> Context<T> for std::result::Result<T, E> {
-    fn context(self, context: impl Display) -> Result<T> {
-        self.map_err(|e| ResearchError::Context {
-            context: context.to_string(),
-            source: Box::new(e.into()),
-        })
-    }
-
-    fn with_context<D: Display>(self, f: impl FnOnce() -> D) -> Result<T> {
-        self.map_err(|e| ResearchError::Context {
-            context: f().to_string(),
-            source: Box::new(e.into()),
-        })
-    }
-}
-
-impl<T> Context<T> for Option<T> {
-    fn context(self, context: impl Display) -> Result<T> {
-        self.ok_or_else(|| ResearchError::Refused(context.to_string()))
-    }
-
-    fn with_context<D: Display>(self, f: impl FnOnce() -> D) -> Result<T> {
-        self.ok_or_else(|| ResearchError::Refused(f().to_string()))
-    }
-}
-
 impl ResearchError {
     /// A refusal or failure described by a message.
     pub fn msg(message: impl Display) -> Self {
         ResearchError::Refused(message.to_string())
+    }
+
+    /// `source`, with what was being done when it happened (`context`) in front of it.
+    pub fn within(context: impl Display, source: impl Into<ResearchError>) -> Self {
+        ResearchError::Context {
+            context: context.to_string(),
+            source: Box::new(source.into()),
+        }
     }
 
     /// The error and its causes, joined by ": " (as the command line shows them).
@@ -118,14 +92,6 @@ impl ResearchError {
     }
 }
 
-/// Returns a [`ResearchError::Refused`] made from a format string.
-macro_rules! bail {
-    ($($t:tt)*) => {
-        return Err($crate::ResearchError::Refused(format!($($t)*)))
-    };
-}
-pub(crate) use bail;
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -134,12 +100,7 @@ mod tests {
     #[test]
     fn contexts_chain_to_their_cause() {
         let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
-        let e = Err::<(), _>(io)
-            .context("reading a.json")
-            .context("seed 3")
-            .unwrap_err();
+        let e = ResearchError::within("seed 3", ResearchError::within("reading a.json", io));
         assert_eq!(e.chain(), "seed 3: reading a.json: no such file");
-        let none: Option<u8> = None;
-        assert_eq!(none.context("nothing").unwrap_err().to_string(), "nothing");
     }
 }

@@ -4,7 +4,7 @@
 //! approach assay and the scripted baselines, and prints a scoreboard against the paper.
 //! Resumable: a finished cell is read back, an interrupted training resumes.
 
-use crate::{bail, on_threads, Context, ResearchError, Result, Runner};
+use crate::{on_threads, ResearchError, Result, Runner};
 use fishprobe_analysis::competence::{plus_minus, ratio_se, GoalStats};
 use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
 use fishprobe_learn::{Evaluation, PolicyController, PpoConfig, RunSpec, Trainer};
@@ -66,7 +66,7 @@ fn cell_settings(
     let spec: ModelSpec = with(&ModelSpec::by_name(model)?, &r.merged(|p| (p.model)()))?;
     spec.validate()?;
     let Some(base_ppo) = PpoConfig::preset_for(preset, spec.is_expensive()) else {
-        bail!("unknown preset `{preset}`");
+        return Err(ResearchError::Refused(format!("unknown preset `{preset}`")));
     };
     let ppo: PpoConfig = with(&base_ppo, &r.merged(|p| (p.ppo)()))?;
     ppo.validate()?;
@@ -110,7 +110,8 @@ fn cell(a: &FidelitySettings, r: &Combo, model: &str, dir: &Path, by: Runner) ->
     {
         let d = dir.join(&sub);
         if d.exists() {
-            std::fs::remove_dir_all(&d).with_context(|| format!("removing {}", d.display()))?;
+            std::fs::remove_dir_all(&d)
+                .map_err(|e| ResearchError::within(format!("removing {}", d.display()), e))?;
         }
     }
     // Evaluation on the 15-minute task (evaluation goals always count the fish).
@@ -213,12 +214,12 @@ fn finished_cell(dir: &Path, settings: &Value, by: Runner) -> Result<Option<Valu
                 }
                 return Ok(Some(v));
             }
-            bail!(
+            return Err(ResearchError::Refused(format!(
                 "{} holds a cell made with other settings (another preset, episodes or \
                  seed, or fishprobe's defaults or trainer changed since): use another output directory \
                  or remove it",
                 dir.display()
-            );
+            )));
         }
     }
     Ok(None)
@@ -271,7 +272,7 @@ fn reach_columns(dir: &Path) -> Result<(Option<f64>, ScriptedReach)> {
     let acfg = AnalysisConfig::default();
     let reach = |sub: &str| -> Result<Option<f64>> {
         let mut files: Vec<PathBuf> = std::fs::read_dir(dir.join(sub))
-            .with_context(|| format!("reading {}", dir.join(sub).display()))?
+            .map_err(|e| ResearchError::within(format!("reading {}", dir.join(sub).display()), e))?
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.extension().is_some_and(|x| x == "hdf5"))
             .collect();
@@ -341,10 +342,12 @@ pub fn run(a: &FidelitySettings, by: Runner) -> Result<String> {
         return Ok(s);
     }
     if !(1..=1000).contains(&a.episodes) || !(1..=1000).contains(&a.approach_episodes) {
-        bail!("episodes and approach_episodes must lie in [1, 1000]");
+        return Err(ResearchError::Refused(
+            "episodes and approach_episodes must lie in [1, 1000]".to_string(),
+        ));
     }
     for m in &a.models {
-        ModelSpec::by_name(m).with_context(|| format!("models: {m}"))?;
+        ModelSpec::by_name(m).map_err(|e| ResearchError::within(format!("models: {m}"), e))?;
     }
     super::no_repeats("models", &a.models)?;
     super::no_repeats("readings", &a.readings)?;

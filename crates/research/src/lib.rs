@@ -27,8 +27,7 @@ pub mod ood_report;
 pub mod reference;
 pub mod support;
 
-pub(crate) use error::bail;
-pub use error::{Context, ResearchError, Result};
+pub use error::{ResearchError, Result};
 
 /// Who runs a research command: the fishprobe build recorded with what it trains and fits
 /// (`fishprobe --version`), and where its progress lines go.
@@ -54,7 +53,9 @@ impl Runner<'_> {
 pub(crate) fn no_repeats<T: PartialEq + std::fmt::Display>(what: &str, values: &[T]) -> Result<()> {
     for (i, v) in values.iter().enumerate() {
         if values[..i].contains(v) {
-            bail!("{what} names {v} twice: name each once");
+            return Err(ResearchError::Refused(format!(
+                "{what} names {v} twice: name each once"
+            )));
         }
     }
     Ok(())

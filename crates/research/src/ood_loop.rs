@@ -15,7 +15,7 @@
 //! Every stage leaves its files in the output directory and is skipped when they are there, so
 //! an interrupted loop resumes.
 
-use crate::{bail, Context, ResearchError, Result, Runner};
+use crate::{ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{metric_gap, pooled_metrics, quantile, score_trials, share_at_least};
 use fishprobe_analysis::{load_trial, AnalysisConfig};
 use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress, FitRequest};
@@ -44,7 +44,7 @@ fn record(
     dir: &Path,
 ) -> Result<(Vec<PathBuf>, f64)> {
     let c = fishprobe_learn::controller(controller, false)
-        .with_context(|| format!("loading {controller}"))?;
+        .map_err(|e| ResearchError::within(format!("loading {controller}"), e))?;
     let done = dir.join("summary.csv").exists();
     let e = Evaluation {
         model: model.clone(),
@@ -57,7 +57,8 @@ fn record(
         prefix: "trial".into(),
     };
     if !done {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| ResearchError::within(format!("creating {}", dir.display()), e))?;
         fishprobe_learn::evaluate(c.as_ref(), &e)?;
     }
     let files = trial_files(dir);
@@ -116,7 +117,7 @@ fn fit(
             },
             &quiet,
         )
-        .with_context(|| format!("fitting {}", weights.display()))?;
+        .map_err(|e| ResearchError::within(format!("fitting {}", weights.display()), e))?;
     }
     Ok(ModelSpec::by_name(&format!(
         "convnet:{}",
@@ -135,15 +136,20 @@ fn train(
     dir: &Path,
     build: &str,
 ) -> Result<String> {
-    let mut ppo = PpoConfig::preset(&cfg.ppo_preset).context("preset checked")?;
+    let mut ppo =
+        PpoConfig::preset(&cfg.ppo_preset).ok_or_else(|| ResearchError::msg("preset checked"))?;
     ppo.total_timesteps = cfg.train_steps;
     let mut env = EnvConfig::default();
     env.task.objective = objective;
     env.task.ood_score = cfg.ood_score;
     let spec = RunSpec::new(model.clone(), ppo, env, seed, cfg.ppo_preset.clone(), build);
     use fishprobe_learn::run::{open, OnOther, Opening, RunLayout};
-    let opening = open(dir, &spec, OnOther::Refuse)
-        .context("the loop was begun by another fishprobe; use another output directory")?;
+    let opening = open(dir, &spec, OnOther::Refuse).map_err(|e| {
+        ResearchError::within(
+            "the loop was begun by another fishprobe; use another output directory",
+            e,
+        )
+    })?;
     if opening == Opening::Resume && RunLayout::new(dir).policy().exists() {
         // Trained in an earlier run of the loop.
         return Ok(dir.display().to_string());
@@ -366,7 +372,10 @@ fn probe_gaps(
 pub fn run(out: &Path, seeds: &[u64], cfg: &OodLoopConfig, by: Runner) -> Result<String> {
     cfg.validate()?;
     if seeds.is_empty() || seeds.len() > 100 {
-        bail!("seeds: 1 to 100 seeds, got {}", seeds.len());
+        return Err(ResearchError::Refused(format!(
+            "seeds: 1 to 100 seeds, got {}",
+            seeds.len()
+        )));
     }
     super::no_repeats("seeds", seeds)?;
     let _lock = fishprobe_io::DirLock::acquire(out, "ood-loop")?;
@@ -376,28 +385,32 @@ pub fn run(out: &Path, seeds: &[u64], cfg: &OodLoopConfig, by: Runner) -> Result
         // Compared as settings, not as text: a loop recorded before a setting existed has
         // that setting's default, and resumes when the new run keeps it.
         Ok(old) => {
-            let old: OodLoopConfig = serde_json::from_str(&old).with_context(|| {
+            let old: OodLoopConfig = serde_json::from_str(&old).map_err(|e| ResearchError::within({
                 format!(
                     "{} is not the settings of a loop this fishprobe can resume; use another output directory",
                     recorded.display()
                 )
-            })?;
+            }, e))?;
             if old != *cfg {
-                bail!(
+                return Err(ResearchError::Refused(format!(
                     "{} holds a loop with other settings ({}); use another output directory",
                     out.display(),
                     recorded.display()
-                );
+                )));
             }
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             fishprobe_io::write_atomically(&recorded, settings.as_bytes())?
         }
-        Err(e) => return Err(e).with_context(|| format!("reading {}", recorded.display())),
+        Err(e) => {
+            return Err(e)
+                .map_err(|e| ResearchError::within(format!("reading {}", recorded.display()), e))
+        }
     }
     let mut results = Vec::new();
     for &seed in seeds {
-        let r = one_seed(cfg, seed, out, by).with_context(|| format!("seed {seed}"))?;
+        let r = one_seed(cfg, seed, out, by)
+            .map_err(|e| ResearchError::within(format!("seed {seed}"), e))?;
         by.note(&format!(
             "seed {seed}: metric gap narrow {:.3}, after lead-to-goal data {:.3}, after OOD data {:.3}",
             r.narrow.metrics,

@@ -4,7 +4,7 @@
 //! training support, and writes the distributions, example episodes, and a ranked data
 //! wishlist.
 
-use crate::{bail, on_threads, Context, ResearchError, Result, Runner};
+use crate::{on_threads, ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{
     disagreement_of_trials, disagreement_of_views, distribution, quantile, score_recorded,
     score_views, share_at_least, share_beyond_interval, trial_views, wishlist, Distribution,
@@ -113,7 +113,7 @@ fn ensemble_of(model: &ModelSpec) -> Result<Option<Disagreement>> {
     match model.disagreement() {
         Ok(d) => Ok(Some(d)),
         Err(ModelError::Support(SupportError::MissingEnsemble { .. })) => Ok(None),
-        Err(e) => Err(e).context("the ensemble of the fish model"),
+        Err(e) => Err(e).map_err(|e| ResearchError::within("the ensemble of the fish model", e)),
     }
 }
 
@@ -137,9 +137,13 @@ fn trained_yardstick(policy: &str) -> Result<Option<TrainedYardstick>> {
         return Ok(None);
     }
     let text = fishprobe_io::read_small_text(&file)
-        .with_context(|| format!("reading {}", file.display()))?;
-    let y = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a yardstick record of `train`", file.display()))?;
+        .map_err(|e| ResearchError::within(format!("reading {}", file.display()), e))?;
+    let y = serde_json::from_str(&text).map_err(|e| {
+        ResearchError::within(
+            format!("{}: not a yardstick record of `train`", file.display()),
+            e,
+        )
+    })?;
     Ok(Some(y))
 }
 
@@ -211,17 +215,19 @@ fn recorded_files(paths: &[PathBuf], flag: &str) -> Result<Vec<PathBuf>> {
         if p.is_dir() {
             let found = fishprobe_io::trial_files(p);
             if found.is_empty() {
-                bail!(
+                return Err(ResearchError::Refused(format!(
                     "{flag} {}: no trial files (*.hdf5, *.h5) in it",
                     p.display()
-                );
+                )));
             }
             files.extend(found);
         } else {
             files.push(p.clone());
         }
         if files.len() > MAX_RECORDED {
-            bail!("{flag}: more than {MAX_RECORDED} trial files; score a sample of them");
+            return Err(ResearchError::Refused(format!(
+                "{flag}: more than {MAX_RECORDED} trial files; score a sample of them"
+            )));
         }
     }
     Ok(files)
@@ -241,7 +247,9 @@ fn recorded_run(
     ));
     let (scores, goals) = score_recorded(support, label, files)?;
     if scores.scores.is_empty() {
-        bail!("the {label}'s recorded trials hold no tracked fish with the robot");
+        return Err(ResearchError::Refused(format!(
+            "the {label}'s recorded trials hold no tracked fish with the robot"
+        )));
     }
     let counted: Vec<f64> = goals.into_iter().flatten().map(|g| g as f64).collect();
     Ok(ScoredRun {
@@ -256,7 +264,10 @@ fn recorded_run(
 /// the summary (or, with `json`, `ood.json`) to show; progress goes to `by`.
 pub fn run(a: &OodReportSettings, by: Runner) -> Result<String> {
     if a.episodes == 0 || a.episodes > 1000 {
-        bail!("episodes must lie in [1, 1000], got {}", a.episodes);
+        return Err(ResearchError::Refused(format!(
+            "episodes must lie in [1, 1000], got {}",
+            a.episodes
+        )));
     }
     fishprobe_learn::evaluate::check_minutes("minutes", a.minutes)?;
     let policy = a.policy.as_deref();
@@ -267,11 +278,15 @@ pub fn run(a: &OodReportSettings, by: Runner) -> Result<String> {
     let model = match (&a.model, &recorded) {
         (Some(m), _) => ModelSpec::by_name(m)?,
         (None, Some(spec)) => spec.model.clone(),
-        (None, None) => bail!("model is required unless policy is a training directory"),
+        (None, None) => {
+            return Err(ResearchError::Refused(
+                "model is required unless policy is a training directory".to_string(),
+            ))
+        }
     };
-    let support = model
-        .support()
-        .with_context(|| format!("the support of fish model {}", model.name()))?;
+    let support = model.support().map_err(|e| {
+        ResearchError::within(format!("the support of fish model {}", model.name()), e)
+    })?;
     let ensemble = ensemble_of(&model)?;
     let env = recorded
         .as_ref()
@@ -281,17 +296,20 @@ pub fn run(a: &OodReportSettings, by: Runner) -> Result<String> {
         (false, _) => Source::Recorded(recorded_files(&a.trials, "trials")?),
         (true, Some(p)) => Source::Simulated(
             fishprobe_learn::controller(p, false)
-                .with_context(|| format!("loading the policy {p}"))?,
+                .map_err(|e| ResearchError::within(format!("loading the policy {p}"), e))?,
         ),
-        (true, None) => bail!("policy or trials is required"),
+        (true, None) => {
+            return Err(ResearchError::Refused(
+                "policy or trials is required".to_string(),
+            ))
+        }
     };
     // Read before the episodes: a corrupt record fails at once, not after minutes.
     let trained = policy.map(trained_yardstick).transpose()?.flatten();
     let goal_src = if a.compare_trials.is_empty() {
-        Source::Simulated(
-            fishprobe_learn::controller(&a.compare, false)
-                .with_context(|| format!("loading the compared policy {}", a.compare))?,
-        )
+        Source::Simulated(fishprobe_learn::controller(&a.compare, false).map_err(|e| {
+            ResearchError::within(format!("loading the compared policy {}", a.compare), e)
+        })?)
     } else {
         Source::Recorded(recorded_files(&a.compare_trials, "compare_trials")?)
     };
@@ -435,8 +453,8 @@ fn training_scores(
         robot_as_partner: true,
         ..CloneConfig::default()
     };
-    let d =
-        load_pairs(&data, &support.arch(), &clone).context("loading the training recordings")?;
+    let d = load_pairs(&data, &support.arch(), &clone)
+        .map_err(|e| ResearchError::within("loading the training recordings", e))?;
     let disagreement =
         ensemble.map(|e| disagreement_of_views(e, "training recordings", &d.x, 50_000));
     Ok((

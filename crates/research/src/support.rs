@@ -2,7 +2,7 @@
 //! validated on held-out recordings and on situations the data lacks, with the two estimators
 //! compared.
 
-use crate::{bail, Context, Result, Runner};
+use crate::{ResearchError, Result, Runner};
 use fishprobe_learn::bc::{
     build_support, file_names, load_pairs, pairs_or_shared, CloneConfig, PairDataset,
 };
@@ -68,14 +68,16 @@ fn model_of(name: &str) -> Result<(ModelSpec, String)> {
     let hash = match &spec {
         ModelSpec::ConvNet(p) if p.weights.is_empty() => shipped_sha256(),
         ModelSpec::ConvNet(p) => fishprobe_models::weights_sha256(p.weights.as_ref())
-            .with_context(|| format!("reading {}", p.weights))?,
+            .map_err(|e| ResearchError::within(format!("reading {}", p.weights), e))?,
         ModelSpec::Onnx(p) => fishprobe_models::onnx_sha256(p.path.as_ref())
-            .with_context(|| format!("reading {}", p.path))?,
-        other => bail!(
-            "`{}` is not data-driven: a support model belongs to a model fitted on recordings \
+            .map_err(|e| ResearchError::within(format!("reading {}", p.path), e))?,
+        other => {
+            return Err(ResearchError::Refused(format!(
+                "`{}` is not data-driven: a support model belongs to a model fitted on recordings \
              (ConvNet, convnet:FILE, onnx:FILE)",
-            other.name()
-        ),
+                other.name()
+            )))
+        }
     };
     // The model must load: a support for a file that is no model helps no one.
     spec.build()?;
@@ -160,22 +162,23 @@ fn check(
 /// or JSON with `json`); skipped recordings go to `by` as warnings.
 pub fn run(a: &SupportSettings, by: Runner) -> Result<String> {
     if a.synthetic == 0 || a.synthetic > 1_000_000 {
-        bail!("synthetic must lie in [1, 1000000], got {}", a.synthetic);
+        return Err(ResearchError::Refused(format!(
+            "synthetic must lie in [1, 1000000], got {}",
+            a.synthetic
+        )));
     }
     SupportConfig {
         partner_range_cm: a.partner_range_cm,
         ..SupportConfig::default()
     }
     .validate()
-    .context("partner_range_cm")?;
+    .map_err(|e| ResearchError::within("partner_range_cm", e))?;
     let (spec, hash) = model_of(&a.model)?;
     let out = match (&a.out, spec.support_path()?) {
         (Some(p), _) => p.clone(),
         (None, Some(p)) => p,
-        (None, None) => bail!(
-            "the shipped ConvNet's support is shipped with it; name an output file to build another \
-             (e.g. crates/models/assets/convnet.support.json)"
-        ),
+        (None, None) => return Err(ResearchError::Refused("the shipped ConvNet's support is shipped with it; name an output file to build another \
+             (e.g. crates/models/assets/convnet.support.json)".to_string())),
     };
     let _lock = fishprobe_io::DirLock::for_file(&out, "support")?;
     let data = pairs_or_shared(&a.data, "train")?;
@@ -185,10 +188,15 @@ pub fn run(a: &SupportSettings, by: Runner) -> Result<String> {
         robot_as_partner: a.robot_as_partner,
         ..CloneConfig::default()
     };
-    let train = load_pairs(&data, &arch, &clone).context("loading the training recordings")?;
-    let val = load_pairs(&validation, &arch, &clone).context("loading the held-out recordings")?;
+    let train = load_pairs(&data, &arch, &clone)
+        .map_err(|e| ResearchError::within("loading the training recordings", e))?;
+    let val = load_pairs(&validation, &arch, &clone)
+        .map_err(|e| ResearchError::within("loading the held-out recordings", e))?;
     if let Some(f) = train.files.iter().find(|f| val.files.contains(f)) {
-        bail!("{} is both training and held-out data", f.display());
+        return Err(ResearchError::Refused(format!(
+            "{} is both training and held-out data",
+            f.display()
+        )));
     }
     for (f, why) in train.skipped.iter().chain(&val.skipped) {
         by.note(&format!("warning: skipped {}: {why}", f.display()));
@@ -248,7 +256,7 @@ pub fn run(a: &SupportSettings, by: Runner) -> Result<String> {
         );
         checks.push(c);
     }
-    let mut s = chosen.context("the chosen estimator was built")?;
+    let mut s = chosen.ok_or_else(|| ResearchError::msg("the chosen estimator was built"))?;
     let chosen_name = serde_json::to_value(a.estimator)?;
     let chosen_check = checks.iter().find(|c| chosen_name == c.estimator.as_str());
     if let serde_json::Value::Object(m) = &mut s.provenance {

@@ -1,6 +1,6 @@
 //! The closed loop's settings, and the names of the further probes' directories they imply.
 
-use crate::{bail, Context, Result};
+use crate::{ResearchError, Result};
 use fishprobe_learn::PpoConfig;
 use fishprobe_sim::params::check;
 use fishprobe_sim::OodScore;
@@ -76,14 +76,16 @@ impl OodLoopConfig {
             ("fit_max_epochs", self.fit_max_epochs, 1000),
         ] {
             if !(1..=hi).contains(&v) {
-                bail!("ood-loop setting `{f}` = {v}: must lie in [1, {hi}]");
+                return Err(ResearchError::Refused(format!(
+                    "ood-loop setting `{f}` = {v}: must lie in [1, {hi}]"
+                )));
             }
         }
         if !(1..=1_000_000_000).contains(&self.train_steps) {
-            bail!(
+            return Err(ResearchError::Refused(format!(
                 "ood-loop setting `train_steps` = {}: must lie in [1, 1e9]",
                 self.train_steps
-            );
+            )));
         }
         fishprobe_learn::evaluate::check_minutes("episode_minutes", self.episode_minutes)?;
         fishprobe_learn::evaluate::check_minutes("gap_minutes", self.gap_minutes)?;
@@ -95,39 +97,40 @@ impl OodLoopConfig {
             0.0,
             check::MAX_LENGTH_CM,
         )
-        .context("ood-loop settings")?;
+        .map_err(|e| ResearchError::within("ood-loop settings", e))?;
         if !(2..=fishprobe_models::disagreement::MAX_MEMBERS).contains(&self.ensemble_members) {
-            bail!(
+            return Err(ResearchError::Refused(format!(
                 "ood-loop setting `ensemble_members` = {}: must lie in [2, {}]",
                 self.ensemble_members,
                 fishprobe_models::disagreement::MAX_MEMBERS
-            );
+            )));
         }
         if self.more_gap_probes.len() > 8 {
-            bail!(
+            return Err(ResearchError::Refused(format!(
                 "ood-loop setting `more_gap_probes`: at most 8 probes, got {}",
                 self.more_gap_probes.len()
-            );
+            )));
         }
         let mut dirs = vec![probe_dir_name(&self.gap_probe)];
         for p in &self.more_gap_probes {
             let d = probe_dir_name(p);
             if dirs.contains(&d) {
-                bail!(
+                return Err(ResearchError::Refused(format!(
                     "ood-loop setting `more_gap_probes`: `{p}` is listed twice (or as `gap_probe`)"
-                );
+                )));
             }
             dirs.push(d);
         }
         for p in std::iter::once(&self.gap_probe).chain(&self.more_gap_probes) {
-            fishprobe_learn::controller(p, false)
-                .with_context(|| format!("ood-loop settings: gap probe `{p}`"))?;
+            fishprobe_learn::controller(p, false).map_err(|e| {
+                ResearchError::within(format!("ood-loop settings: gap probe `{p}`"), e)
+            })?;
         }
         if PpoConfig::preset(&self.ppo_preset).is_none() {
-            bail!(
+            return Err(ResearchError::Refused(format!(
                 "ood-loop setting `ppo_preset` = {}: not a preset",
                 self.ppo_preset
-            );
+            )));
         }
         Ok(())
     }
