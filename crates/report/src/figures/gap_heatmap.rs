@@ -104,53 +104,35 @@ pub fn gap_heatmap(d: &StudyData) -> Option<Figure> {
     );
     for (i, p) in policies.iter().enumerate() {
         let y = top + ch * i as f64;
-        svg.text(
-            left - 8.0,
-            y + ch / 2.0 + 4.0,
-            &format!("π_{p}"),
-            TextStyle::new(12.0, Anchor::End).bold(),
-        );
+        heat_row_label(&mut svg, left, y, ch, p);
         for (j, (_, cells)) in columns.iter().enumerate() {
             let x = left + cw * j as f64;
-            match &cells[i] {
+            let (shade, lines) = match &cells[i] {
                 Some(c) => {
-                    let t = if c.norm.is_finite() { c.norm } else { 0.0 };
-                    let fill = viridis(t);
-                    svg.rect(x, y, cw, ch, &fill, Some(("#ffffff", 1.0)));
-                    let ink = ink_on(t);
                     let digits = if c.value.abs() >= 10.0 { 1 } else { 2 };
-                    svg.text(
-                        x + cw / 2.0,
-                        y + 20.0,
-                        &fmt(c.value, digits),
-                        TextStyle::new(12.0, Anchor::Middle).color(ink),
-                    );
-                    svg.text(
-                        x + cw / 2.0,
-                        y + 34.0,
-                        &format!("[{}, {}]", fmt(c.ci[0], digits), fmt(c.ci[1], digits)),
-                        TextStyle::new(9.0, Anchor::Middle).color(ink),
-                    );
-                    svg.text(
-                        x + cw / 2.0,
-                        y + 48.0,
-                        &format!(
-                            "rank {}",
-                            fmt(c.rank, if c.rank.fract() == 0.0 { 0 } else { 1 })
+                    let rank = fmt(c.rank, if c.rank.fract() == 0.0 { 0 } else { 1 });
+                    let lines = vec![
+                        (
+                            20.0,
+                            fmt(c.value, digits),
+                            TextStyle::new(12.0, Anchor::Middle),
                         ),
-                        TextStyle::new(10.0, Anchor::Middle).bold().color(ink),
-                    );
+                        (
+                            34.0,
+                            format!("[{}, {}]", fmt(c.ci[0], digits), fmt(c.ci[1], digits)),
+                            TextStyle::new(9.0, Anchor::Middle),
+                        ),
+                        (
+                            48.0,
+                            format!("rank {rank}"),
+                            TextStyle::new(10.0, Anchor::Middle).bold(),
+                        ),
+                    ];
+                    (Some(if c.norm.is_finite() { c.norm } else { 0.0 }), lines)
                 }
-                None => {
-                    svg.rect(x, y, cw, ch, "#f2f2f2", Some(("#ffffff", 1.0)));
-                    svg.text(
-                        x + cw / 2.0,
-                        y + ch / 2.0 + 4.0,
-                        "n/a",
-                        TextStyle::new(10.0, Anchor::Middle),
-                    );
-                }
-            }
+                None => (None, Vec::new()),
+            };
+            heat_cell(&mut svg, (x, y, cw, ch), shade, &lines, Some("n/a"));
         }
         svg.text(
             left + cw * columns.len() as f64 + 55.0,

@@ -24,12 +24,13 @@ pub use training::training;
 pub use trajectories::trajectories;
 
 use crate::data::StudyData;
-use crate::svg::{viridis, Anchor, Axes, Svg, TextStyle};
+use crate::svg::{ink_on, viridis, Anchor, Axes, Svg, TextStyle};
 
 /// What every figure file uses.
 mod prelude {
     pub(super) use super::{
-        arm_label, colour_bar, fmt, jitter, range, tank, Figure, METRIC_LABELS,
+        arm_label, colour_bar, fmt, heat_cell, heat_row_label, jitter, range, tank, Figure,
+        METRIC_LABELS,
     };
     pub(super) use crate::config::ReportConfig;
     pub(super) use crate::data::{StudyData, Track};
@@ -84,6 +85,46 @@ pub(crate) fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
 /// A deterministic jitter in [-1, 1] for the i-th point (low-discrepancy, no RNG needed).
 pub(crate) fn jitter(i: usize) -> f64 {
     ((i as f64 * 0.618_033_988_75).fract() - 0.5) * 2.0
+}
+
+/// One cell of a heat grid (the gap heatmap, the sim-to-sim matrix): the rectangle
+/// `(x, y, w, h)` filled by `shade` (viridis, 0 dark = small), its `lines` of text (height
+/// below the cell's top, text, style) centred in the colour that reads on the fill; with no
+/// `shade`, grey, with `missing` in its middle when given.
+pub(crate) fn heat_cell(
+    svg: &mut Svg,
+    (x, y, w, h): (f64, f64, f64, f64),
+    shade: Option<f64>,
+    lines: &[(f64, String, TextStyle)],
+    missing: Option<&str>,
+) {
+    let Some(t) = shade else {
+        svg.rect(x, y, w, h, "#f2f2f2", Some(("#ffffff", 1.0)));
+        if let Some(m) = missing {
+            svg.text(
+                x + w / 2.0,
+                y + h / 2.0 + 4.0,
+                m,
+                TextStyle::new(10.0, Anchor::Middle),
+            );
+        }
+        return;
+    };
+    svg.rect(x, y, w, h, &viridis(t), Some(("#ffffff", 1.0)));
+    let ink = ink_on(t);
+    for (dy, text, style) in lines {
+        svg.text(x + w / 2.0, y + dy, text, style.color(ink));
+    }
+}
+
+/// A heat grid's row label (`π_<policy>`), right-aligned left of the row at `y` of height `h`.
+pub(crate) fn heat_row_label(svg: &mut Svg, right: f64, y: f64, h: f64, policy: &str) {
+    svg.text(
+        right - 8.0,
+        y + h / 2.0 + 4.0,
+        &format!("π_{policy}"),
+        TextStyle::new(12.0, Anchor::End).bold(),
+    );
 }
 
 /// A 200 px viridis bar at `at` with labels under its two ends.

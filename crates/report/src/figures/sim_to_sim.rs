@@ -50,47 +50,36 @@ pub fn sim_to_sim(d: &StudyData) -> Option<Figure> {
     );
     for (i, p) in rows.iter().enumerate() {
         let y = top + ch * i as f64;
-        svg.text(
-            left - 8.0,
-            y + ch / 2.0 + 4.0,
-            &format!("π_{p}"),
-            TextStyle::new(12.0, Anchor::End).bold(),
-        );
+        heat_row_label(&mut svg, left, y, ch, p);
         for (j, c) in cols.iter().enumerate() {
             let x = left + cw * j as f64;
             let med = cell(p, c).map_or(f64::NAN, |x| x.median);
             if !med.is_finite() {
-                svg.rect(x, y, cw, ch, "#f2f2f2", Some(("#ffffff", 1.0)));
+                heat_cell(&mut svg, (x, y, cw, ch), None, &[], None);
                 continue;
             }
             let t = if hi > lo { (med - lo) / (hi - lo) } else { 0.0 };
-            svg.rect(x, y, cw, ch, &viridis(t), Some(("#ffffff", 1.0)));
-            let ink = ink_on(t);
-            svg.text(
-                x + cw / 2.0,
-                y + 22.0,
-                &fmt(med, 1),
-                TextStyle::new(13.0, Anchor::Middle).color(ink),
-            );
-            svg.text(
-                x + cw / 2.0,
-                y + 38.0,
-                &format!(
-                    "[{}, {}]",
-                    fmt(cell(p, c).map_or(f64::NAN, |x| x.ci[0]), 1),
-                    fmt(cell(p, c).map_or(f64::NAN, |x| x.ci[1]), 1)
+            let mut lines = vec![
+                (22.0, fmt(med, 1), TextStyle::new(13.0, Anchor::Middle)),
+                (
+                    38.0,
+                    format!(
+                        "[{}, {}]",
+                        fmt(cell(p, c).map_or(f64::NAN, |x| x.ci[0]), 1),
+                        fmt(cell(p, c).map_or(f64::NAN, |x| x.ci[1]), 1)
+                    ),
+                    TextStyle::new(9.0, Anchor::Middle),
                 ),
-                TextStyle::new(9.0, Anchor::Middle).color(ink),
-            );
+            ];
             let ph = cell(p, c).and_then(|x| x.p_holm).unwrap_or(f64::NAN);
             if ph.is_finite() {
-                svg.text(
-                    x + cw / 2.0,
-                    y + 50.0,
-                    &format!("p_Holm {}", p_text(ph)),
-                    TextStyle::new(9.0, Anchor::Middle).color(ink),
-                );
+                lines.push((
+                    50.0,
+                    format!("p_Holm {}", p_text(ph)),
+                    TextStyle::new(9.0, Anchor::Middle),
+                ));
             }
+            heat_cell(&mut svg, (x, y, cw, ch), Some(t), &lines, None);
             if *p == c {
                 svg.rect(
                     x + 1.5,
