@@ -6,11 +6,14 @@
 
 use crate::{on_threads, ResearchError, Result, Runner};
 use fishprobe_analysis::competence::{plus_minus, ratio_se, GoalStats};
+use fishprobe_analysis::results::nan;
 use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
 use fishprobe_learn::{Evaluation, PolicyController, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{derive_seed, EnvConfig};
+use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 mod readings;
@@ -57,6 +60,54 @@ impl Default for FidelitySettings {
     }
 }
 
+/// One cell of the sweep: a reading's probe of one model, scored (its `cell.json`, a row of
+/// the scoreboard). Fields in the file's (alphabetical) order; NaN is written as `null`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellRow {
+    /// Seconds each scripted robot takes to reach its fish, by script.
+    #[serde(default)]
+    pub baselines_reach_s: BTreeMap<String, Option<f64>>,
+    /// The scripted robot that leads best.
+    pub best_scripted: String,
+    /// Its goals per 15 minutes.
+    #[serde(deserialize_with = "nan::f64")]
+    pub best_scripted_goals: f64,
+    /// The approach assay's closest distance to the fish (cm).
+    #[serde(deserialize_with = "nan::f64")]
+    pub closest_cm: f64,
+    /// The probe's goals over the best script's.
+    #[serde(deserialize_with = "nan::f64")]
+    pub competence: f64,
+    /// Its standard error.
+    pub competence_se: Option<f64>,
+    /// Goals per 15 minutes.
+    #[serde(deserialize_with = "nan::f64")]
+    pub goals: f64,
+    /// Their standard deviation over episodes.
+    #[serde(deserialize_with = "nan::f64")]
+    pub goals_sd: f64,
+    /// The approach assay's mean distance to the fish (cm).
+    #[serde(deserialize_with = "nan::f64")]
+    pub mean_distance_cm: f64,
+    /// The candidate model.
+    pub model: String,
+    /// Share of the assay's frames the robot is nearer the fish than the wall.
+    #[serde(deserialize_with = "nan::f64")]
+    pub nearer_fish: f64,
+    /// Seconds the probe takes to reach its fish.
+    #[serde(default)]
+    pub reach_s: Option<f64>,
+    /// The reading (with a note when made with another seed or episode count).
+    pub reading: String,
+    /// What the cell was made with, as the file holds it: a finished cell is read back only
+    /// when this is the same JSON (a changed default makes it another cell).
+    pub settings: Value,
+    /// Training steps.
+    pub steps: u64,
+    /// Mean time to a goal (s).
+    pub time_to_goal_s: Option<f64>,
+}
+
 /// The fish model, PPO and environment settings of reading `r` for `model` under `preset`.
 fn cell_settings(
     preset: &str,
@@ -81,7 +132,7 @@ fn cell_settings(
 }
 
 /// Trains (or resumes, or reads back) the probe of one cell, evaluates it and returns its row.
-fn cell(a: &FidelitySettings, r: &Combo, model: &str, dir: &Path, by: Runner) -> Result<Value> {
+fn cell(a: &FidelitySettings, r: &Combo, model: &str, dir: &Path, by: Runner) -> Result<CellRow> {
     let (spec, ppo, env) = cell_settings(&a.preset, r, model)?;
     // A finished cell is read back only if it was made with these settings (a default that
     // changed since, or another --preset, must not pass for this reading).
@@ -172,57 +223,72 @@ fn cell(a: &FidelitySettings, r: &Combo, model: &str, dir: &Path, by: Runner) ->
         .map(|x| x.file)
         .collect();
     let ap = assay_files(&files, &AnalysisConfig::default())?;
-    let row = json!({
-        "reading": r.name, "model": model, "goals": goals, "goals_sd": sd,
-        "time_to_goal_s": ttg, "closest_cm": ap.min_iid, "mean_distance_cm": ap.mean_iid,
-        "nearer_fish": ap.frac_closer_to_fish, "best_scripted": competence.best,
-        "best_scripted_goals": competence.best_goals,
-        "competence": competence.ratio, "competence_se": competence_se,
-        "reach_s": reach_s, "baselines_reach_s": baselines_reach_s,
-        "steps": t.timesteps(),
-        "settings": settings,
-    });
+    let row = CellRow {
+        reading: r.name.clone(),
+        model: model.to_string(),
+        goals,
+        goals_sd: sd,
+        time_to_goal_s: ttg,
+        closest_cm: ap.min_iid,
+        mean_distance_cm: ap.mean_iid,
+        nearer_fish: ap.frac_closer_to_fish,
+        best_scripted: competence.best,
+        best_scripted_goals: competence.best_goals,
+        competence: competence.ratio,
+        competence_se,
+        reach_s,
+        baselines_reach_s,
+        steps: t.timesteps(),
+        settings,
+    };
     fishprobe_nn::store::write_atomic(&done, serde_json::to_string_pretty(&row)?.as_bytes())?;
     Ok(row)
 }
 
 /// The row of the finished cell in `dir` (its `cell.json`) when it was made with `settings`;
 /// `None` when there is none; an error when it was made with others.
-fn finished_cell(dir: &Path, settings: &Value, by: Runner) -> Result<Option<Value>> {
+fn finished_cell(dir: &Path, settings: &Value, by: Runner) -> Result<Option<CellRow>> {
     let done = dir.join("cell.json");
-    if let Ok(text) = fishprobe_io::read_small_text(&done) {
-        if let Ok(mut v) = serde_json::from_str::<Value>(&text) {
-            if v["settings"] == *settings {
-                // Cells made before the scoreboard gave the time to reach the fish get it from
-                // their own trial files, once; a cell whose trial files are gone keeps "–".
-                if v.get("reach_s").is_none() {
-                    match reach_columns(dir) {
-                        Ok((reach_s, baselines_reach_s)) => {
-                            v["reach_s"] = json!(reach_s);
-                            v["baselines_reach_s"] = json!(baselines_reach_s);
-                            fishprobe_nn::store::write_atomic(
-                                &done,
-                                serde_json::to_string_pretty(&v)?.as_bytes(),
-                            )?;
-                        }
-                        Err(e) => by.note(&format!(
-                            "  {}: no time to reach the fish for this older cell ({})",
-                            dir.display(),
-                            e.chain()
-                        )),
-                    }
-                }
-                return Ok(Some(v));
+    let Some((mut row, has_reach)) = read_cell(&done) else {
+        return Ok(None);
+    };
+    if row.settings != *settings {
+        return Err(ResearchError::Refused(format!(
+            "{} holds a cell made with other settings (another preset, episodes or seed, or \
+             fishprobe's defaults or trainer changed since): use another output directory or \
+             remove it",
+            dir.display()
+        )));
+    }
+    // Cells made before the scoreboard gave the time to reach the fish get it from their own
+    // trial files, once; a cell whose trial files are gone keeps "–".
+    if !has_reach {
+        match reach_columns(dir) {
+            Ok((reach_s, baselines_reach_s)) => {
+                row.reach_s = reach_s;
+                row.baselines_reach_s = baselines_reach_s;
+                fishprobe_nn::store::write_atomic(
+                    &done,
+                    serde_json::to_string_pretty(&row)?.as_bytes(),
+                )?;
             }
-            return Err(ResearchError::Refused(format!(
-                "{} holds a cell made with other settings (another preset, episodes or \
-                 seed, or fishprobe's defaults or trainer changed since): use another output directory \
-                 or remove it",
-                dir.display()
-            )));
+            Err(e) => by.note(&format!(
+                "  {}: no time to reach the fish for this older cell ({})",
+                dir.display(),
+                e.chain()
+            )),
         }
     }
-    Ok(None)
+    Ok(Some(row))
+}
+
+/// The row in a `cell.json`, and whether it has the time to reach the fish (older cells do
+/// not); `None` when there is no readable cell.
+fn read_cell(file: &Path) -> Option<(CellRow, bool)> {
+    let text = fishprobe_io::read_small_text(file).ok()?;
+    let v: Value = serde_json::from_str(&text).ok()?;
+    let has_reach = v.get("reach_s").is_some();
+    Some((serde_json::from_value(v).ok()?, has_reach))
 }
 
 /// Trains the cell's probe in `train_dir` (resuming a run of this cell's settings: the fish
@@ -293,34 +359,33 @@ fn factor(ours: f64, paper: Option<f64>) -> String {
     }
 }
 
-fn scoreboard(rows: &[Value]) -> String {
+fn scoreboard(rows: &[CellRow]) -> String {
     let mut s = String::from(
         "| reading | model | goals / 15 min (paper, factor) | time to goal (s) | closest (cm; paper) | nearer the fish (paper) | best scripted | competence | reaches its fish (s; fetch-and-lead, goal-seeker) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
-        let m = r["model"].as_str().unwrap_or("");
+        let m = r.model.as_str();
         let (pg, pc, pf) = paper(m);
-        let g = r["goals"].as_f64().unwrap_or(f64::NAN);
-        let c = r["closest_cm"].as_f64().unwrap_or(f64::NAN);
-        let f = r["nearer_fish"].as_f64().unwrap_or(f64::NAN);
+        let (g, c, f) = (r.goals, r.closest_cm, r.nearer_fish);
         let opt = |v: Option<f64>, d: usize| v.map_or("–".to_string(), |x| format!("{x:.d$}"));
+        let baseline = |name: &str| r.baselines_reach_s.get(name).copied().flatten();
         s += &format!(
             "| {} | {m} | {g:.1} ± {:.1} ({}{}) | {} | {c:.1} ({}) | {:.1} % ({}) | {} {:.1} | {:.2}{} | {} ({}, {}) |\n",
-            r["reading"].as_str().unwrap_or(""),
-            r["goals_sd"].as_f64().unwrap_or(f64::NAN),
+            r.reading,
+            r.goals_sd,
             opt(pg, 0),
             factor(g, pg),
-            opt(r["time_to_goal_s"].as_f64(), 1),
+            opt(r.time_to_goal_s, 1),
             opt(pc, 2),
             100.0 * f,
             pf.map_or("–".into(), |x| format!("{:.1} %", 100.0 * x)),
-            r["best_scripted"].as_str().unwrap_or(""),
-            r["best_scripted_goals"].as_f64().unwrap_or(f64::NAN),
-            r["competence"].as_f64().unwrap_or(f64::NAN),
-            plus_minus(r["competence_se"].as_f64()),
-            opt(r["reach_s"].as_f64(), 1),
-            opt(r["baselines_reach_s"]["fetch-and-lead"].as_f64(), 1),
-            opt(r["baselines_reach_s"]["goal-seeker"].as_f64(), 1),
+            r.best_scripted,
+            r.best_scripted_goals,
+            r.competence,
+            plus_minus(r.competence_se),
+            opt(r.reach_s, 1),
+            opt(baseline("fetch-and-lead"), 1),
+            opt(baseline("goal-seeker"), 1),
         );
     }
     s
@@ -402,13 +467,8 @@ pub fn run(a: &FidelitySettings, by: Runner) -> Result<String> {
 /// from earlier runs with other readings or models), sorted by reading and model, so that the
 /// scoreboard files hold the whole directory. A cell made with another seed or episode count
 /// gets it appended to its reading's name.
-fn with_finished_cells(a: &FidelitySettings, rows: &[Value]) -> Vec<Value> {
-    let key = |v: &Value| {
-        (
-            v["reading"].as_str().unwrap_or("").to_string(),
-            v["model"].as_str().unwrap_or("").to_string(),
-        )
-    };
+fn with_finished_cells(a: &FidelitySettings, rows: &[CellRow]) -> Vec<CellRow> {
+    let key = |v: &CellRow| (v.reading.clone(), v.model.clone());
     let ours: std::collections::BTreeSet<_> = rows.iter().map(key).collect();
     let mut others = Vec::new();
     for reading in std::fs::read_dir(&a.out).into_iter().flatten().flatten() {
@@ -417,16 +477,13 @@ fn with_finished_cells(a: &FidelitySettings, rows: &[Value]) -> Vec<Value> {
             .flatten()
             .flatten()
         {
-            let Ok(text) = fishprobe_io::read_small_text(&model.path().join("cell.json")) else {
+            let Some((mut v, _)) = read_cell(&model.path().join("cell.json")) else {
                 continue;
             };
-            let Ok(mut v) = serde_json::from_str::<Value>(&text) else {
-                continue;
-            };
-            if !v["reading"].is_string() || ours.contains(&key(&v)) {
+            if ours.contains(&key(&v)) {
                 continue;
             }
-            let settings = &v["settings"];
+            let settings = &v.settings;
             let seed = settings["seed"].as_u64().filter(|&s| s != a.seed);
             let episodes = settings["episodes"]
                 .as_u64()
@@ -437,12 +494,7 @@ fn with_finished_cells(a: &FidelitySettings, rows: &[Value]) -> Vec<Value> {
                 .chain(episodes.map(|e| format!("{e} episodes")))
                 .collect();
             if !notes.is_empty() {
-                let name = format!(
-                    "{} ({})",
-                    v["reading"].as_str().unwrap_or(""),
-                    notes.join(", ")
-                );
-                v["reading"] = Value::String(name);
+                v.reading = format!("{} ({})", v.reading, notes.join(", "));
             }
             others.push(v);
         }

@@ -19,7 +19,7 @@ pub fn plus_minus(se: Option<f64>) -> String {
 /// Reading `results.json` back: serde_json writes NaN as `null`, so numbers read `null` (and
 /// an absent field, from an older or partial analysis) as NaN. With these, the report reads the
 /// same structs the analysis writes.
-mod nan {
+pub mod nan {
     use super::*;
 
     /// NaN: the default of numbers an older `results.json` lacks.
