@@ -4,6 +4,7 @@
 use anyhow::Result;
 use clap::Args;
 use fishprobe_io::{read_legacy, read_trial, IoError, TrialFile};
+use serde::Serialize;
 use serde_json::{json, Value};
 use std::fmt::Write;
 use std::path::{Path, PathBuf};
@@ -31,88 +32,139 @@ fn read_any(path: &Path) -> Result<(TrialFile, &'static str), IoError> {
     }
 }
 
-fn summary(path: &Path, t: &TrialFile, layout: &str) -> Value {
-    let entities: Vec<Value> = t
-        .entities
-        .iter()
-        .map(|e| {
-            json!({
-                "name": e.name,
-                "category": e.category_label,
-                "frames": e.frames(),
-                "nan_fraction": e.nan_fraction(),
-                "mean_speed_cm_s": e.mean_speed(t.frame_rate_hz),
-            })
-        })
-        .collect();
-    let task = t.task.as_ref().map(|r| {
-        json!({
-            "kind": r.kind.label(),
-            "policy": r.policy,
-            "policy_sha256": r.policy_sha256(),
-            "fish_model": r.fish_model,
-            "seed": r.seed,
-            "goal_radius_cm": r.goal_radius_cm,
-            "goals": r.goals,
-            "goals_reached": r.goal_frames.len(),
-            "commands": r.command_frames.len(),
-            "control_start_frame": r.control_start_frame,
-            "program_version": r.program_version,
-        })
-    });
-    json!({
-        "file": path.display().to_string(),
-        "layout": layout,
-        "world_size_cm": t.world_size_cm,
-        "frame_rate_hz": t.frame_rate_hz,
-        "duration_s": t.duration_s(),
-        "entities": entities,
-        "task": task,
-        "attributes": fishprobe_io::robofish::attributes_json(t),
-    })
+/// What `inspect` reports of one file (`--json` prints it; fields in alphabetical order).
+#[derive(Debug, Serialize)]
+struct FileSummary {
+    attributes: std::collections::BTreeMap<String, Value>,
+    duration_s: f32,
+    entities: Vec<EntitySummary>,
+    file: String,
+    frame_rate_hz: f32,
+    layout: &'static str,
+    task: Option<TaskSummary>,
+    world_size_cm: [f32; 2],
 }
 
-fn write_text(out: &mut String, v: &Value) -> std::fmt::Result {
-    writeln!(out, "{}", v["file"].as_str().unwrap_or_default())?;
+/// One entity of a file.
+#[derive(Debug, Serialize)]
+struct EntitySummary {
+    category: String,
+    frames: usize,
+    mean_speed_cm_s: Option<f32>,
+    name: String,
+    nan_fraction: f32,
+}
+
+/// The task record fishprobe wrote, if any.
+#[derive(Debug, Serialize)]
+struct TaskSummary {
+    commands: usize,
+    control_start_frame: u64,
+    fish_model: String,
+    goal_radius_cm: f32,
+    goals: Vec<[f32; 2]>,
+    goals_reached: usize,
+    kind: String,
+    policy: String,
+    policy_sha256: Option<String>,
+    program_version: String,
+    seed: u64,
+}
+
+/// A file that could not be read.
+#[derive(Debug, Serialize)]
+struct FileError {
+    error: String,
+    file: String,
+}
+
+/// One file's line in the report.
+#[derive(Debug, Serialize)]
+#[serde(untagged)]
+enum Report {
+    Read(Box<FileSummary>),
+    Failed(FileError),
+}
+
+fn summary(path: &Path, t: &TrialFile, layout: &'static str) -> FileSummary {
+    FileSummary {
+        attributes: fishprobe_io::robofish::attributes_json(t),
+        duration_s: t.duration_s(),
+        entities: t
+            .entities
+            .iter()
+            .map(|e| EntitySummary {
+                category: e.category_label.clone(),
+                frames: e.frames(),
+                mean_speed_cm_s: e.mean_speed(t.frame_rate_hz),
+                name: e.name.clone(),
+                nan_fraction: e.nan_fraction(),
+            })
+            .collect(),
+        file: path.display().to_string(),
+        frame_rate_hz: t.frame_rate_hz,
+        layout,
+        task: t.task.as_ref().map(|r| TaskSummary {
+            commands: r.command_frames.len(),
+            control_start_frame: r.control_start_frame,
+            fish_model: r.fish_model.clone(),
+            goal_radius_cm: r.goal_radius_cm,
+            goals: r.goals.clone(),
+            goals_reached: r.goal_frames.len(),
+            kind: r.kind.label().to_string(),
+            policy: r.policy.clone(),
+            policy_sha256: r.policy_sha256(),
+            program_version: r.program_version.clone(),
+            seed: r.seed,
+        }),
+        world_size_cm: t.world_size_cm,
+    }
+}
+
+/// A number as JSON writes it (`100.0`, not `100`): the text report reads as `--json` does.
+fn num<T: Serialize>(x: T) -> String {
+    serde_json::to_string(&x).unwrap_or_default()
+}
+
+fn write_text(out: &mut String, v: &FileSummary) -> std::fmt::Result {
+    writeln!(out, "{}", v.file)?;
     writeln!(
         out,
         "  {}; world {} x {} cm; {} Hz; {:.1} s",
-        v["layout"].as_str().unwrap_or_default(),
-        v["world_size_cm"][0],
-        v["world_size_cm"][1],
-        v["frame_rate_hz"],
-        v["duration_s"].as_f64().unwrap_or(0.0)
+        v.layout,
+        num(v.world_size_cm[0]),
+        num(v.world_size_cm[1]),
+        num(v.frame_rate_hz),
+        f64::from(v.duration_s)
     )?;
-    for e in v["entities"].as_array().into_iter().flatten() {
-        let speed = e["mean_speed_cm_s"]
-            .as_f64()
-            .map_or("-".to_string(), |s| format!("{s:.1} cm/s"));
+    for e in &v.entities {
+        let speed = e
+            .mean_speed_cm_s
+            .map_or("-".to_string(), |s| format!("{:.1} cm/s", f64::from(s)));
         writeln!(
             out,
             "  {:<10} {:<8} {:>7} frames  {:>5.1} % untracked  mean speed {}",
-            e["name"].as_str().unwrap_or_default(),
-            e["category"].as_str().unwrap_or_default(),
-            e["frames"],
-            100.0 * e["nan_fraction"].as_f64().unwrap_or(0.0),
+            e.name,
+            e.category,
+            e.frames,
+            100.0 * f64::from(e.nan_fraction),
             speed
         )?;
     }
-    if let Some(t) = v["task"].as_object() {
+    if let Some(t) = &v.task {
         writeln!(
             out,
             "  task: {} trial, policy {}{}, fish model {}, seed {}; {} goals reached; {} robot commands; control from frame {}",
-            t["kind"].as_str().unwrap_or_default(),
-            t["policy"].as_str().unwrap_or_default(),
-            t["policy_sha256"]
-                .as_str()
-                .map_or_else(String::new, |s| {
-                    format!(" (weights sha256 {}…)", fishprobe_io::short_sha(s))
-                }),
-            t["fish_model"].as_str().unwrap_or_default(),
-            t["seed"],
-            t["goals_reached"],
-            t["commands"],
-            t["control_start_frame"]
+            t.kind,
+            t.policy,
+            t.policy_sha256.as_deref().map_or_else(String::new, |s| {
+                format!(" (weights sha256 {}…)", fishprobe_io::short_sha(s))
+            }),
+            t.fish_model,
+            t.seed,
+            t.goals_reached,
+            t.commands,
+            t.control_start_frame
         )?;
     } else {
         writeln!(out, "  task: none recorded (not written by fishprobe)")?;
@@ -131,12 +183,15 @@ pub fn run(a: InspectArgs) -> Result<()> {
                 if !a.json {
                     write_text(&mut text, &v)?;
                 }
-                reports.push(v);
+                reports.push(Report::Read(Box::new(v)));
             }
             Err(e) => {
                 failed += 1;
                 say!("error: {e}");
-                reports.push(json!({ "file": path.display().to_string(), "error": e.to_string() }));
+                reports.push(Report::Failed(FileError {
+                    error: e.to_string(),
+                    file: path.display().to_string(),
+                }));
             }
         }
     }
