@@ -312,7 +312,7 @@ impl Trainer {
                 format!(
                     "the run's budget is {had} steps, and resuming can only raise it, not lower \
                      it to {total_timesteps} (the run may have trained past that): train a new \
-                     run with --steps {total_timesteps} instead"
+                     run of {total_timesteps} steps instead"
                 ),
             ));
         }
@@ -322,7 +322,7 @@ impl Trainer {
                 format!(
                     "the run anneals its learning rate from {} to {end} over its {had} steps \
                      (`lr_final`), so a budget of {total_timesteps} would have given the steps \
-                     already taken other rates: train a new run with --steps {total_timesteps} \
+                     already taken other rates: train a new run of {total_timesteps} steps \
                      instead",
                     spec.ppo.lr
                 ),
@@ -668,7 +668,7 @@ mod tests {
             .to_string();
         assert!(
             e.contains(&format!("the run's budget is {four} steps"))
-                && e.contains(&format!("--steps {had} instead")),
+                && e.contains(&format!("a new run of {had} steps instead")),
             "{e}"
         );
         let e = Trainer::raise_budget(&dir("short"), u64::MAX)
@@ -680,7 +680,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains("total_timesteps") && e.contains("at least 1") && !e.contains("--steps 0"),
+            e.contains("total_timesteps") && e.contains("at least 1") && !e.contains("run of 0"),
             "{e}"
         );
         assert_eq!(

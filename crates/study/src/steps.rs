@@ -274,7 +274,7 @@ fn reality(
                 return Err(StepError::Missing(format!(
                     "{why}. The study's {name} policy ({}) did not drive them: record \
                      its live trials with that policy (`fishprobe live serve --policy` it), \
-                     and keep other policies' trials out of --real",
+                     and keep other policies' trials out of the study's real trials",
                     study.external_policy(p).map_or_else(
                         || train_dir(study, p, 0).display().to_string(),
                         str::to_string
