@@ -57,9 +57,6 @@ pub enum ResearchError {
     /// JSON written or read back.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
-    /// A thread pool.
-    #[error(transparent)]
-    ThreadPool(#[from] rayon::ThreadPoolBuildError),
 }
 
 /// The result of a research command's work.

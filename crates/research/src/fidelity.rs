@@ -4,7 +4,7 @@
 //! approach assay and the scripted baselines, and prints a scoreboard against the paper.
 //! Resumable: a finished cell is read back, an interrupted training resumes.
 
-use crate::{on_threads, ResearchError, Result, Runner};
+use crate::{ResearchError, Result, Runner};
 use fishprobe_analysis::competence::{plus_minus, ratio_se, GoalStats};
 use fishprobe_analysis::results::nan;
 use fishprobe_analysis::{approach::assay_files, AnalysisConfig};
@@ -39,8 +39,6 @@ pub struct FidelitySettings {
     pub out: PathBuf,
     /// List the readings and exit.
     pub list: bool,
-    /// Threads (default: all cores).
-    pub jobs: Option<usize>,
 }
 
 impl Default for FidelitySettings {
@@ -55,7 +53,6 @@ impl Default for FidelitySettings {
             seed: 0,
             out: PathBuf::from("fidelity"),
             list: false,
-            jobs: None,
         }
     }
 }
@@ -437,7 +434,7 @@ pub fn run(a: &FidelitySettings, by: Runner) -> Result<String> {
             }
             by.note(&format!("{} / {name}: {}", r.name, r.what()));
             let dir = a.out.join(&r.name).join(&name);
-            let row = on_threads(a.jobs, || cell(a, r, &name, &dir, by))??;
+            let row = cell(a, r, &name, &dir, by)?;
             rows.push(row);
             let all = with_finished_cells(a, &rows);
             let board = scoreboard(&all);

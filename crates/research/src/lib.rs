@@ -60,14 +60,3 @@ pub(crate) fn no_repeats<T: PartialEq + std::fmt::Display>(what: &str, values: &
     }
     Ok(())
 }
-
-/// Runs `f` on a thread pool of `jobs` threads (default: rayon's global pool, all cores).
-pub(crate) fn on_threads<T: Send>(jobs: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
-    match jobs {
-        None => Ok(f()),
-        Some(n) => Ok(rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build()?
-            .install(f)),
-    }
-}

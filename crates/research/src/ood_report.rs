@@ -4,7 +4,7 @@
 //! training support, and writes the distributions, example episodes, and a ranked data
 //! wishlist.
 
-use crate::{on_threads, ResearchError, Result, Runner};
+use crate::{ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{
     disagreement_of_trials, disagreement_of_views, distribution, quantile, score_recorded,
     score_views, share_at_least, share_beyond_interval, trial_views, wishlist, Distribution,
@@ -180,9 +180,9 @@ fn score_policy(
         e.episodes,
         c.describe()
     ));
-    Ok(on_threads(None, || {
-        fishprobe_learn::yardstick::score_policy(c, e, support, label)
-    })??)
+    Ok(fishprobe_learn::yardstick::score_policy(
+        c, e, support, label,
+    )?)
 }
 
 /// Bootstrap replicates of the headline share's interval (`ood.json`'s

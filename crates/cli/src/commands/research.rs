@@ -2,7 +2,7 @@
 //! their work is [`fishprobe_research`]; here are their flags, each mapped once onto the
 //! library's plain settings, and the calls and prints.
 
-use super::{emit, note, resolve_jobs, BUILD};
+use super::{emit, note, BUILD};
 use anyhow::Result;
 use clap::{Args, ValueEnum};
 use fishprobe_models::support::Estimator;
@@ -57,7 +57,6 @@ impl From<FidelityFlags> for FidelitySettings {
             seed: f.seed,
             out: f.out,
             list: f.list,
-            jobs: f.jobs,
         }
     }
 }
@@ -283,9 +282,12 @@ fn with_runner<T>(work: impl FnOnce(Runner) -> T) -> T {
 pub fn fidelity(f: FidelityFlags) -> Result<()> {
     super::no_repeats("--models", &f.models)?;
     super::no_repeats("--readings", &f.readings)?;
-    let mut a = FidelitySettings::from(f);
-    a.jobs = resolve_jobs(a.jobs)?;
-    emit(&with_runner(|by| research::fidelity::run(&a, by))?)
+    // The sweep's training and evaluations run on `--jobs` threads.
+    let jobs = f.jobs;
+    let a = FidelitySettings::from(f);
+    emit(&super::with_jobs(jobs, || {
+        with_runner(|by| research::fidelity::run(&a, by))
+    })??)
 }
 
 /// `fishprobe collective`, with a progress bar over its runs.
