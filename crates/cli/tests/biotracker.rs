@@ -13,8 +13,7 @@ use common::tracker::{
 use common::{fishprobe, fresh_dir as dir, stderr};
 use fishprobe_live::biotracker::grpc::{self, Client};
 use fishprobe_live::biotracker::schema::{
-    Arena, ComponentConfig, Empty, Experiment, Feature, Features, RecordingConfig, RecordingState,
-    SkeletonDescriptor, SkeletonNode,
+    ComponentConfig, Empty, Experiment, Feature, RecordingState, SkeletonDescriptor, SkeletonNode,
 };
 use std::net::{SocketAddr, TcpListener};
 use std::path::Path;
@@ -139,27 +138,12 @@ fn experiment(state: RecordingState, frame: u32, robot: [f32; 3], fish: [f32; 3]
     if tracked(fish) {
         features.push(feature(2, fish));
     }
-    Experiment {
-        target_fps: FPS,
-        recording_config: Some(RecordingConfig {
-            base_path: "/recordings/2026-12-07_fake".into(),
-            fps: f64::from(FPS),
-        }),
-        arena: Some(Arena {
-            width_cm: 100,
-            height_cm: 100,
-        }),
-        recording_state: state as i32,
-        last_features: Some(Features {
-            features,
-            frame_number: frame,
-        }),
-        entity_ids: vec![1, 2],
-        skeleton: Some(SkeletonDescriptor {
-            front_index: 0,
-            center_index: 1,
-        }),
-    }
+    let skeleton = SkeletonDescriptor {
+        front_index: 0,
+        center_index: 1,
+    };
+    let base = "/recordings/2026-12-07_fake";
+    Experiment::update(FPS, base, state, frame, features, vec![1, 2], skeleton)
 }
 
 /// What `live replay` makes of a trial file with the same protocol.

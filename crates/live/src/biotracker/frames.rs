@@ -328,7 +328,7 @@ pub fn stem_of(base_path: &str) -> Option<String> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::schema::{Arena, Features, RecordingConfig, SkeletonNode};
+    use super::super::schema::{Arena, SkeletonNode};
     use super::*;
 
     const SK: SkeletonDescriptor = SkeletonDescriptor {
@@ -347,24 +347,8 @@ mod tests {
     }
 
     fn update(state: RecordingState, frame: u32, features: Vec<Feature>) -> Experiment {
-        Experiment {
-            target_fps: 25.0,
-            recording_config: Some(RecordingConfig {
-                base_path: "/data/rec/2026-12-07_10-00-00".into(),
-                fps: 25.0,
-            }),
-            arena: Some(Arena {
-                width_cm: 100,
-                height_cm: 100,
-            }),
-            recording_state: state as i32,
-            last_features: Some(Features {
-                features,
-                frame_number: frame,
-            }),
-            entity_ids: vec![1, 2],
-            skeleton: Some(SK),
-        }
+        let base = "/data/rec/2026-12-07_10-00-00";
+        Experiment::update(25.0, base, state, frame, features, vec![1, 2], SK)
     }
 
     fn ids() -> EntityIds {

@@ -126,6 +126,41 @@ pub struct Experiment {
     pub skeleton: Option<SkeletonDescriptor>,
 }
 
+impl Experiment {
+    /// One update as BioTracker v4 sends it for the 100 x 100 cm tank: the rate `fps`, the
+    /// recording at `base_path` in `state`, frame `frame` with its `features`, the tracked
+    /// `entity_ids` and the skeleton's layout. What a stand-in core sends (tests, the
+    /// benchmark).
+    pub fn update(
+        fps: f32,
+        base_path: &str,
+        state: RecordingState,
+        frame: u32,
+        features: Vec<Feature>,
+        entity_ids: Vec<u32>,
+        skeleton: SkeletonDescriptor,
+    ) -> Self {
+        Self {
+            target_fps: fps,
+            recording_config: Some(RecordingConfig {
+                base_path: base_path.into(),
+                fps: f64::from(fps),
+            }),
+            arena: Some(Arena {
+                width_cm: 100,
+                height_cm: 100,
+            }),
+            recording_state: state as i32,
+            last_features: Some(Features {
+                features,
+                frame_number: frame,
+            }),
+            entity_ids,
+            skeleton: Some(skeleton),
+        }
+    }
+}
+
 /// `biotracker.ComponentConfig`: a component's configuration from the core's config file.
 #[derive(Clone, PartialEq, Eq, ::prost::Message)]
 pub struct ComponentConfig {

@@ -2,10 +2,7 @@
 //! of the same frames, and keep the robot stopped whenever the tracker's state is unusable.
 
 use super::frames::Expected;
-use super::schema::{
-    Arena, Experiment, Feature, Features, RecordingConfig, RecordingState, SkeletonDescriptor,
-    SkeletonNode,
-};
+use super::schema::{Arena, Experiment, Feature, RecordingState, SkeletonDescriptor, SkeletonNode};
 use super::*;
 use crate::protocol::{ClientMsg, FishPose, Pose, ServerMsg};
 use crate::server::TrialOutcome;
@@ -65,27 +62,12 @@ fn feature(id: u32, p: Pose) -> Feature {
 }
 
 fn update(state: RecordingState, frame: u32, features: Vec<Feature>) -> Experiment {
-    Experiment {
-        target_fps: FPS,
-        recording_config: Some(RecordingConfig {
-            base_path: "/lab/recordings/2026-12-07_10-00-00".into(),
-            fps: f64::from(FPS),
-        }),
-        arena: Some(Arena {
-            width_cm: 100,
-            height_cm: 100,
-        }),
-        recording_state: state as i32,
-        last_features: Some(Features {
-            features,
-            frame_number: frame,
-        }),
-        entity_ids: vec![7, 3],
-        skeleton: Some(SkeletonDescriptor {
-            front_index: 0,
-            center_index: 2,
-        }),
-    }
+    let skeleton = SkeletonDescriptor {
+        front_index: 0,
+        center_index: 2,
+    };
+    let base = "/lab/recordings/2026-12-07_10-00-00";
+    Experiment::update(FPS, base, state, frame, features, vec![7, 3], skeleton)
 }
 
 fn tracked(state: RecordingState, k: u32) -> Experiment {

@@ -8,8 +8,7 @@ use super::{emit, machine};
 use anyhow::{bail, Context, Result};
 use fishprobe_live::biotracker::grpc::{self, Client};
 use fishprobe_live::biotracker::schema::{
-    Arena, ComponentConfig, Empty, Experiment, Feature, Features, RecordingConfig, RecordingState,
-    SkeletonDescriptor, SkeletonNode,
+    ComponentConfig, Empty, Experiment, Feature, RecordingState, SkeletonDescriptor, SkeletonNode,
 };
 use fishprobe_sim::params::check::shown;
 use serde::Serialize;
@@ -58,27 +57,21 @@ fn update(k: u32, fps: f32) -> Experiment {
             world_nodes: vec![node(x - y * 0.05, y + x * 0.05), node(x, y)],
         }
     };
-    Experiment {
-        target_fps: fps,
-        recording_config: Some(RecordingConfig {
-            base_path: "bench/observer".into(),
-            fps: f64::from(fps),
-        }),
-        arena: Some(Arena {
-            width_cm: 100,
-            height_cm: 100,
-        }),
-        recording_state: RecordingState::Recording as i32,
-        last_features: Some(Features {
-            features: vec![feature(1, 20.0, 0.0), feature(2, 25.0, 0.3)],
-            frame_number: k,
-        }),
-        entity_ids: vec![1, 2],
-        skeleton: Some(SkeletonDescriptor {
-            front_index: 0,
-            center_index: 1,
-        }),
-    }
+    let skeleton = SkeletonDescriptor {
+        front_index: 0,
+        center_index: 1,
+    };
+    let features = vec![feature(1, 20.0, 0.0), feature(2, 25.0, 0.3)];
+    let state = RecordingState::Recording;
+    Experiment::update(
+        fps,
+        "bench/observer",
+        state,
+        k,
+        features,
+        vec![1, 2],
+        skeleton,
+    )
 }
 
 pub(super) fn bench_observer(json: bool, seconds: f64, policy: &str) -> Result<()> {
