@@ -235,3 +235,34 @@ impl Client {
             .map(|_| ())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A path the service does not serve is answered `unimplemented`, naming the ones it does;
+    /// a served one answers.
+    #[test]
+    fn an_unknown_method_is_refused_naming_the_served_ones() {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("a runtime");
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").expect("a port");
+        let addr = listener.local_addr().expect("an address");
+        rt.spawn(serve(listener, heartbeat_service(), std::future::pending()));
+        rt.block_on(async {
+            let mut c = Client::lazy(addr, Duration::from_secs(2)).expect("a client");
+            assert!(c.heartbeat().await.is_ok());
+            let e = c
+                .call::<Experiment, Empty>(UPDATE_PATH, Experiment::default())
+                .await
+                .expect_err("not served");
+            assert_eq!(e.code(), tonic::Code::Unimplemented);
+            assert!(
+                e.message().contains(HEARTBEAT_PATH) && e.message().contains(UPDATE_PATH),
+                "{e:?}"
+            );
+        });
+    }
+}
