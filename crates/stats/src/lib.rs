@@ -28,6 +28,7 @@ pub mod paired;
 pub mod resample;
 pub mod sample;
 pub mod special;
+pub mod spread;
 pub mod stability;
 pub mod wasserstein;
 
@@ -41,5 +42,6 @@ pub use resample::{
     bootstrap_wasserstein, cluster_bootstrap_median, permutation_test_wasserstein, PermutationTest,
 };
 pub use sample::{mean, median, percentile_ci, quantile_sorted, sd, variance};
+pub use spread::{bootstrap_sd_ratio, brown_forsythe, rankdata, sd_exact, spearman, TestResult};
 pub use stability::{stability, Stability};
 pub use wasserstein::{wasserstein, wasserstein_sorted};

@@ -29,6 +29,12 @@ pub fn quantile_sorted(sorted: &[f64], p: f64) -> f64 {
     let h = p.clamp(0.0, 1.0) * (sorted.len() - 1) as f64;
     let lo = h.floor() as usize;
     let hi = (lo + 1).min(sorted.len() - 1);
+    // On an order statistic, or between equal ones, the value itself: also when it is
+    // infinite (a bootstrap of a ratio whose denominator can be 0), where interpolating would
+    // give NaN.
+    if h == lo as f64 || sorted[lo] == sorted[hi] {
+        return sorted[lo];
+    }
     sorted[lo] + (h - lo as f64) * (sorted[hi] - sorted[lo])
 }
 
@@ -85,6 +91,15 @@ pub fn percentile_ci(boot: &mut [f64], level: f64) -> [f64; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn quantiles_reach_infinity_without_nan() {
+        let x = [1.0, 2.0, f64::INFINITY, f64::INFINITY];
+        assert_eq!(quantile_sorted(&x, 1.0), f64::INFINITY);
+        assert_eq!(quantile_sorted(&x, 0.9), f64::INFINITY);
+        assert_eq!(quantile_sorted(&x, 0.5), f64::INFINITY);
+        assert_eq!(quantile_sorted(&x, 0.25), 1.75);
+    }
 
     #[test]
     fn a_quantile_by_selection_is_the_sorted_ones() {
