@@ -9,6 +9,7 @@ use crate::trial::{load_trial, Loaded, TrialData, ALL_METRICS, METRICS};
 use fishprobe_sim::{stream, SimRng};
 use fishprobe_stats as st;
 use rayon::prelude::*;
+use st::rankdata as average_ranks;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -62,27 +63,6 @@ fn mean_sd(v: &[f64]) -> Option<MeanSd> {
         sd: st::sd(v),
         n: v.len(),
     })
-}
-
-/// Average ranks (1 = smallest), ties sharing the mean of their positions, like
-/// `scipy.stats.rankdata(method="average")`.
-fn average_ranks(v: &[f64]) -> Vec<f64> {
-    let mut idx: Vec<usize> = (0..v.len()).collect();
-    idx.sort_by(|&a, &b| v[a].total_cmp(&v[b]));
-    let mut ranks = vec![0.0; v.len()];
-    let mut i = 0;
-    while i < idx.len() {
-        let mut j = i;
-        while j + 1 < idx.len() && v[idx[j + 1]] == v[idx[i]] {
-            j += 1;
-        }
-        let r = (i + j) as f64 / 2.0 + 1.0;
-        for &k in &idx[i..=j] {
-            ranks[k] = r;
-        }
-        i = j + 1;
-    }
-    ranks
 }
 
 /// Runs the whole analysis.
@@ -178,6 +158,7 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
     groups_check(&sim, &real, &mut skipped);
     goals_and_gaps(&mut res, &sim, &real, cfg, seed);
     metric_gaps(&mut res, &sim, &real, cfg, seed);
+    crate::spread::spread(&mut res, &sim, &real, &mut skipped, cfg, seed);
     temporal(&mut res, &sim, &real, &mut skipped);
     sim_to_sim(&mut res, study, &policies, &loaded, &mut skipped, cfg, seed);
     stability(&mut res, study, &loaded, &mut skipped, cfg, seed);
@@ -526,18 +507,5 @@ fn stability(
             what: "stability".into(),
             reason: e.to_string(),
         }),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    #[test]
-    fn average_ranks_match_scipy_rankdata() {
-        // scipy.stats.rankdata([3, 1, 4, 1, 5]) = [3, 1.5, 4, 1.5, 5]
-        assert_eq!(
-            average_ranks(&[3.0, 1.0, 4.0, 1.0, 5.0]),
-            vec![3.0, 1.5, 4.0, 1.5, 5.0]
-        );
     }
 }

@@ -48,6 +48,10 @@ fishprobe_sim::documented_params! {
         /// competence, `time_to_reach_s`) (choice: 15 cm, M_Force's interaction range and near
         /// M_Zone's outer attraction radius of 18 cm).
         pub robot_reach_cm: f32 = 15.0; "cm",
+        /// A fish slower than this is paused, for the per-trial paused fraction of the
+        /// between-trial spread (the data README's threshold, as in `compare-offline`:
+        /// 0.5 cm/s).
+        pub pause_cm_s: f32 = 0.5; "cm/s",
     }
 }
 
@@ -119,6 +123,13 @@ impl AnalysisConfig {
         ] {
             check::positive_at_most("analysis", f, v, check::MAX_LENGTH_CM)?;
         }
+        check::within(
+            "analysis",
+            "pause_cm_s",
+            self.pause_cm_s,
+            0.0,
+            check::MAX_SPEED_CM_S,
+        )?;
         if self.approach_closest_cm > f64::from(check::MAX_LENGTH_CM) {
             return Err(ConfigError::new(
                 "analysis",

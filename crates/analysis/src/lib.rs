@@ -25,6 +25,7 @@ pub mod offline;
 pub mod ood;
 pub mod results;
 pub mod seeds;
+pub mod spread;
 pub mod study;
 pub mod synth;
 pub mod trial;

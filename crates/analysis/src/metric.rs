@@ -58,6 +58,48 @@ pub struct Metric {
     pub about: &'static str,
     /// How one frame's value is computed.
     pub compute: Compute,
+    /// How a trial's frames become the one value of the trial in the between-trial spread
+    /// (`spread`): the median for distances, which are skewed and have long tails when a fish
+    /// wanders off; the mean of the absolute value for signed rates, whose mean is near zero
+    /// in every trial (how fast, not which way); the mean otherwise.
+    pub per_trial: PerTrial,
+}
+
+/// How a trial's per-frame values become one value of the trial.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PerTrial {
+    /// The mean of the frames' values.
+    Mean,
+    /// The median of the frames' values.
+    Median,
+    /// The mean of the frames' absolute values.
+    MeanAbsolute,
+}
+
+impl PerTrial {
+    /// The trial's value from its frames' values, sorted ascending and finite (NaN without
+    /// frames).
+    pub fn of_sorted(self, sorted: &[f64]) -> f64 {
+        if sorted.is_empty() {
+            return f64::NAN;
+        }
+        let n = sorted.len() as f64;
+        match self {
+            Self::Mean => sorted.iter().sum::<f64>() / n,
+            Self::MeanAbsolute => sorted.iter().map(|v| v.abs()).sum::<f64>() / n,
+            Self::Median => fishprobe_stats::quantile_sorted(sorted, 0.5),
+        }
+    }
+
+    /// In words, for tables and captions ("median", "mean", "mean |·|": of the absolute
+    /// values).
+    pub const fn word(self) -> &'static str {
+        match self {
+            Self::Mean => "mean",
+            Self::Median => "median",
+            Self::MeanAbsolute => "mean |·|",
+        }
+    }
 }
 
 impl Metric {
@@ -78,6 +120,7 @@ pub const METRIC_TABLE: [Metric; 15] = [
         label: "IID (cm)",
         about: "inter-individual distance, robot to fish",
         compute: Compute::Pair(|p| Some(dist(p.robot, p.fish))),
+        per_trial: PerTrial::Median,
     },
     Metric {
         id: "iid_change",
@@ -87,18 +130,21 @@ pub const METRIC_TABLE: [Metric; 15] = [
             p.next
                 .map(|(r2, f2, _)| (dist(r2, f2) - dist(p.robot, p.fish)) * p.rate)
         }),
+        per_trial: PerTrial::MeanAbsolute,
     },
     Metric {
         id: "alignment",
         label: "alignment (cos)",
         about: "cosine of the angle between robot and fish headings",
         compute: Compute::Pair(|p| Some((p.robot_heading - f64::from(p.fish_heading)).cos())),
+        per_trial: PerTrial::Mean,
     },
     Metric {
         id: "fish_speed",
         label: "fish speed (cm/s)",
         about: "the fish's speed",
         compute: Compute::Pair(|p| p.next.map(|(_, f2, _)| dist(f2, p.fish) * p.rate)),
+        per_trial: PerTrial::Mean,
     },
     Metric {
         id: "fish_turn",
@@ -108,6 +154,7 @@ pub const METRIC_TABLE: [Metric; 15] = [
             p.next
                 .map(|(_, _, h2)| f64::from(wrap_angle(h2 - p.fish_heading)) * p.rate)
         }),
+        per_trial: PerTrial::MeanAbsolute,
     },
     Metric {
         id: "fish_goal_distance",
@@ -120,6 +167,7 @@ pub const METRIC_TABLE: [Metric; 15] = [
                 .sqrt(),
             )
         }),
+        per_trial: PerTrial::Median,
     },
     Metric {
         id: "fish_faces_robot",
@@ -132,6 +180,7 @@ pub const METRIC_TABLE: [Metric; 15] = [
                 (th.cos() * (p.robot[0] - p.fish[0]) + th.sin() * (p.robot[1] - p.fish[1])) / iid
             })
         }),
+        per_trial: PerTrial::Mean,
     },
     Metric {
         id: "wall_distance",
@@ -141,6 +190,7 @@ pub const METRIC_TABLE: [Metric; 15] = [
             let (dx, dy) = (p.half[0] - p.fish[0].abs(), p.half[1] - p.fish[1].abs());
             Some(dx.min(dy))
         }),
+        per_trial: PerTrial::Median,
     },
     Metric {
         id: "wall_alignment",
@@ -156,42 +206,49 @@ pub const METRIC_TABLE: [Metric; 15] = [
                 th.cos().abs()
             })
         }),
+        per_trial: PerTrial::Mean,
     },
     Metric {
         id: "polarisation",
         label: "polarisation",
         about: "|mean heading| of the fish",
         compute: Compute::Group(|g| Some(f64::from(g.order.polarisation))),
+        per_trial: PerTrial::Mean,
     },
     Metric {
         id: "milling",
         label: "milling",
         about: "Couzin's group angular momentum",
         compute: Compute::Group(|g| Some(f64::from(g.order.milling))),
+        per_trial: PerTrial::Mean,
     },
     Metric {
         id: "mean_nnd",
         label: "mean NND (cm)",
         about: "mean nearest-neighbour distance",
         compute: Compute::Group(|g| Some(f64::from(g.order.mean_nnd_cm))),
+        per_trial: PerTrial::Median,
     },
     Metric {
         id: "group_spread",
         label: "group spread (cm)",
         about: "mean distance of the fish from their centroid",
         compute: Compute::Group(|g| Some(f64::from(g.order.spread_cm))),
+        per_trial: PerTrial::Median,
     },
     Metric {
         id: "robot_centroid_distance",
         label: "robot-centroid dist. (cm)",
         about: "distance of the robot to the fish's centroid",
         compute: Compute::Group(|g| g.robot.map(|(d, _)| f64::from(d))),
+        per_trial: PerTrial::Median,
     },
     Metric {
         id: "fish_near_robot",
         label: "fish near robot (frac.)",
         about: "fraction of the fish within `robot_reach_cm` of the robot",
         compute: Compute::Group(|g| g.robot.map(|(_, near)| f64::from(near))),
+        per_trial: PerTrial::Mean,
     },
 ];
 

@@ -66,16 +66,46 @@ fn every_section_is_computed_and_threads_do_not_matter() {
         assert!(r1["time_to_goal"][p]["sim"].is_object() || r1["time_to_goal"][p]["sim"].is_null());
     }
     assert_eq!(r1["metric_gaps"].as_object().unwrap().len(), 9);
+    // The between-trial spread: goals, time to goal, paused fraction and the nine metrics.
+    let spread = r1["spread"].as_object().unwrap();
+    assert!(spread.len() >= 11, "{spread:?}");
+    for p in ["Follow", "Zone"] {
+        let e = &r1["spread"]["goals"][p];
+        for k in [
+            "sd_sim",
+            "sd_real",
+            "ratio",
+            "w1_trials",
+            "bf_stat",
+            "bf_p",
+            "bf_p_holm",
+        ] {
+            assert!(e[k].is_number() || e[k].is_null(), "{p} {k}: {e}");
+        }
+        assert_eq!(e["sim"].as_array().unwrap().len(), 6);
+        let (sd_sim, sd_real) = (
+            e["sd_sim"].as_f64().unwrap(),
+            e["sd_real"].as_f64().unwrap(),
+        );
+        if sd_real > 0.0 {
+            assert!((e["ratio"].as_f64().unwrap() - sd_sim / sd_real).abs() < 1e-12);
+        }
+        assert_eq!(e["ci"].as_array().unwrap().len(), 2);
+        assert!(r1["spread"]["fish_speed"][p]["ratio"].as_f64().unwrap() > 0.0);
+    }
     assert!(r1["temporal"]["sim"]["total"]["rate_ratio"].is_number());
     assert!(r1["stability"]["r"].is_number());
     // Only trends that do not exist are skipped: in 2-minute trials the scripted robot may
     // lead no Zone fish to a goal in some minute, and then the rate ratio has no MLE.
     for s in r1["skipped"].as_array().unwrap() {
-        assert!(
-            s["what"].as_str().unwrap().starts_with("temporal trend"),
-            "{s}"
-        );
+        // And the spread of time to goal where too few trials reach a goal.
+        let what = s["what"].as_str().unwrap();
         let reason = s["reason"].as_str().unwrap();
+        if what.starts_with("spread time_to_goal/") {
+            assert!(reason.contains("at least two a side"), "{s}");
+            continue;
+        }
+        assert!(what.starts_with("temporal trend"), "{s}");
         assert!(
             reason.contains("all counts are zero") || reason.contains("may not exist"),
             "{s}"
@@ -86,6 +116,7 @@ fn every_section_is_computed_and_threads_do_not_matter() {
         "sim_to_real.csv",
         "metric_gaps.csv",
         "mean_ranks.csv",
+        "spread.csv",
         "sim_to_sim.csv",
         "kruskal.csv",
         "temporal.csv",

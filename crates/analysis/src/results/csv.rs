@@ -37,7 +37,7 @@ type CsvTable = (&'static str, bool, fn(&Results) -> String);
 impl Results {
     /// One CSV table per present section: (file name, contents).
     pub fn csv_tables(&self) -> Vec<(&'static str, String)> {
-        let tables: [CsvTable; 12] = [
+        let tables: [CsvTable; 13] = [
             (
                 "competence.csv",
                 !self.competence.is_empty(),
@@ -59,6 +59,7 @@ impl Results {
                 !self.metric_gaps.is_empty(),
                 Self::mean_ranks_csv,
             ),
+            ("spread.csv", !self.spread.is_empty(), Self::spread_csv),
             (
                 "sim_to_sim.csv",
                 !self.sim_to_sim.is_empty(),
@@ -96,6 +97,51 @@ impl Results {
             .filter(|(_, present, _)| *present)
             .map(|(name, _, make)| (name, make(self)))
             .collect()
+    }
+
+    /// `spread.csv`: per quantity (in table order) and policy, the between-trial spread.
+    fn spread_csv(&self) -> String {
+        let rows = crate::spread::quantities()
+            .into_iter()
+            .filter_map(|q| self.spread.get(q.id()).map(|per| (q, per)))
+            .flat_map(|(q, per)| {
+                per.iter().map(move |(p, e)| {
+                    vec![
+                        q.id().to_string(),
+                        p.clone(),
+                        e.sim.len().to_string(),
+                        e.real.len().to_string(),
+                        f(e.sd_sim),
+                        f(e.sd_real),
+                        f(e.ratio),
+                        f(e.ci[0]),
+                        f(e.ci[1]),
+                        f(e.w1_trials),
+                        f(e.bf_stat),
+                        f(e.bf_p),
+                        f(e.bf_p_holm),
+                    ]
+                })
+            })
+            .collect();
+        table(
+            &[
+                "quantity",
+                "policy",
+                "n_sim",
+                "n_real",
+                "sd_sim",
+                "sd_real",
+                "ratio",
+                "ci_low",
+                "ci_high",
+                "w1_trials",
+                "bf_stat",
+                "bf_p",
+                "bf_p_holm",
+            ],
+            rows,
+        )
     }
 
     /// `competence.csv`: each policy's goals beside each scripted controller's on the same

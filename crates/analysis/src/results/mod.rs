@@ -53,7 +53,7 @@ pub mod nan {
 }
 
 /// Every file `write_results` can write, in the order a reader meets them.
-pub const OUTPUT_FILES: [&str; 14] = [
+pub const OUTPUT_FILES: [&str; 15] = [
     fishprobe_io::layout::RESULTS_FILE,
     "summary.md",
     "competence.csv",
@@ -62,6 +62,7 @@ pub const OUTPUT_FILES: [&str; 14] = [
     "sim_to_real.csv",
     "metric_gaps.csv",
     "mean_ranks.csv",
+    "spread.csv",
     "sim_to_sim.csv",
     "kruskal.csv",
     "temporal.csv",
@@ -122,6 +123,61 @@ pub struct MetricGap {
     /// Rank within the metric (1 = smallest gap; ties share the average rank).
     #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
     pub rank: f64,
+}
+
+/// The between-trial spread of one quantity for one policy (`spread`, see
+/// [`crate::spread`]): do its simulated trials differ from one another as much as the real
+/// ones?
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpreadEntry {
+    /// Between-trial s.d. (n - 1) of the sim trials' values.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub sd_sim: f64,
+    /// Between-trial s.d. (n - 1) of the real trials' values.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub sd_real: f64,
+    /// `sd_sim / sd_real`: the share of the real spread the model reproduces (1: as varied
+    /// as reality; 0.2: a fifth of it).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub ratio: f64,
+    /// Percentile-bootstrap interval of `ratio`, trials resampled within each side.
+    #[serde(default = "nan::nan2", deserialize_with = "nan::pair")]
+    pub ci: [f64; 2],
+    /// 1-Wasserstein distance between the sim and the real per-trial values.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub w1_trials: f64,
+    /// Brown–Forsythe statistic (`scipy.stats.levene(sim, real, center="median")`).
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub bf_stat: f64,
+    /// Its p-value.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub bf_p: f64,
+    /// Its p-value Holm-adjusted across the policies of this quantity.
+    #[serde(default = "nan::nan", deserialize_with = "nan::f64")]
+    pub bf_p_holm: f64,
+    /// The sim trials' values, in file order.
+    #[serde(default)]
+    pub sim: Vec<f64>,
+    /// The real trials' values, in file order.
+    #[serde(default)]
+    pub real: Vec<f64>,
+}
+
+impl Default for SpreadEntry {
+    fn default() -> Self {
+        Self {
+            sd_sim: f64::NAN,
+            sd_real: f64::NAN,
+            ratio: f64::NAN,
+            ci: [f64::NAN; 2],
+            w1_trials: f64::NAN,
+            bf_stat: f64::NAN,
+            bf_p: f64::NAN,
+            bf_p_holm: f64::NAN,
+            sim: Vec::new(),
+            real: Vec::new(),
+        }
+    }
 }
 
 /// One sim-to-sim cell.
@@ -321,6 +377,9 @@ pub struct Results {
     /// Per-metric gaps: metric → policy → gap.
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub metric_gaps: BTreeMap<String, BTreeMap<String, MetricGap>>,
+    /// The between-trial spread: quantity → policy → entry (see [`crate::spread`]).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub spread: BTreeMap<String, BTreeMap<String, SpreadEntry>>,
     /// Mean rank over the nine metrics.
     #[serde(
         skip_serializing_if = "BTreeMap::is_empty",

@@ -46,6 +46,9 @@ impl Results {
             }
             s.push('\n');
         }
+        if !self.spread.is_empty() {
+            s += &self.spread_markdown();
+        }
         if !self.kruskal.is_empty() {
             s += "## Sim-to-sim: Kruskal-Wallis across rollout models\n\n| policy | H | p |\n|---|---|---|\n";
             for (p, k) in &self.kruskal {
@@ -87,6 +90,67 @@ impl Results {
                 g.cliffs_delta,
                 g.magnitude
             );
+        }
+        s.push('\n');
+        s
+    }
+
+    /// The between-trial spread: quantities as rows, policies as columns, the s.d. ratio
+    /// sim / real with its interval; a headline per policy in words.
+    fn spread_markdown(&self) -> String {
+        let ratio = |x: f64| match x {
+            x if x.is_finite() => format!("{x:.2}"),
+            x if x == f64::INFINITY => "∞".into(),
+            _ => "–".into(),
+        };
+        let policies: Vec<&String> = {
+            let mut p: Vec<&String> = self.spread.values().flat_map(|m| m.keys()).collect();
+            p.sort();
+            p.dedup();
+            p
+        };
+        let mut s = String::from(
+            "## Between-trial spread: s.d. of the sim trials / s.d. of the real trials\n\n\
+             How much the simulated trials differ from one another, as a share of how much the \
+             real ones do (1: as varied as reality); [95 % bootstrap CI]; \\* the spreads differ \
+             (Brown–Forsythe, Holm-adjusted across policies, p < 0.05).\n\n| per trial |",
+        );
+        for p in &policies {
+            s += &format!(" π_{p} |");
+        }
+        s += "\n|---|";
+        s += &"---|".repeat(policies.len());
+        s.push('\n');
+        for q in crate::spread::quantities() {
+            let Some(per) = self.spread.get(q.id()) else {
+                continue;
+            };
+            s += &format!("| {} |", q.label().replace('|', "\\|"));
+            for p in &policies {
+                s += &per.get(*p).map_or(" – |".into(), |e| {
+                    format!(
+                        " {} [{}, {}]{} |",
+                        ratio(e.ratio),
+                        ratio(e.ci[0]),
+                        ratio(e.ci[1]),
+                        if e.bf_p_holm < 0.05 { " \\*" } else { "" }
+                    )
+                });
+            }
+            s.push('\n');
+        }
+        if let Some(goals) = self.spread.get("goals") {
+            let arm = match self.reality.as_deref() {
+                Some(fishprobe_io::layout::VIRTUAL_LAB) => "virtual-lab",
+                _ => "live",
+            };
+            s.push('\n');
+            for (p, e) in goals {
+                s += &format!(
+                    "π_{p}: {}.\n",
+                    crate::spread::spread_sentence(e, "in goals", arm)
+                );
+            }
         }
         s.push('\n');
         s
