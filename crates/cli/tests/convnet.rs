@@ -357,7 +357,7 @@ fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest(
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = std::fs::read_to_string(d.join("offline.csv")).unwrap();
-    assert_eq!(csv.lines().count(), 1 + 4 * 6, "{csv}");
+    assert_eq!(csv.lines().count(), 1 + 4 * 7, "{csv}");
     assert!(d.join("offline_histograms.png").is_file());
     assert!(d.join("offline_histograms.svg").is_file());
     let r: serde_json::Value =
@@ -403,6 +403,157 @@ fn offline_comparison_on_the_validation_pairs_ranks_the_shipped_convnet_closest(
             );
         }
     }
+}
+
+/// The spread across recordings, against values computed from the files with h5py and numpy
+/// (per recording over both fish: the mean of the speeds from consecutive tracked positions
+/// at 25 Hz, the fraction below 0.5 cm/s, the median distance between the fish), and the
+/// robot-fish recordings compared open loop.
+#[test]
+fn recordings_spread_and_the_robot_recordings_open_loop() {
+    let Some(p) = pairs() else { return };
+    let robot = p.join("../../robot-fish");
+    assert!(robot.is_dir(), "{} is missing", robot.display());
+    let d = dir("offline-spread");
+    let o = fishprobe(&[
+        "compare-offline",
+        "--data",
+        p.join("validation").to_str().unwrap(),
+        robot.to_str().unwrap(),
+        "--models",
+        "Zone,ConvNet",
+        "--reps",
+        "200",
+        "--out",
+        d.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("offline.json")).unwrap()).unwrap();
+    let names: Vec<&str> = r["recordings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    assert!(
+        names[0].ends_with("2019-05-03T14_58_30_8108-sub_0.hdf5"),
+        "{names:?}"
+    );
+    let real = |stat: &str| -> Vec<f64> {
+        r["spread"]["values"]["real"][stat]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect()
+    };
+    let close = |got: &[f64], want: &[f64], tol: f64| {
+        assert_eq!(got.len(), want.len());
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() <= tol * w.abs(), "{got:?} vs {want:?}");
+        }
+    };
+    close(
+        &real("mean_speed"),
+        &[6.265_466_7, 3.173_974_8, 5.779_738, 9.087_251, 6.228_023_5],
+        1e-5,
+    );
+    close(
+        &real("paused_fraction"),
+        &[
+            0.021_526_31,
+            0.095_505_62,
+            0.029_146_735,
+            0.019_412_615,
+            0.025_253_087,
+        ],
+        // A speed within f32 rounding of the threshold counts either way: the legacy files'
+        // positions are converted to the tank's frame in f32 (one frame of 17,978 here).
+        4e-3,
+    );
+    close(
+        &real("median_iid"),
+        &[5.747_818, 21.373_531, 6.290_469, 3.606_642_7, 4.165_882],
+        1e-5,
+    );
+    let e = &r["spread"]["models"]["ConvNet"]["mean_speed"];
+    assert!(
+        (e["sd_real"].as_f64().unwrap() - 2.099_487_3).abs() < 1e-5,
+        "{e}"
+    );
+    let ratio = e["ratio"].as_f64().unwrap();
+    assert!(
+        ratio > 0.0 && ratio < 1.0,
+        "M_ConvNet's pairs vary less than live ones: {e}"
+    );
+    assert_eq!(
+        r["spread"]["values"]["ConvNet"]["mean_speed"]
+            .as_array()
+            .unwrap()
+            .len(),
+        5
+    );
+    // M_Zone swims at one speed: its pairs hardly differ.
+    assert!(
+        r["spread"]["models"]["Zone"]["mean_speed"]["ratio"]
+            .as_f64()
+            .unwrap()
+            < 0.05
+    );
+    assert!(r["spread"]["split_half"]["mean_speed"].as_f64().unwrap() > 0.0);
+    assert_eq!(
+        r["spread"]["correlations"]["real"]
+            .as_array()
+            .unwrap()
+            .len(),
+        28
+    );
+    // The robot recordings, open loop: the live fish's values (h5py: mean speed at 20 Hz,
+    // median robot-fish distance) and every model's fish beside the replayed robot.
+    let o = &r["open_loop"];
+    assert_eq!(o["recordings"].as_array().unwrap().len(), 2);
+    let v = &o["spread"]["values"]["real"];
+    for (stat, want) in [
+        ("mean_speed", [8.325_03, 11.379_752]),
+        ("median_iid", [25.535_713, 18.386_68]),
+    ] {
+        let got: Vec<f64> = v[stat]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+        close(&got, &want, 1e-5);
+    }
+    for m in ["Zone", "ConvNet"] {
+        assert!(o["gaps"][m]["iid"]["w"].as_f64().unwrap() > 0.0);
+        assert_eq!(
+            o["spread"]["values"][m]["median_iid"]
+                .as_array()
+                .unwrap()
+                .len(),
+            2
+        );
+    }
+    for f in [
+        "offline_spread.csv",
+        "offline_recordings.csv",
+        "offline_correlations.csv",
+        "offline_spread.png",
+        "open_loop_histograms.png",
+        "open_loop_spread.svg",
+    ] {
+        assert!(d.join(f).is_file(), "{f} missing");
+    }
+    let md = std::fs::read_to_string(d.join("offline.md")).unwrap();
+    assert!(
+        md.contains("robot-fish distance") && md.contains("How much recordings differ"),
+        "{md}"
+    );
+    let rows = std::fs::read_to_string(d.join("offline_recordings.csv")).unwrap();
+    // 8 statistics x 5 recordings x 3 sources + 8 x 2 x 3, and the header.
+    assert_eq!(rows.lines().count(), 1 + 8 * 5 * 3 + 8 * 2 * 3, "{rows}");
 }
 
 #[test]

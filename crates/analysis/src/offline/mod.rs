@@ -1,46 +1,45 @@
-//! The classic offline evaluation that the paper's method is contrasted with: simulate pairs
-//! of two model fish and compare their motion with recorded pairs of live fish.
+//! The classic offline evaluation that the paper's method is contrasted with: simulate the
+//! recordings with a model and compare the model fish's motion with the live fish's.
 //!
-//! For every real recording, each model simulates one pair in the tank, as long as the
-//! recording, starting from the recording's first tracked poses (seeded per file and model).
-//! Six distributions are compared: speed, absolute turn rate, distance to the nearest wall (per
-//! fish and frame), inter-individual distance and alignment cos(θ1 - θ2) (per frame), and the
-//! fraction of time paused (speed below `pause_cm_s`, per fish). Real headings are checked
-//! against motion as in the ConvNet's dataset. For each model and metric: the 1-Wasserstein
-//! distance between the pooled real and model values, and a percentile interval from a
-//! bootstrap that resamples recordings (and simulated pairs) with replacement — the recording is
-//! the unit that varies, frames within it are not independent. The bootstrap works on fine
-//! histograms (`hist_bins` per metric), so each replicate costs O(bins).
+//! Two kinds of recording are taken. **Pairs of live fish**: for every recording, each model
+//! simulates one pair in the tank, as long as the recording, starting from the recording's
+//! first tracked poses (seeded per file and model). **One live fish beside the robot** (the
+//! lab's robot-fish recordings; open loop): the robot's recorded path is replayed as it was and
+//! each model's fish starts from the live fish's first pose; the model fish reacts to the
+//! robot, the robot never to the fish. This is the fixed-rollout evaluation the paper contrasts
+//! its closed loop with.
+//!
+//! Pooled over recordings, the distributions of [`OFFLINE_METRICS`] are compared (speed,
+//! absolute turn rate, distance to the nearest wall, distance to and alignment with the other
+//! agent, the fish facing it, the fraction of time paused); real headings are checked against
+//! motion as in the ConvNet's dataset. For each model and measure: the 1-Wasserstein distance
+//! between the pooled real and model values, and a percentile interval from a bootstrap that
+//! resamples recordings (and simulated recordings) with replacement — the recording is the
+//! unit that varies, frames within it are not independent. The bootstrap works on fine
+//! histograms (`hist_bins` per measure), so each replicate costs O(bins). Per recording, the
+//! statistics of [`RECORDING_STATS`] measure how much individuals differ ([`spread`]).
 
-use fishprobe_io::{Entity, TrialFile};
+mod metrics;
+mod recording;
+pub mod spread;
+mod tables;
+
+pub use metrics::{
+    recording_values, OfflineMetric, RecordingStat, RecordingValues, OFFLINE_METRICS,
+    RECORDING_STATS,
+};
+pub use recording::{real_recording, resample, simulate, Recording, Track};
+pub use spread::{Correlation, OfflineSpread};
+
+use fishprobe_io::TrialFile;
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::params::{check, ConfigError};
-use fishprobe_sim::{stream, wrap_angle, Sandbox, SimRng, Tank, TankParams};
+use fishprobe_sim::{stream, SimRng};
 use rand::RngExt;
 use rayon::prelude::*;
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
-
-/// The compared metrics, in order, with units.
-pub const OFFLINE_METRICS: [(&str, &str); 6] = [
-    ("speed", "cm/s"),
-    ("turn_rate", "rad/s"),
-    ("wall_distance", "cm"),
-    ("iid", "cm"),
-    ("alignment", "cos"),
-    ("paused", "fraction"),
-];
-
-/// Histogram range of each metric (values outside go to the edge bins).
-const RANGES: [(f64, f64); 6] = [
-    (0.0, 40.0),
-    // |Δθ| at 25 Hz is at most π per frame: 78.5 rad/s.
-    (0.0, 80.0),
-    (0.0, 50.0),
-    (0.0, 142.0),
-    (-1.0, 1.0),
-    (0.0, 1.0),
-];
 
 fishprobe_sim::documented_params! {
     /// Settings of the offline comparison.
@@ -58,6 +57,18 @@ fishprobe_sim::documented_params! {
         pub motion_min_step_cm: f32 = 0.1; "cm",
         /// Recorded heading and motion further apart than this: use the motion (rad).
         pub heading_disagreement_rad: f32 = std::f32::consts::FRAC_PI_2; "rad",
+        /// The frame rate (Hz) at which models simulate every recording (choice: the
+        /// simulator's 25 Hz, SPEC §2, at which the models' parameters were published; a
+        /// recording at another rate, such as the 20 Hz robot-fish files, is simulated for as
+        /// many seconds, its robot path resampled to this rate).
+        pub model_rate_hz: f32 = 25.0; "Hz",
+        /// In a robot recording, take the robot's headings from its motion instead of its
+        /// recorded orientations (choice: true; the shared robot-fish files record the robot's
+        /// orientation with the wrong sign of the angle, see the data README).
+        pub robot_heading_from_motion: bool = true; "",
+        /// Random splits of the real recordings into halves for the split-half distance of the
+        /// spread section (choice).
+        pub split_half_reps: usize = 1000; "splits",
     }
 }
 
@@ -67,6 +78,7 @@ impl OfflineConfig {
         for (f, v, lo, hi) in [
             ("bootstrap_reps", self.bootstrap_reps, 1, 10_000_000),
             ("hist_bins", self.hist_bins, 10, 100_000),
+            ("split_half_reps", self.split_half_reps, 1, 10_000_000),
         ] {
             if !(lo..=hi).contains(&v) {
                 return Err(ConfigError::new(
@@ -84,6 +96,7 @@ impl OfflineConfig {
             0.0,
             check::MAX_SPEED_CM_S,
         )?;
+        check::positive_at_most("offline", "model_rate_hz", self.model_rate_hz, 1000.0)?;
         check::positive_at_most(
             "offline",
             "motion_min_step_cm",
@@ -108,133 +121,6 @@ impl OfflineConfig {
     }
 }
 
-/// One pair's values of the six metrics.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct PairValues {
-    /// Per metric, the values (per fish-frame, per frame, or per fish for `paused`).
-    pub values: [Vec<f64>; 6],
-}
-
-/// Poses of a pair: per fish, positions and headings.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PairTrack {
-    /// Positions per fish.
-    pub pos: [Vec<[f32; 2]>; 2],
-    /// Headings per fish.
-    pub heading: [Vec<f32>; 2],
-    /// Frame rate.
-    pub rate: f32,
-}
-
-/// The six metrics of a pair.
-pub fn pair_values(p: &PairTrack, cfg: &OfflineConfig) -> PairValues {
-    let tank = Tank::new(&TankParams::default());
-    let rate = f64::from(p.rate);
-    let mut v = PairValues::default();
-    let frames = p.pos[0].len().min(p.pos[1].len());
-    let ok = |q: [f32; 2]| q[0].is_finite() && q[1].is_finite();
-    for f in 0..2 {
-        let (mut slow, mut n) = (0usize, 0usize);
-        for t in 0..frames {
-            let a = p.pos[f][t];
-            if !ok(a) {
-                continue;
-            }
-            v.values[2].push(f64::from(tank.wall_distance(a[0], a[1])));
-            if t + 1 < frames && ok(p.pos[f][t + 1]) {
-                let b = p.pos[f][t + 1];
-                let s = f64::from(((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt()) * rate;
-                v.values[0].push(s);
-                n += 1;
-                if s < f64::from(cfg.pause_cm_s) {
-                    slow += 1;
-                }
-                let (h0, h1) = (p.heading[f][t], p.heading[f][t + 1]);
-                if h0.is_finite() && h1.is_finite() {
-                    v.values[1].push(f64::from(wrap_angle(h1 - h0).abs()) * rate);
-                }
-            }
-        }
-        if n > 0 {
-            v.values[5].push(slow as f64 / n as f64);
-        }
-    }
-    for t in 0..frames {
-        let (a, b) = (p.pos[0][t], p.pos[1][t]);
-        if ok(a) && ok(b) {
-            v.values[3].push(f64::from(
-                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt(),
-            ));
-        }
-        let (h0, h1) = (p.heading[0][t], p.heading[1][t]);
-        if h0.is_finite() && h1.is_finite() {
-            v.values[4].push(f64::from((h0 - h1).cos()));
-        }
-    }
-    v
-}
-
-/// A real pair from a trial file (exactly two fish, 100 x 100 cm), or why not.
-pub fn real_pair(t: &TrialFile, cfg: &OfflineConfig) -> Result<PairTrack, crate::AnalysisError> {
-    if (t.world_size_cm[0] - 100.0).abs() > 0.5 || (t.world_size_cm[1] - 100.0).abs() > 0.5 {
-        return Err(format!(
-            "world size {} x {} cm, not the 100 x 100 cm tank",
-            t.world_size_cm[0], t.world_size_cm[1]
-        )
-        .into());
-    }
-    let fish: Vec<&Entity> = t.fish().collect();
-    if fish.len() != 2 {
-        return Err(format!("{} fish, not a pair", fish.len()).into());
-    }
-    if fish.iter().any(|f| f.nan_fraction() >= 1.0) {
-        return Err("a fish track is all NaN".into());
-    }
-    let h = |e: &Entity| {
-        e.headings_checked(cfg.motion_min_step_cm, cfg.heading_disagreement_rad)
-            .0
-    };
-    Ok(PairTrack {
-        pos: [fish[0].positions.clone(), fish[1].positions.clone()],
-        heading: [h(fish[0]), h(fish[1])],
-        rate: t.frame_rate_hz,
-    })
-}
-
-/// A model pair as long as `real`, from its first tracked poses.
-pub fn simulate_pair(
-    model: &ModelSpec,
-    real: &PairTrack,
-    seed: u64,
-) -> Result<PairTrack, crate::AnalysisError> {
-    let frames = real.pos[0].len().min(real.pos[1].len());
-    let start = |f: usize| -> [f32; 3] {
-        (0..frames)
-            .find(|&t| real.pos[f][t][0].is_finite() && real.heading[f][t].is_finite())
-            .map_or([0.0, 0.0, 0.0], |t| {
-                [real.pos[f][t][0], real.pos[f][t][1], real.heading[f][t]]
-            })
-    };
-    let m = model.build().map_err(|e| e.to_string())?;
-    let tank = Tank::new(&TankParams::default());
-    let mut sb = Sandbox::new(tank, real.rate, m, &[start(0), start(1)], seed);
-    let mut out = PairTrack {
-        pos: [Vec::with_capacity(frames), Vec::with_capacity(frames)],
-        heading: [Vec::with_capacity(frames), Vec::with_capacity(frames)],
-        rate: real.rate,
-    };
-    for t in 0..frames {
-        if t > 0 {
-            sb.step().map_err(|e| e.to_string())?;
-        }
-        for (f, s) in sb.fish().iter().enumerate() {
-            out.pos[f].push([s.x, s.y]);
-            out.heading[f].push(s.heading);
-        }
-    }
-    Ok(out)
-}
-
 /// One model's distance to reality in one metric.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct OfflineGap {
@@ -248,18 +134,33 @@ pub struct OfflineGap {
     pub n_model: usize,
 }
 
+/// One comparison: the pair recordings, or the robot recordings (open loop).
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct Comparison {
+    /// Real recordings used.
+    pub recordings: Vec<String>,
+    /// model → measure → gap.
+    pub gaps: BTreeMap<String, BTreeMap<String, OfflineGap>>,
+    /// Per model (and "real"), per measure, a normalised histogram for the figures
+    /// (`hist_bins` / 40 bins over the measure's range).
+    pub histograms: BTreeMap<String, Vec<Vec<f64>>>,
+    /// How much recordings differ from one another, real against each model.
+    pub spread: OfflineSpread,
+}
+
 /// The comparison's results.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct OfflineResults {
-    /// Real recordings used.
-    pub recordings: Vec<String>,
+    /// Pairs of live fish against model pairs (its fields at the top level of
+    /// `offline.json`; empty without pair recordings).
+    #[serde(flatten)]
+    pub pairs: Comparison,
+    /// Robot recordings against model fish beside the replayed robot (open loop), when there
+    /// are any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub open_loop: Option<Comparison>,
     /// Recordings skipped, with the reason.
     pub skipped: Vec<(String, String)>,
-    /// model → metric → gap.
-    pub gaps: std::collections::BTreeMap<String, std::collections::BTreeMap<String, OfflineGap>>,
-    /// Per model (and "real"), per metric, a normalised histogram for the figures
-    /// (`hist_bins` / 40 bins over the metric's range).
-    pub histograms: std::collections::BTreeMap<String, Vec<Vec<f64>>>,
     /// The settings.
     pub config: OfflineConfig,
     /// Master seed.
@@ -267,7 +168,7 @@ pub struct OfflineResults {
 }
 
 fn hist(values: &[f64], m: usize, bins: usize) -> Vec<f64> {
-    let (lo, hi) = RANGES[m];
+    let (lo, hi) = OFFLINE_METRICS[m].range;
     let mut h = vec![0.0; bins];
     for &x in values {
         let i = (((x - lo) / (hi - lo)) * bins as f64)
@@ -280,7 +181,7 @@ fn hist(values: &[f64], m: usize, bins: usize) -> Vec<f64> {
 
 /// W1 between two histograms on the same bins of metric `m`.
 fn hist_w1(a: &[f64], b: &[f64], m: usize) -> f64 {
-    let (lo, hi) = RANGES[m];
+    let (lo, hi) = OFFLINE_METRICS[m].range;
     let dx = (hi - lo) / a.len() as f64;
     let (sa, sb) = (a.iter().sum::<f64>(), b.iter().sum::<f64>());
     if sa == 0.0 || sb == 0.0 {
@@ -295,13 +196,14 @@ fn hist_w1(a: &[f64], b: &[f64], m: usize) -> f64 {
     w
 }
 
-fn pooled(v: &[PairValues], m: usize) -> Vec<f64> {
+fn pooled(v: &[RecordingValues], m: usize) -> Vec<f64> {
     v.iter().flat_map(|p| p.values[m].iter().copied()).collect()
 }
 
-/// Compares each model with the real pairs. `real`: (name, pair) per recording.
+/// Compares each model with the real recordings. `real`: (name, recording) per recording,
+/// pairs and robot recordings in any order.
 pub fn compare_offline(
-    real: &[(String, PairTrack)],
+    real: &[(String, Recording)],
     skipped: Vec<(String, String)>,
     models: &[(String, ModelSpec)],
     cfg: &OfflineConfig,
@@ -309,83 +211,136 @@ pub fn compare_offline(
 ) -> Result<OfflineResults, crate::AnalysisError> {
     cfg.validate().map_err(|e| e.to_string())?;
     if real.is_empty() {
-        return Err("no usable real pair recordings".into());
+        return Err("no usable real recordings (pairs, or one fish beside the robot)".into());
     }
-    let real_vals: Vec<PairValues> = real.par_iter().map(|(_, p)| pair_values(p, cfg)).collect();
-    let fig_bins = (cfg.hist_bins / 40).max(10);
-    let mut res = OfflineResults {
-        recordings: real.iter().map(|(n, _)| n.clone()).collect(),
+    let (robot, pairs): (Vec<&(String, Recording)>, Vec<&(String, Recording)>) =
+        real.iter().partition(|(_, r)| r.has_robot());
+    let pairs = if pairs.is_empty() {
+        Comparison::default()
+    } else {
+        comparison(&pairs, models, cfg, seed, "offline")?
+    };
+    let open_loop = if robot.is_empty() {
+        None
+    } else {
+        Some(comparison(&robot, models, cfg, seed, "offline/open_loop")?)
+    };
+    Ok(OfflineResults {
+        pairs,
+        open_loop,
         skipped,
-        gaps: Default::default(),
-        histograms: Default::default(),
         config: cfg.clone(),
         seed,
+    })
+}
+
+/// One comparison of recordings of one kind; `label` roots its random streams.
+fn comparison(
+    real: &[&(String, Recording)],
+    models: &[(String, ModelSpec)],
+    cfg: &OfflineConfig,
+    seed: u64,
+    label: &str,
+) -> Result<Comparison, crate::AnalysisError> {
+    let real_vals: Vec<RecordingValues> = real
+        .par_iter()
+        .map(|(_, r)| recording_values(r, cfg))
+        .collect();
+    let fig_bins = (cfg.hist_bins / 40).max(10);
+    let mut res = Comparison {
+        recordings: real.iter().map(|(n, _)| n.clone()).collect(),
+        ..Comparison::default()
     };
     res.histograms.insert(
         "real".into(),
-        (0..6)
+        (0..OFFLINE_METRICS.len())
             .map(|m| normalise(hist(&pooled(&real_vals, m), m, fig_bins)))
             .collect(),
     );
+    let mut simulated = Vec::with_capacity(models.len());
     for (name, spec) in models {
-        let sims: Vec<Result<PairValues, crate::AnalysisError>> = real
+        let sims: Vec<Result<RecordingValues, crate::AnalysisError>> = real
             .par_iter()
             .enumerate()
-            .map(|(i, (_, p))| {
-                let s = fishprobe_sim::derive_seed(seed, &format!("offline/{name}"), i as u64);
-                simulate_pair(spec, p, s).map(|t| pair_values(&t, cfg))
+            .map(|(i, (_, r))| {
+                let s = fishprobe_sim::derive_seed(seed, &format!("{label}/{name}"), i as u64);
+                simulate(spec, r, cfg, s).map(|t| recording_values(&t, cfg))
             })
             .collect();
-        let sims: Vec<PairValues> = sims
+        let sims: Vec<RecordingValues> = sims
             .into_iter()
             .collect::<Result<_, _>>()
             .map_err(|e| format!("{name}: {e}"))?;
-        let mut per = std::collections::BTreeMap::new();
-        for (m, (metric, _)) in OFFLINE_METRICS.iter().enumerate() {
-            let (a, b) = (pooled(&real_vals, m), pooled(&sims, m));
-            let w = fishprobe_stats::wasserstein(&a, &b).unwrap_or(f64::NAN);
-            let mut rng: SimRng = stream(seed, &format!("offline/bootstrap/{name}/{metric}"), 0);
-            let ha: Vec<Vec<f64>> = real_vals
-                .iter()
-                .map(|p| hist(&p.values[m], m, cfg.hist_bins))
-                .collect();
-            let hb: Vec<Vec<f64>> = sims
-                .iter()
-                .map(|p| hist(&p.values[m], m, cfg.hist_bins))
-                .collect();
-            let mut boot: Vec<f64> = (0..cfg.bootstrap_reps)
-                .map(|_| {
-                    let mut sa = vec![0.0; cfg.hist_bins];
-                    let mut sb = vec![0.0; cfg.hist_bins];
-                    for _ in 0..ha.len() {
-                        let k = rng.random_range(0..ha.len());
-                        sa.iter_mut().zip(&ha[k]).for_each(|(x, y)| *x += y);
-                        let k = rng.random_range(0..hb.len());
-                        sb.iter_mut().zip(&hb[k]).for_each(|(x, y)| *x += y);
-                    }
-                    hist_w1(&sa, &sb, m)
-                })
-                .filter(|x| x.is_finite())
-                .collect();
-            per.insert(
-                (*metric).to_string(),
-                OfflineGap {
-                    w,
-                    ci: fishprobe_stats::percentile_ci(&mut boot, cfg.ci_level),
-                    n_real: a.len(),
-                    n_model: b.len(),
-                },
-            );
-        }
+        let per = (0..OFFLINE_METRICS.len())
+            .into_par_iter()
+            .map(|m| {
+                let g = pooled_gap(
+                    &real_vals,
+                    &sims,
+                    m,
+                    cfg,
+                    seed,
+                    &format!("{label}/bootstrap/{name}"),
+                );
+                (OFFLINE_METRICS[m].id.to_string(), g)
+            })
+            .collect();
         res.gaps.insert(name.clone(), per);
         res.histograms.insert(
             name.clone(),
-            (0..6)
+            (0..OFFLINE_METRICS.len())
                 .map(|m| normalise(hist(&pooled(&sims, m), m, fig_bins)))
                 .collect(),
         );
+        simulated.push((name.clone(), sims));
     }
+    res.spread = spread::offline_spread(&real_vals, &simulated, cfg, seed, label);
     Ok(res)
+}
+
+/// The gap in pooled measure `m` between the real and a model's recordings, with its
+/// recording bootstrap from the stream `{label}/{measure}`.
+fn pooled_gap(
+    real: &[RecordingValues],
+    sims: &[RecordingValues],
+    m: usize,
+    cfg: &OfflineConfig,
+    seed: u64,
+    label: &str,
+) -> OfflineGap {
+    let metric = OFFLINE_METRICS[m].id;
+    let (a, b) = (pooled(real, m), pooled(sims, m));
+    let w = fishprobe_stats::wasserstein(&a, &b).unwrap_or(f64::NAN);
+    let mut rng: SimRng = stream(seed, &format!("{label}/{metric}"), 0);
+    let ha: Vec<Vec<f64>> = real
+        .iter()
+        .map(|p| hist(&p.values[m], m, cfg.hist_bins))
+        .collect();
+    let hb: Vec<Vec<f64>> = sims
+        .iter()
+        .map(|p| hist(&p.values[m], m, cfg.hist_bins))
+        .collect();
+    let (mut sa, mut sb) = (vec![0.0; cfg.hist_bins], vec![0.0; cfg.hist_bins]);
+    let mut boot: Vec<f64> = (0..cfg.bootstrap_reps)
+        .map(|_| {
+            sa.iter_mut().for_each(|x| *x = 0.0);
+            sb.iter_mut().for_each(|x| *x = 0.0);
+            for _ in 0..ha.len() {
+                let k = rng.random_range(0..ha.len());
+                sa.iter_mut().zip(&ha[k]).for_each(|(x, y)| *x += y);
+                let k = rng.random_range(0..hb.len());
+                sb.iter_mut().zip(&hb[k]).for_each(|(x, y)| *x += y);
+            }
+            hist_w1(&sa, &sb, m)
+        })
+        .filter(|x| x.is_finite())
+        .collect();
+    OfflineGap {
+        w,
+        ci: fishprobe_stats::percentile_ci(&mut boot, cfg.ci_level),
+        n_real: a.len(),
+        n_model: b.len(),
+    }
 }
 
 fn normalise(mut h: Vec<f64>) -> Vec<f64> {
@@ -396,78 +351,24 @@ fn normalise(mut h: Vec<f64>) -> Vec<f64> {
     h
 }
 
-/// The metric's histogram range (for figures).
-pub fn metric_range(m: usize) -> (f64, f64) {
-    RANGES[m]
-}
-
-impl OfflineResults {
-    /// `offline.csv`: model, metric, unit, w, ci_low, ci_high, n_real, n_model.
-    pub fn csv(&self) -> String {
-        let mut s = String::from("model,metric,unit,w,ci_low,ci_high,n_real,n_model\n");
-        for (model, per) in &self.gaps {
-            for (metric, unit) in OFFLINE_METRICS {
-                if let Some(g) = per.get(metric) {
-                    s += &format!(
-                        "{model},{metric},{unit},{},{},{},{},{}\n",
-                        g.w, g.ci[0], g.ci[1], g.n_real, g.n_model
-                    );
-                }
-            }
-        }
-        s
-    }
-
-    /// A Markdown table: metrics as rows, models as columns, W \[CI\]; the smallest per row in bold.
-    pub fn markdown(&self) -> String {
-        let models: Vec<&String> = self.gaps.keys().collect();
-        let mut s = String::from("| metric |");
-        for m in &models {
-            s += &format!(" M_{m} |");
-        }
-        s += "\n|---|";
-        s += &"---|".repeat(models.len());
-        s.push('\n');
-        for (metric, unit) in OFFLINE_METRICS {
-            let ws: Vec<f64> = models.iter().map(|m| self.gaps[*m][metric].w).collect();
-            let best = ws
-                .iter()
-                .copied()
-                .filter(|w| w.is_finite())
-                .fold(f64::INFINITY, f64::min);
-            s += &format!("| {metric} ({unit}) |");
-            for (m, w) in models.iter().zip(&ws) {
-                let g = &self.gaps[*m][metric];
-                let cell = format!("{w:.3} [{:.3}, {:.3}]", g.ci[0], g.ci[1]);
-                s += &if *w == best {
-                    format!(" **{cell}** |")
-                } else {
-                    format!(" {cell} |")
-                };
-            }
-            s.push('\n');
-        }
-        s
-    }
-}
-
 /// Files left out, with the reason.
 pub type Skips = Vec<(String, String)>;
 
-/// The pairs of `files` (read with `read`), and the files skipped with the reason.
-pub fn read_pairs<E: std::fmt::Display>(
+/// The recordings of `files` (read with `read`): pairs, and one fish beside the robot; and
+/// the files skipped with the reason.
+pub fn read_recordings<E: std::fmt::Display>(
     files: &[PathBuf],
     read: impl Fn(&std::path::Path) -> Result<TrialFile, E> + Sync,
     cfg: &OfflineConfig,
-) -> (Vec<(String, PairTrack)>, Skips) {
-    let r: Vec<(String, Result<PairTrack, String>)> = files
+) -> (Vec<(String, Recording)>, Skips) {
+    let r: Vec<(String, Result<Recording, String>)> = files
         .par_iter()
         .map(|f| {
             (
                 f.display().to_string(),
                 read(f)
                     .map_err(|e| e.to_string())
-                    .and_then(|t| real_pair(&t, cfg).map_err(|e| e.to_string())),
+                    .and_then(|t| real_recording(&t, cfg).map_err(|e| e.to_string())),
             )
         })
         .collect();
@@ -485,26 +386,6 @@ pub fn read_pairs<E: std::fmt::Display>(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn pair_values_by_hand() {
-        // Fish 0 moves 1 cm per frame along +x at 25 Hz; fish 1 sits still facing +y.
-        let p = PairTrack {
-            pos: [
-                vec![[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]],
-                vec![[0.0, 10.0], [0.0, 10.0], [0.0, 10.0]],
-            ],
-            heading: [vec![0.0; 3], vec![std::f32::consts::FRAC_PI_2; 3]],
-            rate: 25.0,
-        };
-        let v = pair_values(&p, &OfflineConfig::default());
-        assert_eq!(v.values[0][..2], [25.0, 25.0]);
-        assert_eq!(v.values[0][2..], [0.0, 0.0]);
-        assert_eq!(v.values[5], vec![0.0, 1.0], "fish 1 is always paused");
-        assert!((v.values[3][2] - (4.0f64 + 100.0).sqrt()).abs() < 1e-5);
-        assert!(v.values[4].iter().all(|c| c.abs() < 1e-6), "perpendicular");
-        assert_eq!(v.values[2][0], 50.0);
-    }
 
     #[test]
     fn histogram_w1_matches_the_exact_distance() {

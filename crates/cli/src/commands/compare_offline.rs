@@ -1,22 +1,26 @@
-//! `fishprobe compare-offline`: model pairs vs recorded pairs of live guppies.
+//! `fishprobe compare-offline`: model pairs vs recorded pairs of live guppies, and model fish
+//! beside a recorded robot's path (open loop) vs the live fish of robot recordings.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use fishprobe_analysis::offline::{compare_offline, read_pairs, OfflineConfig};
+use fishprobe_analysis::offline::{compare_offline, read_recordings, OfflineConfig};
 use fishprobe_learn::bc::{list_files, read_any};
 use fishprobe_models::ModelSpec;
-use fishprobe_report::offline::offline_histograms;
+use fishprobe_report::offline::offline_figures;
 use std::path::PathBuf;
 
 use super::emit;
 
 #[derive(Debug, Args)]
 pub struct CompareOfflineArgs {
-    /// Real pair recordings: directories of pair files (robofish.io or legacy) or files.
-    /// Default: guppy-pairs/legacy/validation of the shared data ($FISHPROBE_DATA).
+    /// Real recordings: directories or files (robofish.io or legacy) of pairs of live fish,
+    /// or of one live fish beside the robot (compared open loop: the robot's recorded path
+    /// replayed, each model's fish reacting to it). Default:
+    /// guppy-pairs/legacy/validation of the shared data ($FISHPROBE_DATA).
     #[arg(long, num_args = 1..)]
     data: Vec<PathBuf>,
-    /// Output directory: offline.json, offline.csv, offline.md, offline_histograms.svg/png.
+    /// Output directory: offline.json, offline.md, the CSV tables (offline.csv,
+    /// offline_spread.csv, offline_recordings.csv, offline_correlations.csv) and the figures.
     #[arg(long)]
     out: PathBuf,
     /// Models to compare (names, comma-separated).
@@ -74,7 +78,7 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
         );
     }
     let res = super::with_jobs(a.jobs, || -> Result<_> {
-        let (real, skipped) = read_pairs(&files, read_any, &cfg);
+        let (real, skipped) = read_recordings(&files, read_any, &cfg);
         for (f, why) in &skipped {
             say!("warning: skipped {f}: {why}");
         }
@@ -88,21 +92,26 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
             .with_context(|| format!("writing {}", p.display()))
     };
     put("offline.json", &serde_json::to_string_pretty(&res)?)?;
-    put("offline.csv", &res.csv())?;
-    let table = res.markdown();
+    let mut written = vec!["offline.json".to_string(), "offline.md".to_string()];
+    for (name, text) in res.csv_tables() {
+        put(name, &text)?;
+        written.push(name.to_string());
+    }
+    let tables = res.markdown();
+    let n = res.pairs.recordings.len() + res.open_loop.as_ref().map_or(0, |o| o.recordings.len());
     put(
         "offline.md",
-        &format!(
-            "# Offline comparison: model pairs vs {} real pair recordings\n\n1-Wasserstein distance [95 % bootstrap CI over recordings]; smallest per metric in bold.\n\n{table}",
-            res.recordings.len()
-        ),
+        &format!("# Offline comparison: models against {n} real recordings\n\n{tables}"),
     )?;
-    if let Some(f) = offline_histograms(&res) {
+    for f in offline_figures(&res) {
         fishprobe_report::write_figure(&f, &a.out, 2.0)?;
+        written.push(format!("{}.svg/.png", f.name));
     }
     emit(&format!(
-        "{} real pair recordings; 1-Wasserstein distance to them [95 % CI]:\n\n{table}\nwrote {}/offline.json, offline.csv, offline.md, offline_histograms.svg/.png\n",
-        res.recordings.len(),
-        a.out.display()
+        "{n} real recordings ({} pairs, {} with the robot):\n\n{tables}wrote {}: {}\n",
+        res.pairs.recordings.len(),
+        res.open_loop.as_ref().map_or(0, |o| o.recordings.len()),
+        a.out.display(),
+        written.join(", ")
     ))
 }
