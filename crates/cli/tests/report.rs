@@ -43,7 +43,10 @@ fn full_study() -> &'static Path {
             ]);
         }
         let text = ok(&["report", s]);
-        assert!(text.contains("8 figures"), "{text}");
+        assert!(
+            text.contains(&format!("{} figures", FIGURES.len())),
+            "{text}"
+        );
         d
     })
 }
@@ -65,11 +68,16 @@ fn a_complete_study_gets_every_figure_table_and_link() {
     }
     let html = read(&r.join("index.html"));
     // Figures are inlined; nothing is fetched from a network.
-    assert_eq!(html.matches("data:image/svg+xml;base64,").count(), 8);
+    assert_eq!(
+        html.matches("data:image/svg+xml;base64,").count(),
+        FIGURES.len()
+    );
     assert!(!html.contains("http://") && !html.contains("https://"));
     for section in [
         "Sim-to-real gap in goals reached",
         "Per-metric sim-to-real gaps and ranks",
+        "How much trials differ",
+        "simulated trials differ from one another in goals",
         "Kruskal-Wallis",
         "rate ratio per minute",
         "Time to goal",
@@ -304,7 +312,10 @@ fn the_report_renders_in_headless_chromium_without_errors() {
         .unwrap();
     let dom = String::from_utf8_lossy(&o.stdout);
     assert!(
-        dom.contains("data-images=\"8\" data-broken-images=\"0\""),
+        dom.contains(&format!(
+            "data-images=\"{}\" data-broken-images=\"0\"",
+            FIGURES.len()
+        )),
         "images not all displayed: {}",
         dom.lines()
             .find(|l| l.contains("<body"))

@@ -12,6 +12,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 mod run;
+mod spread;
 mod tables;
 
 const STYLE: &str = r#"
@@ -136,6 +137,7 @@ impl Page<'_> {
         self.missing(&mut o);
         self.sim_to_real(&mut o);
         self.metric_gaps(&mut o);
+        self.spread(&mut o);
         self.sim_to_sim(&mut o);
         self.temporal(&mut o);
         self.time_to_goal(&mut o);
@@ -195,7 +197,7 @@ impl Page<'_> {
         o.push_str(
             "<nav><b>Contents</b><ul><li><a href=\"#run\">What was run</a></li>\
              <li><a href=\"#missing\">Missing parts</a></li><li><a href=\"#sim-to-real\">Sim-to-real gap</a></li>\
-             <li><a href=\"#metrics\">Per-metric gaps</a></li><li><a href=\"#sim-to-sim\">Sim-to-sim</a></li>\
+             <li><a href=\"#metrics\">Per-metric gaps</a></li><li><a href=\"#spread\">How much trials differ</a></li><li><a href=\"#sim-to-sim\">Sim-to-sim</a></li>\
              <li><a href=\"#temporal\">Goals over time</a></li><li><a href=\"#time-to-goal\">Time to goal</a></li>\
              <li><a href=\"#competence\">Probe competence</a></li><li><a href=\"#approach\">Approach assay</a></li><li><a href=\"#stability\">Retraining stability</a></li>\
              <li><a href=\"#iid\">Robot-fish distance</a></li><li><a href=\"#trajectories\">Trajectories</a></li>\

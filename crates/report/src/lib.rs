@@ -84,9 +84,10 @@ pub fn write_figure(
 }
 
 /// Every figure a study report can draw (which it draws depends on what the study holds).
-pub const STUDY_FIGURES: [&str; 8] = [
+pub const STUDY_FIGURES: [&str; 9] = [
     "goals",
     "gap_heatmap",
+    "spread",
     "sim_to_sim",
     "goals_over_time",
     "approach",
@@ -138,6 +139,7 @@ pub fn build_report(
     let figs: Vec<figures::Figure> = [
         figures::goals(&data),
         figures::gap_heatmap(&data),
+        figures::spread(&data),
         figures::sim_to_sim(&data),
         figures::goals_over_time(&data),
         figures::approach(&data, cfg),

@@ -9,6 +9,7 @@ mod goals_over_time;
 mod iid_density;
 mod ood;
 mod sim_to_sim;
+mod spread;
 mod training;
 mod trajectories;
 
@@ -20,6 +21,7 @@ pub use goals_over_time::goals_over_time;
 pub use iid_density::iid_density;
 pub use ood::{ood_scores, ood_trajectories, ScoredEpisode};
 pub use sim_to_sim::sim_to_sim;
+pub use spread::spread;
 pub use training::training;
 pub use trajectories::trajectories;
 
