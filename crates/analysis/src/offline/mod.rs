@@ -213,8 +213,8 @@ pub fn compare_offline(
     if real.is_empty() {
         return Err("no usable real recordings (pairs, or one fish beside the robot)".into());
     }
-    let (robot, pairs): (Vec<&(String, Recording)>, Vec<&(String, Recording)>) =
-        real.iter().partition(|(_, r)| r.has_robot());
+    type Named<'a> = Vec<&'a (String, Recording)>;
+    let (robot, pairs): (Named, Named) = real.iter().partition(|(_, r)| r.has_robot());
     let pairs = if pairs.is_empty() {
         Comparison::default()
     } else {
