@@ -208,6 +208,10 @@ impl TrialKind {
     }
 }
 
+/// The fish entity attribute that holds the individual a fish of a population was drawn as
+/// (JSON of `fishprobe_sim::Individual`: its multipliers, pause rate and duration, latent).
+pub const INDIVIDUAL_ATTRIBUTE: &str = "fishprobe_individual";
+
 /// The task of a trial: what robofish.io does not hold (SPEC §10), in `/fishprobe`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TaskRecord {
@@ -319,12 +323,15 @@ impl TrialFile {
         };
         let mut entities = vec![entity("robot", Category::Robot, "robot", &t.robot)];
         for (i, f) in t.fish.iter().enumerate() {
-            entities.push(entity(
-                &format!("fish_{}", i + 1),
-                Category::Fish,
-                "fish",
-                f,
-            ));
+            let mut e = entity(&format!("fish_{}", i + 1), Category::Fish, "fish", f);
+            // A fish drawn from a population: who it was, beside its track.
+            if let Some(ind) = t.individuals.get(i).filter(|ind| !ind.is_neutral()) {
+                if let Ok(json) = serde_json::to_string(ind) {
+                    e.attributes
+                        .insert(INDIVIDUAL_ATTRIBUTE.to_string(), Attr::Text(json));
+                }
+            }
+            entities.push(e);
         }
         let mut goals: Vec<[f32; 2]> = Vec::new();
         let active_goal = t

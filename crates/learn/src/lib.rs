@@ -34,6 +34,7 @@ pub mod evaluate;
 pub mod gae;
 pub mod onnx;
 pub mod policy;
+pub mod population;
 pub mod ppo;
 pub mod run;
 pub mod trainer;

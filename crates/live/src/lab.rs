@@ -258,7 +258,7 @@ impl<'a> VirtualTank<'a> {
         }
         if t >= release_s {
             for (i, m) in self.motions.iter_mut().enumerate() {
-                let view = FishView::build(
+                let mut view = FishView::build(
                     i,
                     &self.fish,
                     &[self.robot.state],
@@ -266,6 +266,7 @@ impl<'a> VirtualTank<'a> {
                     dt,
                     (t - release_s) as f32,
                 );
+                view.individual = self.minds[i].individual;
                 *m = self
                     .model
                     .decide(&view, &[], &mut self.minds[i], &mut self.rng_fish[i]);

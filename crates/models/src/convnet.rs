@@ -36,6 +36,12 @@ pub fn shipped_sha256() -> String {
 pub struct ConvNetWorkspace {
     pub(crate) conv_out: Vec<f32>,
     conv_delta: Vec<f32>,
+    /// The dense layers' input with an individual's latent (the convolution's output and the
+    /// latent, per row), and its delta.
+    pub(crate) mlp_in: Vec<f32>,
+    mlp_in_delta: Vec<f32>,
+    /// The rows' latents, gathered from the fish's views for batched inference.
+    latent: Vec<f32>,
     pub(crate) mlp: MlpWorkspace,
 }
 
@@ -63,7 +69,7 @@ pub struct WeightsError {
 fn mlp_spec(arch: &ConvNetArch) -> MlpSpec {
     MlpSpec {
         sizes: vec![
-            arch.conv_channels * arch.bins,
+            arch.conv_channels * arch.bins + arch.latent_dim,
             arch.hidden[0],
             arch.hidden[1],
             arch.cells(),
@@ -81,10 +87,44 @@ impl ConvNet {
         Self { arch, conv, mlp }
     }
 
-    /// Logits (`batch x cells`) of `batch` views.
+    /// Logits (`batch x cells`) of `batch` views (a network with a latent is given the
+    /// population's centre, zeros; [`ConvNet::forward_latent`] gives each row its own).
     pub fn forward<'w>(&self, x: &[f32], batch: usize, ws: &'w mut ConvNetWorkspace) -> &'w [f32] {
+        self.forward_latent(x, None, batch, ws)
+    }
+
+    /// Logits of `batch` views, each with its individual's latent (`batch x latent_dim`;
+    /// `None`: zeros).
+    pub fn forward_latent<'w>(
+        &self,
+        x: &[f32],
+        z: Option<&[f32]>,
+        batch: usize,
+        ws: &'w mut ConvNetWorkspace,
+    ) -> &'w [f32] {
         self.features(x, batch, ws);
-        self.mlp.forward(&ws.conv_out, batch, &mut ws.mlp)
+        if self.arch.latent_dim == 0 {
+            return self.mlp.forward(&ws.conv_out, batch, &mut ws.mlp);
+        }
+        self.join_latent(z, batch, ws);
+        self.mlp.forward(&ws.mlp_in, batch, &mut ws.mlp)
+    }
+
+    /// The dense layers' input: each row's convolution output followed by its latent.
+    pub(crate) fn join_latent(&self, z: Option<&[f32]>, batch: usize, ws: &mut ConvNetWorkspace) {
+        let (c, d) = (
+            self.arch.conv_channels * self.arch.bins,
+            self.arch.latent_dim,
+        );
+        ws.mlp_in.resize(batch * (c + d), 0.0);
+        for r in 0..batch {
+            let row = &mut ws.mlp_in[r * (c + d)..(r + 1) * (c + d)];
+            row[..c].copy_from_slice(&ws.conv_out[r * c..(r + 1) * c]);
+            match z {
+                Some(z) => row[c..].copy_from_slice(&z[r * d..(r + 1) * d]),
+                None => row[c..].fill(0.0),
+            }
+        }
     }
 
     /// The convolution's activated output, the dense layers' input, into `ws.conv_out`.
@@ -108,16 +148,52 @@ impl ConvNet {
         g_conv: &mut [f32],
         g_mlp: &mut [f32],
     ) {
+        self.backward_latent(x, batch, dlogits, ws, g_conv, g_mlp, None);
+    }
+
+    /// [`ConvNet::backward`] after [`ConvNet::forward_latent`], also writing the gradient
+    /// with respect to each row's latent into `g_z` (`batch x latent_dim`, overwritten).
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_latent(
+        &self,
+        x: &[f32],
+        batch: usize,
+        dlogits: &[f32],
+        ws: &mut ConvNetWorkspace,
+        g_conv: &mut [f32],
+        g_mlp: &mut [f32],
+        g_z: Option<&mut [f32]>,
+    ) {
         let len = self.arch.bins;
-        ws.conv_delta
-            .resize(batch * self.arch.conv_channels * len, 0.0);
+        let c = self.arch.conv_channels * len;
+        let d = self.arch.latent_dim;
+        ws.conv_delta.resize(batch * c, 0.0);
         let ConvNetWorkspace {
             conv_out,
             conv_delta,
+            mlp_in,
+            mlp_in_delta,
             mlp,
+            ..
         } = ws;
-        self.mlp
-            .backward(conv_out, batch, dlogits, mlp, g_mlp, Some(conv_delta));
+        if d == 0 {
+            self.mlp
+                .backward(conv_out, batch, dlogits, mlp, g_mlp, Some(conv_delta));
+        } else {
+            mlp_in_delta.resize(batch * (c + d), 0.0);
+            self.mlp
+                .backward(mlp_in, batch, dlogits, mlp, g_mlp, Some(mlp_in_delta));
+            for r in 0..batch {
+                let row = &mlp_in_delta[r * (c + d)..(r + 1) * (c + d)];
+                conv_delta[r * c..(r + 1) * c].copy_from_slice(&row[..c]);
+            }
+            if let Some(g_z) = g_z {
+                for r in 0..batch {
+                    g_z[r * d..(r + 1) * d]
+                        .copy_from_slice(&mlp_in_delta[r * (c + d) + c..(r + 1) * (c + d)]);
+                }
+            }
+        }
         Activation::LeakyRelu(self.arch.leaky_slope).backprop(conv_out, conv_delta);
         self.conv.backward(x, batch, len, conv_delta, g_conv, None);
     }
@@ -318,7 +394,25 @@ impl FishModel for ConvNetFish {
         x.resize(views.len() * len, 0.0);
         encode_views(arch, views, x);
         self.net.features(x, views.len(), ws);
-        let logits = self.dense.forward(&ws.conv_out, views.len(), &mut ws.mlp);
+        if arch.latent_dim > 0 {
+            // Each fish's own latent, from its individual.
+            let d = arch.latent_dim;
+            let mut z = std::mem::take(&mut ws.latent);
+            z.clear();
+            z.extend(
+                views
+                    .iter()
+                    .flat_map(|v| v.individual.latent[..d].iter().copied()),
+            );
+            self.net.join_latent(Some(&z), views.len(), ws);
+            ws.latent = z;
+        }
+        let (dense_in, mlp) = if arch.latent_dim == 0 {
+            (&ws.conv_out, &mut ws.mlp)
+        } else {
+            (&ws.mlp_in, &mut ws.mlp)
+        };
+        let logits = self.dense.forward(dense_in, views.len(), mlp);
         fishprobe_nn::dist::softmax_rows(logits, out, arch.cells());
     }
 

@@ -252,7 +252,13 @@ impl Disagreement {
         let w = 1.0 / self.nets.len() as f32;
         for (net, dense) in self.nets.iter().zip(&self.dense) {
             net.features(&s.x, batch, &mut s.ws);
-            let logits = dense.forward(&s.ws.conv_out, batch, &mut s.ws.mlp);
+            // A network with an individual's latent sees the population's centre here.
+            let logits = if net.arch.latent_dim > 0 {
+                net.join_latent(None, batch, &mut s.ws);
+                dense.forward(&s.ws.mlp_in, batch, &mut s.ws.mlp)
+            } else {
+                dense.forward(&s.ws.conv_out, batch, &mut s.ws.mlp)
+            };
             fishprobe_nn::dist::softmax_rows(logits, &mut s.p, cells);
             for (((z, p), m), h) in logits
                 .chunks_exact(cells)

@@ -42,7 +42,14 @@ impl FishModel for Follow {
         "Follow"
     }
 
-    fn decide(&self, v: &FishView, _: &[f32], _: &mut FishMind, _: &mut SimRng) -> FishMotion {
+    fn reads_individual(&self) -> bool {
+        true
+    }
+
+    /// An individual's speed multiplier scales the speed; M_Follow has no noise, social or
+    /// wall terms to vary.
+    fn decide(&self, v: &FishView, _: &[f32], mind: &mut FishMind, _: &mut SimRng) -> FishMotion {
+        let speed = self.p.speed_cm_s * mind.individual.speed;
         match v.closest_other() {
             // Nobody to follow, or already there: stay put.
             None => FishMotion {
@@ -55,7 +62,7 @@ impl FishModel for Follow {
             },
             Some((o, d)) => FishMotion {
                 heading: (o.y - v.me.y).atan2(o.x - v.me.x),
-                speed: self.p.speed_cm_s.min(d / v.dt),
+                speed: speed.min(d / v.dt),
             },
         }
     }

@@ -292,12 +292,41 @@ impl FishModel for Force {
         };
     }
 
+    fn reads_individual(&self) -> bool {
+        true
+    }
+
     fn decide(&self, v: &FishView, _: &[f32], mind: &mut FishMind, rng: &mut SimRng) -> FishMotion {
-        self.step_among(&v.me, v.others(), Some(&v.tank), v.dt, mind, rng)
+        if mind.individual.is_neutral() {
+            self.step_among(&v.me, v.others(), Some(&v.tank), v.dt, mind, rng)
+        } else {
+            self.individual(&mind.individual).step_among(
+                &v.me,
+                v.others(),
+                Some(&v.tank),
+                v.dt,
+                mind,
+                rng,
+            )
+        }
     }
 }
 
 impl Force {
+    /// This model as one individual: preferred speed, speed and angular noise, distance
+    /// regulation and alignment (the social terms) and the wall repulsion range scaled by the
+    /// individual's multipliers (noise as a standard deviation: its intensity by the square).
+    pub fn individual(&self, ind: &fishprobe_sim::Individual) -> Self {
+        let mut f = self.clone();
+        f.p.preferred_speed *= ind.speed;
+        f.p.speed_noise *= ind.noise * ind.noise;
+        f.p.angular_noise *= ind.noise * ind.noise;
+        f.p.distance_regulation *= ind.social;
+        f.p.alignment *= ind.social;
+        f.p.wall_repulsion_range_cm *= ind.wall;
+        f
+    }
+
     /// One frame of a fish at `me` among `others` (any number), with the tank's walls or, with
     /// `tank = None`, in open water: what [`FishModel::decide`] does with a view, for groups
     /// larger than a view holds (the collective-state validation, [`crate::collective`]).

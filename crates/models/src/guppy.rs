@@ -277,6 +277,10 @@ impl FishModel for Guppy {
         mind.memory[TARGET] = me.heading;
     }
 
+    fn reads_individual(&self) -> bool {
+        true
+    }
+
     fn decide(
         &self,
         v: &FishView,
@@ -284,6 +288,31 @@ impl FishModel for Guppy {
         mind: &mut FishMind,
         rng: &mut SimRng,
     ) -> FishMotion {
+        if mind.individual.is_neutral() {
+            self.step(v, mind, rng)
+        } else {
+            self.individual(&mind.individual).step(v, mind, rng)
+        }
+    }
+}
+
+impl Guppy {
+    /// This virtual guppy as one individual of a population: kick speed, kick and frame
+    /// noise, attraction and alignment (the social terms) and the wall range scaled by the
+    /// individual's multipliers, on top of the traits it draws itself.
+    pub fn individual(&self, ind: &fishprobe_sim::Individual) -> Self {
+        let mut g = self.clone();
+        g.p.kick_speed_cm_s *= ind.speed;
+        g.p.kick_noise_rad *= ind.noise;
+        g.p.frame_noise_rad *= ind.noise;
+        g.p.attraction *= ind.social;
+        g.p.alignment *= ind.social;
+        g.p.wall_range_cm *= ind.wall;
+        g
+    }
+
+    /// One frame of the virtual guppy.
+    fn step(&self, v: &FishView, mind: &mut FishMind, rng: &mut SimRng) -> FishMotion {
         let p = &self.p;
         let dt = v.dt;
         if mind.memory[PAUSE_LEFT] > 0.0 {

@@ -32,6 +32,7 @@ pub mod force;
 pub mod guppy;
 pub mod measure;
 pub mod onnx;
+pub mod population;
 pub mod python;
 pub mod stationary;
 pub mod support;
@@ -43,6 +44,7 @@ pub use follow::{Follow, FollowParams};
 pub use force::{Force, ForceParams, NoiseConvention};
 pub use guppy::{Guppy, GuppyParams};
 pub use onnx::{OnnxFish, OnnxParams};
+pub use population::{PopulationParams, Trait};
 pub use python::PythonParams;
 pub use stationary::{Stationary, StationaryParams};
 pub use zone::{Zone, ZoneConvention, ZoneParams};
@@ -178,6 +180,12 @@ macro_rules! model_registry {
                 if let Some(path) = name.strip_prefix("onnx:") {
                     return Ok(Self::Onnx(OnnxParams::for_file(path)));
                 }
+                if let Some(path) = name.strip_prefix("population:") {
+                    return population::read_file(std::path::Path::new(path)).map(Self::Population);
+                }
+                if let Some(p) = population::shipped(name) {
+                    return p.map(Self::Population);
+                }
                 if let Some(path) = name.strip_prefix("convnet:") {
                     // M_ConvNet with weights from `fit-convnet` instead of the shipped ones.
                     return Ok(Self::ConvNet(ConvNetParams {
@@ -250,7 +258,10 @@ impl ModelSpec {
     /// cost) or Python code called every frame. It decides training budgets (`PpoConfig::preset_for`,
     /// a study's `expensive_fish_budget`).
     pub fn is_expensive(&self) -> bool {
-        matches!(self, Self::ConvNet(_) | Self::Onnx(_) | Self::Python(_))
+        match self {
+            Self::Population(p) => p.base.as_deref().is_some_and(Self::is_expensive),
+            _ => matches!(self, Self::ConvNet(_) | Self::Onnx(_) | Self::Python(_)),
+        }
     }
 
     /// Where the support file of this model lives (`WEIGHTS.support.json` beside a weights or
@@ -347,6 +358,9 @@ model_registry! {
     Onnx(OnnxParams),
     /// A fish model written in Python (run by the Python package only).
     Python(PythonParams),
+    /// A population of a model's individuals (`population:FILE`, or a shipped population's
+    /// name).
+    Population(PopulationParams),
 }
 
 impl ModelSpec {
@@ -364,6 +378,19 @@ impl ModelSpec {
         }
         if let Self::Python(p) = self {
             return format!("Python class {}", p.class);
+        }
+        if let Self::Population(p) = self {
+            let base = p.base.as_deref().map_or("?", Self::name);
+            let traits: Vec<&str> = p.traits.iter().map(|t| t.name()).collect();
+            let from = if p.source.is_empty() {
+                String::new()
+            } else {
+                format!(", from {}", p.source)
+            };
+            return format!(
+                "a population of {base} ({} varying{from})",
+                traits.join(", ")
+            );
         }
         let (Ok(mine), Ok(Ok(default))) = (
             serde_json::to_value(self),
@@ -391,6 +418,7 @@ impl ModelSpec {
     pub fn label(&self) -> String {
         match self {
             Self::Python(p) if !p.name.is_empty() => p.name.clone(),
+            Self::Population(p) if !p.name.is_empty() => p.name.clone(),
             _ => self.name().to_string(),
         }
     }

@@ -292,12 +292,41 @@ impl FishModel for Zone {
         };
     }
 
+    fn reads_individual(&self) -> bool {
+        true
+    }
+
     fn decide(&self, v: &FishView, _: &[f32], mind: &mut FishMind, rng: &mut SimRng) -> FishMotion {
-        self.step_among(&v.me, v.others(), Some(&v.tank), v.dt, mind, rng)
+        if mind.individual.is_neutral() {
+            self.step_among(&v.me, v.others(), Some(&v.tank), v.dt, mind, rng)
+        } else {
+            self.individual(&mind.individual).step_among(
+                &v.me,
+                v.others(),
+                Some(&v.tank),
+                v.dt,
+                mind,
+                rng,
+            )
+        }
     }
 }
 
 impl Zone {
+    /// This model as one individual: speed, turn and speed noise, the outer radii of the
+    /// orientation and attraction zones (the social reach) and the wall repulsion radius
+    /// scaled by the individual's multipliers.
+    pub fn individual(&self, ind: &fishprobe_sim::Individual) -> Self {
+        let mut z = self.clone();
+        z.p.speed_cm_s *= ind.speed;
+        z.p.turn_noise_rad *= ind.noise;
+        z.p.speed_noise_cm_s *= ind.noise;
+        z.p.wall_repulsion_radius_cm *= ind.wall;
+        z.radii[1] *= ind.social;
+        z.radii[2] *= ind.social;
+        z
+    }
+
     /// One frame of a fish at `me` among `others` (any number), with the tank's walls or, with
     /// `tank = None`, in open water: what [`FishModel::decide`] does with a view, for groups
     /// larger than a view holds (the collective-state validation, [`crate::collective`]).

@@ -273,6 +273,7 @@ impl TankEnv {
         let leading = [self.robot.state];
         for i in 0..self.fish.len() {
             self.views[i].rebuild(i, &self.fish, &leading, self.tank, self.dt, time_s);
+            self.views[i].individual = self.minds[i].individual;
         }
     }
 

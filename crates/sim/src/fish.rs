@@ -36,6 +36,9 @@ pub struct FishView {
     pub dt: f32,
     /// Time since the episode started (s).
     pub time_s: f32,
+    /// The fish's individual (a copy of its mind's, set by the environment each frame), for
+    /// models whose batched inference takes it (an individual's latent vector).
+    pub individual: crate::Individual,
 }
 
 impl FishView {
@@ -152,6 +155,14 @@ pub struct FishMind {
     pub traits: [f32; 4],
     /// Further per-fish memory (meaning defined by the model).
     pub memory: [f32; 4],
+    /// Who this fish is: drawn from a population at the start of the episode, neutral for a
+    /// model without one ([`crate::Individual`]). Models read it here; the environment also
+    /// shows it in the fish's view each frame (for batched inference).
+    #[serde(default)]
+    pub individual: crate::Individual,
+    /// Seconds left of a pause a population imposes (0: swimming).
+    #[serde(default)]
+    pub pause_left_s: f32,
 }
 
 /// A behaviour model of a fish. Implementations live in the `fishprobe-models` crate; a new
@@ -165,6 +176,13 @@ pub trait FishModel: Send + Sync + std::fmt::Debug {
         let _ = rng;
         *mind = FishMind::default();
         mind.speed = me.speed();
+    }
+
+    /// Whether the model reads its fish's [`crate::Individual`] (`mind.individual`): its speed,
+    /// social, noise and wall multipliers. A population of a model that does not (an ONNX or
+    /// Python fish) scales the model's output speed by the individual's instead.
+    fn reads_individual(&self) -> bool {
+        false
     }
 
     /// Floats of batched, deterministic inference per fish and frame (0: none).

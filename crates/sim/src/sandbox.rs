@@ -89,6 +89,7 @@ impl Sandbox {
         let time_s = self.frame as f32 * self.dt;
         for i in 0..self.fish.len() {
             self.views[i].rebuild(i, &self.fish, &self.scripted, self.tank, self.dt, time_s);
+            self.views[i].individual = self.minds[i].individual;
         }
         let width = self.model.inference_width();
         if width > 0 {

@@ -28,7 +28,7 @@ pub use metrics::{
     recording_values, OfflineMetric, RecordingStat, RecordingValues, OFFLINE_METRICS,
     RECORDING_STATS,
 };
-pub use recording::{real_recording, resample, simulate, Recording, Track};
+pub use recording::{real_recording, resample, simulate, simulate_model, Recording, Track};
 pub use spread::{Correlation, OfflineSpread};
 
 use fishprobe_io::TrialFile;
@@ -69,6 +69,10 @@ fishprobe_sim::documented_params! {
         /// Random splits of the real recordings into halves for the split-half distance of the
         /// spread section (choice).
         pub split_half_reps: usize = 1000; "splits",
+        /// Simulations of each recording per model (choice: 1). More make a model's side of the
+        /// comparison (its pooled distributions, the s.d. of its per-recording values) less a
+        /// matter of its random draws; the real side stays what it is.
+        pub replicates: usize = 1; "simulations",
     }
 }
 
@@ -79,6 +83,7 @@ impl OfflineConfig {
             ("bootstrap_reps", self.bootstrap_reps, 1, 10_000_000),
             ("hist_bins", self.hist_bins, 10, 100_000),
             ("split_half_reps", self.split_half_reps, 1, 10_000_000),
+            ("replicates", self.replicates, 1, 1000),
         ] {
             if !(lo..=hi).contains(&v) {
                 return Err(ConfigError::new(
@@ -259,12 +264,15 @@ fn comparison(
     );
     let mut simulated = Vec::with_capacity(models.len());
     for (name, spec) in models {
-        let sims: Vec<Result<RecordingValues, crate::AnalysisError>> = real
-            .par_iter()
-            .enumerate()
-            .map(|(i, (_, r))| {
+        let built = spec.build().map_err(|e| format!("{name}: {e}"))?;
+        // Simulation i is of recording i mod n (with one replicate, simulation i of recording i).
+        let sims: Vec<Result<RecordingValues, crate::AnalysisError>> = (0..real.len()
+            * cfg.replicates)
+            .into_par_iter()
+            .map(|i| {
+                let r = &real[i % real.len()].1;
                 let s = fishprobe_sim::derive_seed(seed, &format!("{label}/{name}"), i as u64);
-                simulate(spec, r, cfg, s).map(|t| recording_values(&t, cfg))
+                simulate_model(&built, r, cfg, s).map(|(t, _)| recording_values(&t, cfg))
             })
             .collect();
         let sims: Vec<RecordingValues> = sims
@@ -325,11 +333,17 @@ fn pooled_gap(
         .map(|_| {
             sa.iter_mut().for_each(|x| *x = 0.0);
             sb.iter_mut().for_each(|x| *x = 0.0);
-            for _ in 0..ha.len() {
-                let k = rng.random_range(0..ha.len());
-                sa.iter_mut().zip(&ha[k]).for_each(|(x, y)| *x += y);
-                let k = rng.random_range(0..hb.len());
-                sb.iter_mut().zip(&hb[k]).for_each(|(x, y)| *x += y);
+            // Each side resampled at its own size (drawn alternately while both have draws
+            // left, so one replicate per recording draws as it always did).
+            for i in 0..ha.len().max(hb.len()) {
+                if i < ha.len() {
+                    let k = rng.random_range(0..ha.len());
+                    sa.iter_mut().zip(&ha[k]).for_each(|(x, y)| *x += y);
+                }
+                if i < hb.len() {
+                    let k = rng.random_range(0..hb.len());
+                    sb.iter_mut().zip(&hb[k]).for_each(|(x, y)| *x += y);
+                }
             }
             hist_w1(&sa, &sb, m)
         })

@@ -129,6 +129,18 @@ pub fn simulate(
     cfg: &OfflineConfig,
     seed: u64,
 ) -> Result<Recording, AnalysisError> {
+    let m = model.build().map_err(|e| e.to_string())?;
+    simulate_model(&m, real, cfg, seed).map(|(r, _)| r)
+}
+
+/// [`simulate`] with a model already built, also giving the individual each simulated fish
+/// was (neutral unless the model is a population).
+pub fn simulate_model(
+    m: &std::sync::Arc<dyn fishprobe_sim::FishModel>,
+    real: &Recording,
+    cfg: &OfflineConfig,
+    seed: u64,
+) -> Result<(Recording, Vec<fishprobe_sim::Individual>), AnalysisError> {
     let duration_s = real.frames() as f64 / f64::from(real.rate);
     let rate = cfg.model_rate_hz;
     let frames = (duration_s * f64::from(rate)).round() as usize;
@@ -137,9 +149,9 @@ pub fn simulate(
         .iter()
         .map(|f| f.first_pose().unwrap_or([0.0, 0.0, 0.0]))
         .collect();
-    let m = model.build().map_err(|e| e.to_string())?;
     let tank = Tank::new(&TankParams::default());
-    let mut sb = Sandbox::new(tank, rate, m, &starts, seed);
+    let mut sb = Sandbox::new(tank, rate, m.clone(), &starts, seed);
+    let individuals = sb.minds().iter().map(|m| m.individual).collect();
     let robot = real
         .robot
         .as_ref()
@@ -164,7 +176,7 @@ pub fn simulate(
             track.heading.push(s.heading);
         }
     }
-    Ok(Recording { fish, robot, rate })
+    Ok((Recording { fish, robot, rate }, individuals))
 }
 
 /// The robot in frame `t` of a resampled track, with its velocity to the next frame; `None`

@@ -21,7 +21,8 @@ pub struct OfflineSpread {
     /// The statistics' ids, in order.
     pub statistics: Vec<String>,
     /// "real" or a model → statistic → each recording's value, in recording order (null: no
-    /// value; a model's value for a recording is that of its simulation of the recording).
+    /// value; a model's value for a recording is that of its simulation of the recording;
+    /// with `replicates` R, a model has R n values, simulation i of recording i mod n).
     pub values: BTreeMap<String, BTreeMap<String, Vec<Option<f64>>>>,
     /// Statistic → the mean, over `split_half_reps` random splits of the real recordings into
     /// halves, of the 1-Wasserstein distance between the halves' values: what sampling alone
@@ -158,8 +159,11 @@ pub fn offline_spread(
         let mut g = stream(seed, &format!("{label}/split_half/{}", s.id), 0);
         let half = split_half_w1(&x, cfg.split_half_reps, &mut g);
         out.split_half.insert(s.id.into(), half);
+        let n_model = models
+            .first()
+            .map_or(x.len(), |(_, v)| x.len() * v.len() / real.len().max(1));
         out.floor
-            .insert(s.id.into(), scaled_floor(half, x.len(), x.len()));
+            .insert(s.id.into(), scaled_floor(half, x.len(), n_model));
     }
     out.values.insert("real".into(), by_id(&real_stats));
     out.correlations

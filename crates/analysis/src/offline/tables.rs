@@ -125,10 +125,13 @@ impl OfflineResults {
                     let Some(values) = per.get(s.id) else {
                         continue;
                     };
-                    for (name, v) in c.recordings.iter().zip(values) {
+                    // A model's simulation i is of recording i mod n (`replicates`).
+                    let n = c.recordings.len().max(1);
+                    for (i, v) in values.iter().enumerate() {
                         rows.push(vec![
                             kind.to_string(),
-                            name.clone(),
+                            c.recordings[i % n].clone(),
+                            (i / n).to_string(),
                             source.clone(),
                             s.id.into(),
                             v.map_or(String::new(), f),
@@ -138,7 +141,14 @@ impl OfflineResults {
             }
         }
         table(
-            &["recordings", "recording", "source", "statistic", "value"],
+            &[
+                "recordings",
+                "recording",
+                "replicate",
+                "source",
+                "statistic",
+                "value",
+            ],
             rows,
         )
     }

@@ -39,6 +39,10 @@ pub struct CompareOfflineArgs {
     /// Bootstrap replicates.
     #[arg(long)]
     reps: Option<usize>,
+    /// Simulations of each recording per model (default 1): more make a model's side less a
+    /// matter of its random draws.
+    #[arg(long)]
+    replicates: Option<usize>,
     /// Threads (default: all cores). Results do not depend on it.
     #[arg(long)]
     jobs: Option<usize>,
@@ -49,6 +53,9 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
     let mut cfg = OfflineConfig::default();
     if let Some(r) = a.reps {
         cfg.bootstrap_reps = r;
+    }
+    if let Some(r) = a.replicates {
+        cfg.replicates = r;
     }
     cfg.validate()?;
     let data = if a.data.is_empty() {
@@ -65,7 +72,7 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
             p.weights = w.display().to_string();
         }
         spec.build().with_context(|| format!("model {name}"))?;
-        models.push((spec.name().to_string(), spec));
+        models.push((spec.label(), spec));
     }
     let files = list_files(&data);
     if files.is_empty() {

@@ -16,6 +16,7 @@ mod config;
 mod evaluate;
 mod export;
 mod fit_convnet;
+mod fit_population;
 mod import_legacy;
 mod inspect;
 mod live;
@@ -98,6 +99,8 @@ enum Command {
     Analyze(analyze::AnalyzeArgs),
     /// Fit M_ConvNet to recordings of live guppy pairs (behavioural cloning).
     FitConvnet(fit_convnet::FitConvnetArgs),
+    /// Fit a population of a model's individuals to how much real recordings differ.
+    FitPopulation(fit_population::FitPopulationArgs),
     /// Live trials: the bridge between a trained policy and the lab (`serve`), and a replay client.
     Live(live::LiveArgs),
     /// The virtual lab: tank, tracker, robot and a virtual guppy through the live bridge.
@@ -299,6 +302,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Analyze(a) => analyze::run(a),
         Command::Report(a) => report::run(a),
         Command::FitConvnet(a) => fit_convnet::run(a),
+        Command::FitPopulation(a) => fit_population::run(a),
         Command::CompareOffline(a) => compare_offline::run(a),
         Command::Run(a) => run::run(a),
         Command::Live(a) => live::run_live(a),

@@ -30,6 +30,16 @@ pub struct ConvNetArch {
     pub w_bins: usize,
     /// Half-width of the turn-rate grid (rad/s; SPEC choice: 10).
     pub w_max_rad_s: f32,
+    /// Length of the individual's latent vector fed to the dense layers beside the
+    /// convolution's output (0: M_ConvNet as the paper has it, one average fish; at most
+    /// `fishprobe_sim::LATENT_DIM`). Written only when not 0, so the sidecars of networks
+    /// without one read and write as before.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub latent_dim: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 impl Default for ConvNetArch {
@@ -45,6 +55,7 @@ impl Default for ConvNetArch {
             v_max_cm_s: 25.0,
             w_bins: 41,
             w_max_rad_s: 10.0,
+            latent_dim: 0,
         }
     }
 }
@@ -87,6 +98,13 @@ impl ConvNetArch {
                 "conv_channels/hidden/v_bins/w_bins",
                 "0".into(),
                 "must be at least 1",
+            );
+        }
+        if self.latent_dim > fishprobe_sim::LATENT_DIM {
+            return bad(
+                "latent_dim",
+                self.latent_dim.to_string(),
+                &format!("must be at most {}", fishprobe_sim::LATENT_DIM),
             );
         }
         for (f, v) in [

@@ -40,6 +40,8 @@ pub struct Trajectory {
     pub active_goal: Vec<[f32; 2]>,
     /// Robot commands.
     pub commands: Vec<RecordedCommand>,
+    /// Per fish: the individual it was this episode (neutral without a population).
+    pub individuals: Vec<crate::Individual>,
 }
 
 /// Explicit start poses (x, y, heading) instead of random ones, e.g. for the approach assay.

@@ -178,6 +178,9 @@ impl TankEnv {
             t.active_goal.reserve(frames);
             t.commands.clear();
             t.commands.reserve(actions);
+            t.individuals.clear();
+            t.individuals
+                .extend(self.minds.iter().map(|m| m.individual));
             self.record_frame();
         }
         self.live = true;
