@@ -185,7 +185,7 @@ pub fn run_episode_with(
     let meta = TrialMeta {
         kind: TrialKind::Sim,
         policy: c.describe(),
-        fish_model: e.model.name().to_string(),
+        fish_model: e.model.label(),
         seed,
         goal_radius_cm: cfg.task.goal_radius_cm,
         config_json: serde_json::json!({
@@ -197,7 +197,7 @@ pub fn run_episode_with(
         experiment_setup: format!(
             "fishprobe evaluate: {} against {}",
             c.describe(),
-            e.model.name()
+            e.model.label()
         ),
     };
     let half = cfg.tank.half_size_cm;

@@ -9,7 +9,7 @@
 
 use crate::error::LiveError;
 use crate::protocol::{to_line, ClientMsg, FishPose, Pose, ServerMsg, PROTOCOL_VERSION};
-use fishprobe_models::{Guppy, GuppyParams};
+use fishprobe_models::ModelSpec;
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{
     apply_motion, stream, wrap_angle, AgentState, FishMind, FishModel, FishView, Robot,
@@ -41,6 +41,11 @@ fishprobe_sim::documented_params! {
         pub container: [f32; 2] = [-40.0, -40.0]; "cm",
         /// Seconds to wait for a due command before giving up (the bridge is gone).
         pub command_timeout_s: f32 = 10.0; "s",
+        /// The virtual fish (a model name, `population:FILE`, ...). Choice: `GuppyPop`, the
+        /// virtual guppy as a population whose individuals' spread was fitted to the training
+        /// recordings (`fishprobe fit-population --model Guppy`); `Guppy` is the virtual guppy
+        /// with its hand-set individual traits only.
+        pub fish_model: String = "GuppyPop".into(); "-",
     }
 }
 
@@ -182,7 +187,9 @@ struct VirtualTank<'a> {
     tank: Tank,
     robot_params: RobotParams,
     dt: f32,
-    model: Guppy,
+    model: std::sync::Arc<dyn FishModel>,
+    views: Vec<FishView>,
+    inferred: Vec<f32>,
     robot: Robot,
     stopped: bool,
     fish: Vec<AgentState>,
@@ -195,12 +202,7 @@ struct VirtualTank<'a> {
 
 impl<'a> VirtualTank<'a> {
     /// The robot in the centre, the fish waiting in their container.
-    fn new(
-        cfg: &'a LabConfig,
-        guppy: &GuppyParams,
-        seed: u64,
-        n_fish: usize,
-    ) -> Result<Self, LiveError> {
+    fn new(cfg: &'a LabConfig, seed: u64, n_fish: usize) -> Result<Self, LiveError> {
         // One stream per fish: fish 0 draws what the one fish of a pair trial drew.
         let mut rng_fish: Vec<SimRng> = (0..n_fish as u64)
             .map(|i| stream(seed, "lab/fish", i))
@@ -227,7 +229,9 @@ impl<'a> VirtualTank<'a> {
                 )
             })
             .collect();
-        let model = Guppy::new(guppy.clone())?;
+        let model = ModelSpec::by_name(&cfg.fish_model)
+            .and_then(|s| s.build())
+            .map_err(|e| LiveError::Settings(format!("lab.fish_model: {e}")))?;
         let mut minds = vec![FishMind::default(); n_fish];
         for ((f, m), r) in fish.iter().zip(&mut minds).zip(&mut rng_fish) {
             model.begin_episode(f, m, r);
@@ -237,6 +241,8 @@ impl<'a> VirtualTank<'a> {
             tank: Tank::new(&TankParams::default()),
             robot_params: RobotParams::default(),
             dt: 1.0 / cfg.tracking_hz,
+            views: vec![FishView::default(); n_fish],
+            inferred: vec![0.0; n_fish * model.inference_width()],
             model,
             robot,
             stopped: false,
@@ -257,8 +263,8 @@ impl<'a> VirtualTank<'a> {
             self.robot.advance(&self.robot_params, &self.tank, dt);
         }
         if t >= release_s {
-            for (i, m) in self.motions.iter_mut().enumerate() {
-                let mut view = FishView::build(
+            for (i, view) in self.views.iter_mut().enumerate() {
+                *view = FishView::build(
                     i,
                     &self.fish,
                     &[self.robot.state],
@@ -267,9 +273,18 @@ impl<'a> VirtualTank<'a> {
                     (t - release_s) as f32,
                 );
                 view.individual = self.minds[i].individual;
-                *m = self
-                    .model
-                    .decide(&view, &[], &mut self.minds[i], &mut self.rng_fish[i]);
+            }
+            let width = self.model.inference_width();
+            if width > 0 {
+                self.model.infer_batch(&self.views, &mut self.inferred);
+            }
+            for (i, m) in self.motions.iter_mut().enumerate() {
+                *m = self.model.decide(
+                    &self.views[i],
+                    &self.inferred[i * width..(i + 1) * width],
+                    &mut self.minds[i],
+                    &mut self.rng_fish[i],
+                );
             }
             for (f, m) in self.fish.iter_mut().zip(&self.motions) {
                 apply_motion(&self.tank, f, *m, dt);
@@ -361,12 +376,7 @@ fn last_said(out: &LabTrial) -> String {
 }
 
 /// Runs one virtual trial against the bridge at `addr`.
-pub fn run_trial(
-    addr: SocketAddr,
-    cfg: &LabConfig,
-    guppy: &GuppyParams,
-    seed: u64,
-) -> Result<LabTrial, LiveError> {
+pub fn run_trial(addr: SocketAddr, cfg: &LabConfig, seed: u64) -> Result<LabTrial, LiveError> {
     cfg.validate()?;
     let net = |e: std::io::Error| LiveError::Net(format!("{addr}: {e}"));
     let mut conn = TcpStream::connect(addr).map_err(net)?;
@@ -374,7 +384,7 @@ pub fn run_trial(
     let rx = reader_thread(conn.try_clone().map_err(net)?);
     let terms = handshake(&mut conn, &rx, cfg, net)?;
     let wait = Duration::from_secs_f32(cfg.command_timeout_s);
-    let mut lab = VirtualTank::new(cfg, guppy, seed, terms.fish_count)?;
+    let mut lab = VirtualTank::new(cfg, seed, terms.fish_count)?;
     let mut out = LabTrial {
         file: String::new(),
         goals_reached: 0,

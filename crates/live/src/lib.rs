@@ -32,7 +32,7 @@
 //! let bridge = std::thread::spawn(move || {
 //!     server::serve(&listener, &opts, &mut || Ok(Box::new(Straight) as Box<dyn Controller>), |_| {})
 //! });
-//! let trial = lab::run_trial(addr, &lab::LabConfig::default(), &Default::default(), 7)?;
+//! let trial = lab::run_trial(addr, &lab::LabConfig::default(), 7)?;
 //! println!("{} goals, written to {}", trial.goals_reached, trial.file);
 //! # let _ = bridge.join();
 //! # Ok::<(), Box<dyn std::error::Error>>(())

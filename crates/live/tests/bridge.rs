@@ -7,7 +7,6 @@ use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions, TrialOutcome};
 use fishprobe_live::session::LiveConfig;
-use fishprobe_models::GuppyParams;
 use fishprobe_sim::{ControlInput, Controller, SimRng, TaskParams};
 use rand::{RngExt, SeedableRng};
 use std::io::{BufRead, BufReader, Write};
@@ -93,7 +92,7 @@ fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
         dropouts_per_min: 0.0,
         ..LabConfig::default()
     };
-    let t = run_trial(addr, &lab, &GuppyParams::default(), 3).unwrap();
+    let t = run_trial(addr, &lab, 3).unwrap();
     let outcomes = h.join().unwrap();
     assert!(outcomes[0].complete);
     assert!(t.file.contains("Seeker__VirtualLab"), "{}", t.file);
@@ -123,7 +122,7 @@ fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
     // Deterministic for a seed.
     let scratch = tmp("lab2");
     let (addr, h) = bridge(scratch.to_path_buf(), 1, short());
-    let t2 = run_trial(addr, &lab, &GuppyParams::default(), 3).unwrap();
+    let t2 = run_trial(addr, &lab, 3).unwrap();
     h.join().unwrap();
     assert_eq!(t2.goals_reached, t.goals_reached);
     let f2 = read_trial(std::path::Path::new(&t2.file)).unwrap();
@@ -143,7 +142,7 @@ fn dropouts_stop_the_robot_within_one_frame_of_the_timeout() {
         dropout_max_s: 1.5,
         ..LabConfig::default()
     };
-    let t = run_trial(addr, &lab, &GuppyParams::default(), 5).unwrap();
+    let t = run_trial(addr, &lab, 5).unwrap();
     h.join().unwrap();
     assert!(t.stops > 0, "no stop despite dropouts");
     let f = read_trial(std::path::Path::new(&t.file)).unwrap();
@@ -354,7 +353,7 @@ fn trials_of_a_retrained_policy_are_not_mixed_with_the_old_ones() {
     let out = tmp("provenance");
     let lab = LabConfig::default();
     let (addr, h) = serve_weighted(&out, "aaaa");
-    let t = run_trial(addr, &lab, &GuppyParams::default(), 1).unwrap();
+    let t = run_trial(addr, &lab, 1).unwrap();
     h.join().unwrap().unwrap();
     let task = read_trial(std::path::Path::new(&t.file))
         .unwrap()
@@ -377,7 +376,7 @@ fn trials_of_a_retrained_policy_are_not_mixed_with_the_old_ones() {
     );
     // The same weights go on numbering their trials.
     let (addr, h) = serve_weighted(&out, "aaaa");
-    let t = run_trial(addr, &lab, &GuppyParams::default(), 2).unwrap();
+    let t = run_trial(addr, &lab, 2).unwrap();
     h.join().unwrap().unwrap();
     assert!(t.file.ends_with("trial_001.hdf5"), "{}", t.file);
     // A file there that is no trial: which policy drove it cannot be told, so refused too.

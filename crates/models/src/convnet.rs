@@ -25,6 +25,13 @@ pub use view::{encode_view, ConvNetArch, CHANNELS};
 
 static SHIPPED_WEIGHTS: &[u8] = include_bytes!("../assets/convnet.safetensors");
 static SHIPPED_META: &str = include_str!("../assets/convnet.safetensors.json");
+static SHIPPED_INDIVIDUALS: &[u8] = include_bytes!("../assets/convnet_individuals.safetensors");
+static SHIPPED_INDIVIDUALS_META: &str =
+    include_str!("../assets/convnet_individuals.safetensors.json");
+
+/// The `weights` that name the shipped M_ConvNet with individuals (`fit-convnet --latent-dim
+/// 4` on the training recordings; the population of its individuals ships as `ConvNetPop`).
+pub const SHIPPED_INDIVIDUALS_WEIGHTS: &str = "shipped:individuals";
 
 /// SHA-256 of the shipped weights file (what its support file names).
 pub fn shipped_sha256() -> String {
@@ -298,6 +305,20 @@ impl ConvNet {
         Self::from_parts(&t, &meta, name)
     }
 
+    /// The shipped M_ConvNet with individuals ([`SHIPPED_INDIVIDUALS_WEIGHTS`]).
+    pub fn shipped_individuals() -> Result<Self, WeightsError> {
+        let name = "shipped with fishprobe (individuals)";
+        let err = |what: String| WeightsError {
+            source_name: name.into(),
+            what,
+        };
+        let t =
+            fishprobe_nn::store::from_bytes(SHIPPED_INDIVIDUALS).map_err(|e| err(e.to_string()))?;
+        let meta: serde_json::Value =
+            serde_json::from_str(SHIPPED_INDIVIDUALS_META).map_err(|e| err(e.to_string()))?;
+        Self::from_parts(&t, &meta, name)
+    }
+
     /// The sidecar of the shipped weights (training command, data split, validation NLL).
     pub fn shipped_meta() -> serde_json::Value {
         serde_json::from_str(SHIPPED_META).unwrap_or(serde_json::Value::Null)
@@ -308,7 +329,9 @@ fishprobe_sim::documented_params! {
     /// M_ConvNet's settings: which weights to use.
     pub struct ConvNetParams {
         /// Weights file written by `fishprobe fit-convnet` (safetensors with its `.json`
-        /// sidecar); empty: the weights shipped with fishprobe.
+        /// sidecar); empty: the weights shipped with fishprobe; `shipped:individuals`: the
+        /// shipped M_ConvNet with individuals (an individual's latent as input; its population
+        /// is `ConvNetPop`).
         pub weights: String = String::new(); "-",
         /// A drawn (v, ω) whose step would cross the wall margin is drawn again, up to this
         /// many times; when none stays in the water, the glass turns the fish along it (it
@@ -352,6 +375,8 @@ impl ConvNetFish {
     pub fn new(p: &ConvNetParams) -> Result<Self, WeightsError> {
         let net = if p.weights.is_empty() {
             ConvNet::shipped()?
+        } else if p.weights == SHIPPED_INDIVIDUALS_WEIGHTS {
+            ConvNet::shipped_individuals()?
         } else {
             ConvNet::load(Path::new(&p.weights))?
         };
@@ -804,6 +829,97 @@ mod tests {
             );
         }
         let _ = &mut net;
+    }
+
+    #[test]
+    fn the_latent_gradient_matches_finite_differences_and_the_latent_matters() {
+        let arch = ConvNetArch {
+            bins: 12,
+            conv_channels: 2,
+            kernel: 3,
+            hidden: [5, 4],
+            v_bins: 2,
+            w_bins: 3,
+            latent_dim: 2,
+            ..ConvNetArch::default()
+        };
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let mut net = ConvNet::new(arch.clone(), &mut rng);
+        for p in net.mlp.params_mut() {
+            *p *= 3.0;
+        }
+        let batch = 2;
+        let x: Vec<f32> = (0..batch * arch.view_len())
+            .map(|i| ((i * 37 % 11) as f32 / 11.0) - 0.3)
+            .collect();
+        let z = vec![0.4f32, -0.7, 1.1, 0.2];
+        let targets = [2usize, 5];
+        let loss = |z: &[f32]| {
+            let mut ws = ConvNetWorkspace::default();
+            let l = net.forward_latent(&x, Some(z), batch, &mut ws).to_vec();
+            let mut g = vec![0.0; l.len()];
+            f64::from(fishprobe_nn::dist::softmax_cross_entropy(
+                &l,
+                arch.cells(),
+                &targets,
+                &mut g,
+            ))
+        };
+        let mut ws = ConvNetWorkspace::default();
+        let logits = net.forward_latent(&x, Some(&z), batch, &mut ws).to_vec();
+        let mut dl = vec![0.0; logits.len()];
+        fishprobe_nn::dist::softmax_cross_entropy(&logits, arch.cells(), &targets, &mut dl);
+        let mut gc = vec![0.0; net.conv.params.len()];
+        let mut gm = vec![0.0; net.mlp.num_params()];
+        let mut gz = vec![0.0; z.len()];
+        net.backward_latent(&x, batch, &dl, &mut ws, &mut gc, &mut gm, Some(&mut gz));
+        let h = 1e-2f32;
+        for k in 0..z.len() {
+            let (mut a, mut b) = (z.clone(), z.clone());
+            a[k] += h;
+            b[k] -= h;
+            let fd = (loss(&a) - loss(&b)) / (2.0 * f64::from(h));
+            assert!(
+                (fd - f64::from(gz[k])).abs() < 2e-3 + 2e-2 * fd.abs(),
+                "latent {k}: {fd} vs {}",
+                gz[k]
+            );
+        }
+        // Another individual, other logits; no latent at all is the centre (zeros).
+        assert!((loss(&z) - loss(&[0.0; 4])).abs() > 1e-6);
+        let mut ws = ConvNetWorkspace::default();
+        let centre = net.forward(&x, batch, &mut ws).to_vec();
+        let zeros = net
+            .forward_latent(&x, Some(&[0.0; 4]), batch, &mut ws)
+            .to_vec();
+        assert_eq!(centre, zeros);
+        let _ = &mut net;
+    }
+
+    #[test]
+    fn the_shipped_network_with_individuals_loads_and_its_fish_differ_by_latent() {
+        let net = ConvNet::shipped_individuals().expect("the shipped individuals load");
+        assert_eq!(net.arch.latent_dim, 4);
+        let fish = ConvNetFish::new(&ConvNetParams {
+            weights: SHIPPED_INDIVIDUALS_WEIGHTS.into(),
+            ..ConvNetParams::default()
+        })
+        .unwrap();
+        let tank = fishprobe_sim::Tank::default();
+        let me = fishprobe_sim::AgentState::at(0.0, 0.0, 0.0);
+        let mut a = FishView::build(0, &[me], &[], tank, 0.04, 0.0);
+        let mut b = a;
+        a.individual.latent = [1.5, -1.0, 0.5, 0.0];
+        b.individual.latent = [-1.5, 1.0, -0.5, 0.0];
+        let w = fish.inference_width();
+        let (mut pa, mut pb) = (vec![0.0; w], vec![0.0; w]);
+        fish.infer_batch(&[a], &mut pa);
+        fish.infer_batch(&[b], &mut pb);
+        let diff: f32 = pa.iter().zip(&pb).map(|(x, y)| (x - y).abs()).sum();
+        assert!(
+            diff > 0.05,
+            "two individuals, the same distribution: {diff}"
+        );
     }
 
     #[test]

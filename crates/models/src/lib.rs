@@ -423,6 +423,16 @@ impl ModelSpec {
         }
     }
 
+    /// Every model a name alone selects, as listings show them: the built-in models, then the
+    /// populations fitted to the shared training recordings that ship with fishprobe.
+    pub fn listed_names() -> Vec<&'static str> {
+        Self::NAMES
+            .iter()
+            .copied()
+            .chain(population::SHIPPED.iter().map(|(n, _)| *n))
+            .collect()
+    }
+
     /// The rule-based candidate models of the paper.
     pub const RULE_BASED: [&'static str; 3] = ["Follow", "Zone", "Force"];
 }

@@ -206,6 +206,23 @@ fishprobe_sim::documented_params! {
 }
 
 impl PopulationParams {
+    /// This population with its content read from `source` (a shipped population's name or
+    /// a population file) when it names only its source, as a study file may; the name given
+    /// here is kept.
+    pub fn resolved(&self) -> Result<Self, ModelError> {
+        if !self.traits.is_empty() || self.source.is_empty() {
+            return Ok(self.clone());
+        }
+        let mut p = match shipped(&self.source) {
+            Some(p) => p?,
+            None => read_file(std::path::Path::new(&self.source))?,
+        };
+        if !self.name.is_empty() {
+            p.name = self.name.clone();
+        }
+        Ok(p)
+    }
+
     /// The base model.
     pub fn base(&self) -> Result<&ModelSpec, ConfigError> {
         self.base.as_deref().ok_or_else(|| {
@@ -332,9 +349,31 @@ pub fn read_file(path: &std::path::Path) -> Result<PopulationParams, ModelError>
     Ok(p)
 }
 
-/// The populations fitted to the shared training recordings that ship with fishprobe: name and
-/// file contents.
-pub const SHIPPED: [(&str, &str); 0] = [];
+/// The populations fitted to the shared training recordings (`guppy-pairs/legacy/train` only)
+/// that ship with fishprobe: name and file contents (`fishprobe fit-population` wrote them;
+/// each records its command and its check on the validation recordings under `fit`).
+pub const SHIPPED: [(&str, &str); 5] = [
+    (
+        "FollowPop",
+        include_str!("../assets/populations/FollowPop.json"),
+    ),
+    (
+        "ZonePop",
+        include_str!("../assets/populations/ZonePop.json"),
+    ),
+    (
+        "ForcePop",
+        include_str!("../assets/populations/ForcePop.json"),
+    ),
+    (
+        "ConvNetPop",
+        include_str!("../assets/populations/ConvNetPop.json"),
+    ),
+    (
+        "GuppyPop",
+        include_str!("../assets/populations/GuppyPop.json"),
+    ),
+];
 
 /// A shipped population by name (case-insensitive), if there is one of that name.
 pub fn shipped(name: &str) -> Option<Result<PopulationParams, ModelError>> {
@@ -389,8 +428,9 @@ pub struct Population {
 }
 
 impl Population {
-    /// The population of `p` (checked).
+    /// The population of `p` (checked; one that names only its source is read from it).
     pub fn new(p: &PopulationParams) -> Result<Self, ModelError> {
+        let p = &p.resolved()?;
         p.validate(&p.name)?;
         let chol = cholesky(&p.cov).ok_or_else(|| {
             ConfigError::new(&p.name, "cov", "", "must be positive semi-definite")
@@ -486,6 +526,10 @@ impl crate::ModelParams for PopulationParams {
         "a model's individuals drawn from a fitted joint distribution of traits";
 
     fn check(&self, prefix: &str) -> Result<(), ConfigError> {
+        if self.traits.is_empty() && !self.source.is_empty() {
+            // Read at build time (`resolved`), checked there.
+            return Ok(());
+        }
         self.validate(prefix)
     }
 

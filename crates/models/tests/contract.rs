@@ -48,7 +48,7 @@ impl FishModel for Recording {
 
 #[test]
 fn every_model_passes_the_checker_in_both_modes() {
-    for name in ModelSpec::NAMES {
+    for name in ModelSpec::listed_names() {
         let model = ModelSpec::by_name(name).unwrap().build().unwrap();
         let mut train = TankEnv::new(EnvConfig::default(), model.clone()).unwrap();
         let r =

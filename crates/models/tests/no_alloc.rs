@@ -96,7 +96,10 @@ fn the_ensembles_disagreement_scores_views_without_allocating() {
 #[test]
 fn stepping_does_not_allocate() {
     // One fish (the paper) and a group of eight.
-    for (name, fish_count) in ModelSpec::NAMES.iter().flat_map(|n| [(n, 1), (n, 8)]) {
+    for (name, fish_count) in ModelSpec::listed_names()
+        .into_iter()
+        .flat_map(|n| [(n, 1), (n, 8)])
+    {
         let model = ModelSpec::by_name(name).unwrap().build().unwrap();
         let cfg = EnvConfig {
             mode: TaskMode::Evaluation,

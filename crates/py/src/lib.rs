@@ -101,7 +101,7 @@ use policy::Policy;
 /// The names of the built-in fish models.
 #[pyfunction]
 fn model_names() -> Vec<&'static str> {
-    ModelSpec::NAMES.to_vec()
+    ModelSpec::listed_names()
 }
 
 /// Trains a PPO policy (fishprobe's own trainer) against `model` into `out`; `callback` gets

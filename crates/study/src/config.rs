@@ -479,6 +479,27 @@ impl StudyFile {
                     p.sha256 = fishprobe_models::OnnxParams::for_file(&p.path).sha256;
                 }
             }
+            // A population named by its source (a shipped population or a population file,
+            // relative to the study file): its content written into the study's settings, so
+            // the steps that use it hash what they simulate.
+            if let ModelSpec::Population(p) = &mut m.spec {
+                if p.traits.is_empty() && !p.source.is_empty() {
+                    let shipped = fishprobe_models::population::shipped(&p.source).is_some();
+                    let path = std::path::Path::new(&p.source);
+                    if !shipped && path.is_relative() {
+                        p.source = dir.join(path).display().to_string();
+                    }
+                    let name = if p.name.is_empty() {
+                        m.name.clone()
+                    } else {
+                        p.name.clone()
+                    };
+                    *p = p.resolved().map_err(|e| {
+                        StudyError::Input(format!("candidate model {}: {e}", m.name))
+                    })?;
+                    p.name = name;
+                }
+            }
         }
         self.apply(preset)
     }

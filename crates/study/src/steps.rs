@@ -8,7 +8,6 @@ use fishprobe_learn::{Evaluation, PolicyController, RunSpec, Trainer};
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
-use fishprobe_models::GuppyParams;
 use fishprobe_sim::{derive_seed, Controller};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -347,7 +346,7 @@ fn reality(
     });
     for k in 0..c.virtual_trials {
         let s = derive_seed(c.seed, &format!("virtual/{name}"), k as u64);
-        let t = run_trial(addr, &LabConfig::default(), &GuppyParams::default(), s)?;
+        let t = run_trial(addr, &LabConfig::default(), s)?;
         say(&format!("virtual trial {k}: {} goals", t.goals_reached));
         for w in &t.warnings {
             say(&format!("{WARNING}the bridge says: {w}"));

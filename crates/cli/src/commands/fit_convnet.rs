@@ -41,6 +41,12 @@ pub struct FitConvnetArgs {
     /// ensemble's disagreement file go beside the weights, for the OOD score `disagreement`.
     #[arg(long)]
     members: Option<usize>,
+    /// M_ConvNet with individuals: every training fish gets an embedding of this many floats
+    /// (at most 4), learnt with the network; their normal distribution is written beside the
+    /// weights as a population file (WEIGHTS.population.json), and each held-back fish's
+    /// latent is fitted to its data. Overrides the settings' `latent_dim` (0: none).
+    #[arg(long)]
+    latent_dim: Option<usize>,
     /// Skip the "no neighbour" baseline network (halves the time).
     #[arg(long)]
     no_baselines: bool,
@@ -65,6 +71,9 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
     }
     if let Some(k) = a.members {
         cfg.ensemble_members = k;
+    }
+    if let Some(d) = a.latent_dim {
+        cfg.latent_dim = d;
     }
     cfg.validate()?;
     let validation = fishprobe_learn::bc::pairs_or_shared(&a.validation, "validation")?;
@@ -184,6 +193,30 @@ pub fn run(a: FitConvnetArgs) -> Result<()> {
         text += &format!(
             "  ensemble member        {nll:.4}  ({})\n",
             name.unwrap_or_default()
+        );
+    }
+    let meta = fishprobe_nn::store::load(&r.weights).ok().map(|(_, m)| m);
+    if let Some(h) = meta
+        .as_ref()
+        .and_then(|m| m.pointer("/individuals/held_back"))
+    {
+        let get = |k: &str| {
+            h.get(k)
+                .and_then(serde_json::Value::as_f64)
+                .unwrap_or(f64::NAN)
+        };
+        text += &format!(
+            "held-back fish, the second half of each one's frames:\n  \
+             with its own latent (fitted on the first half)       {:.4}\n  \
+             over the population (its latent unknown)            {:.4}\n  \
+             at the population's centre                           {:.4}\n  \
+             the shipped M_ConvNet (no individuals)               {:.4}\n\
+             wrote the population of the training individuals {}\n",
+            get("validation_nll_own_latent"),
+            get("validation_nll_population"),
+            get("validation_nll_population_centre"),
+            get("validation_nll_shipped_convnet"),
+            fishprobe_learn::bc::population_beside(&r.weights).display()
         );
     }
     if let Some(d) = &r.disagreement {

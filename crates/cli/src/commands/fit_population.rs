@@ -110,11 +110,19 @@ fn fit_one(
     let state = match fishprobe_io::read_small_text(state_file) {
         Ok(text) => match serde_json::from_str::<FitState>(&text) {
             Ok(s) if s.key == key => {
-                say!(
-                    "{label}: resuming at iteration {} of {}",
-                    s.iteration + 1,
-                    cfg.iterations
-                );
+                if s.iteration >= cfg.iterations {
+                    say!(
+                        "{label}: {} holds this fit, complete ({} iterations)",
+                        state_file.display(),
+                        s.history.len()
+                    );
+                } else {
+                    say!(
+                        "{label}: resuming at iteration {} of {}",
+                        s.iteration + 1,
+                        cfg.iterations
+                    );
+                }
                 s
             }
             _ => {
@@ -238,7 +246,7 @@ pub fn run(a: FitPopulationArgs) -> Result<()> {
             .fold(f64::INFINITY, f64::min);
         pop.source = a.out.display().to_string();
         pop.fit = json!({
-            "method": "simulation-based moment matching of per-recording statistics with a local linear emulator (fishprobe_learn::population)",
+            "method": "the method of simulated moments on per-recording statistics (means, s.d.s, correlations), Levenberg-Marquardt with common random numbers (fishprobe_learn::population)",
             "command": command.join(" "),
             "seed": a.seed,
             "settings": cfg,

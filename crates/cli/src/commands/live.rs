@@ -8,7 +8,6 @@ use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
 use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions, TrialOutcome};
 use fishprobe_live::session::LiveConfig;
-use fishprobe_models::GuppyParams;
 use fishprobe_sim::Controller;
 use std::io::{BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -127,6 +126,11 @@ pub struct LabArgs {
     /// tracks them all; with --connect the bridge's own `fish_count` decides).
     #[arg(long, default_value_t = 1)]
     fish: u32,
+    /// The virtual fish's model: `GuppyPop` (the virtual guppy whose individuals' spread was
+    /// fitted to the training recordings), `Guppy` (its hand-set traits only), or any model
+    /// name or `population:FILE` (`fishprobe models`).
+    #[arg(long, default_value = "GuppyPop")]
+    fish_model: String,
     /// With a group: when it has reached a goal (in-process bridge only).
     #[arg(long, value_enum, default_value_t = GroupGoalArg::Any)]
     group_goal: GroupGoalArg,
@@ -319,8 +323,10 @@ pub fn run_live(a: LiveArgs) -> Result<()> {
 }
 
 pub fn run_lab(a: LabArgs) -> Result<()> {
-    let lab = LabConfig::default();
-    let guppy = GuppyParams::default();
+    let lab = LabConfig {
+        fish_model: a.fish_model.clone(),
+        ..LabConfig::default()
+    };
     let mut live = LiveConfig::default();
     if let Some(m) = a.minutes {
         super::check_minutes("--minutes", m)?;
@@ -362,7 +368,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
     let mut bridge = bridge;
     for k in 0..a.trials {
         let seed = fishprobe_sim::derive_seed(a.seed, "lab/trial", k as u64);
-        let t = match run_trial(addr, &lab, &guppy, seed) {
+        let t = match run_trial(addr, &lab, seed) {
             Ok(t) => t,
             Err(e) => {
                 // A bridge that stopped (refusing its --out, say) tells why; the client only

@@ -54,7 +54,7 @@ pub fn run(a: ModelsArgs) -> Result<()> {
             serde_json::from_str(&text).with_context(|| format!("{}", file.display()))?;
         cfg.models.into_iter().map(|m| (m.name, m.spec)).collect()
     } else if a.model.is_empty() {
-        ModelSpec::NAMES
+        ModelSpec::listed_names()
             .iter()
             .map(|n| ModelSpec::by_name(n).map(|s| (n.to_string(), s)))
             .collect::<Result<_, _>>()?
@@ -131,6 +131,9 @@ fn model_json(s: &ModelSpec) -> Result<Value> {
 }
 
 fn write_model(out: &mut String, s: &ModelSpec) -> Result<()> {
+    if let ModelSpec::Population(p) = s {
+        return write_population(out, p);
+    }
     writeln!(out, "{} — {} [{}]", s.name(), s.summary(), s.origin())?;
     let values = params_json(s)?;
     for f in s.field_docs() {
@@ -139,6 +142,46 @@ fn write_model(out: &mut String, s: &ModelSpec) -> Result<()> {
     }
     if s.field_docs().is_empty() {
         writeln!(out, "  (no parameters)")?;
+    }
+    writeln!(out)?;
+    Ok(())
+}
+
+/// A population as a table of its traits (mean, spread, the value at the mean on the trait's
+/// own scale) and one line of its fit; the whole record is in its file (`--json`).
+fn write_population(out: &mut String, p: &fishprobe_models::PopulationParams) -> Result<()> {
+    let base = p.base.as_deref().map_or("?".into(), ModelSpec::label);
+    writeln!(
+        out,
+        "{} — a population of {base}: each fish an individual drawn from a fitted joint distribution of traits",
+        p.name
+    )?;
+    writeln!(
+        out,
+        "  {:<12} {:>8} {:>8} {:>12}",
+        "trait", "mean", "s.d.", "at the mean"
+    )?;
+    for (i, t) in p.traits.iter().enumerate() {
+        let at = if t.is_log() {
+            p.mean[i].exp()
+        } else {
+            p.mean[i]
+        };
+        writeln!(
+            out,
+            "  {:<12} {:>8.3} {:>8.3} {:>12.3}",
+            t.name(),
+            p.mean[i],
+            p.cov[i][i].max(0.0).sqrt(),
+            at
+        )?;
+    }
+    writeln!(
+        out,
+        "  (mean and s.d. on the trait's scale: the logarithm of multipliers, pause rate and duration; latent coordinates as they are)"
+    )?;
+    if let Some(c) = p.fit.get("command").and_then(Value::as_str) {
+        writeln!(out, "  fitted by: {c}")?;
     }
     writeln!(out)?;
     Ok(())

@@ -80,13 +80,13 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     let meta = TrialMeta {
         kind: TrialKind::Sim,
         policy: format!("scripted:{}", script.name()),
-        fish_model: settings.fish.name().to_string(),
+        fish_model: settings.fish.label(),
         seed: a.seed,
         goal_radius_cm: env_cfg.task.goal_radius_cm,
         config_json,
         experiment_setup: format!(
             "fishprobe simulate: {} fish, scripted robot `{}`, {} min, seed {}",
-            settings.fish.name(),
+            settings.fish.label(),
             script.name(),
             a.minutes,
             a.seed
@@ -102,7 +102,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         a.out.display(),
         trajectory.robot.len(),
         trial.duration_s() / 60.0,
-        settings.fish.name(),
+        settings.fish.label(),
         script.name(),
         s.goal_events.len(),
         s.fish_wall_contacts
@@ -128,7 +128,7 @@ fn simulate_policy(dir: &str, settings: &SimSettings, a: &SimulateArgs) -> Resul
         "{}: {:.1} min of {} fish with policy {}; {} goals reached\n",
         a.out.display(),
         a.minutes,
-        settings.fish.name(),
+        settings.fish.label(),
         c.name(),
         r.goals
     ))

@@ -16,6 +16,10 @@ pub struct PairDataset {
     pub x: Vec<f32>,
     /// Target cells.
     pub y: Vec<usize>,
+    /// The individual of each example: an index into `individuals`.
+    pub ind: Vec<u32>,
+    /// The individuals: every learning fish of every file, as `FILE#fish_k`.
+    pub individuals: Vec<String>,
     /// Files used.
     pub files: Vec<PathBuf>,
     /// Files skipped, with the reason.
@@ -182,8 +186,16 @@ fn add_file(
             let w = wrap_angle(a.heading[i + 1] - a.heading[i]) * rate;
             d.x.extend_from_slice(&view);
             d.y.push(arch.cell_of(v, w));
+            d.ind.push(me as u32);
         }
     }
+    let stem = path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    d.individuals = (0..pairs.len())
+        .map(|k| format!("{stem}#fish_{}", k + 1))
+        .collect();
     Ok(())
 }
 
@@ -219,8 +231,11 @@ pub fn load_pairs(
     for (f, r) in parts {
         match r {
             Ok(p) => {
+                let offset = d.individuals.len() as u32;
                 d.x.extend(p.x);
                 d.y.extend(p.y);
+                d.ind.extend(p.ind.iter().map(|i| i + offset));
+                d.individuals.extend(p.individuals);
                 d.frames_left_out += p.frames_left_out;
                 d.headings_from_motion += p.headings_from_motion;
                 d.files.push(f);

@@ -73,6 +73,20 @@ fishprobe_sim::documented_params! {
         pub ensemble_members: usize = 1; "networks",
         /// Training views the disagreement is calibrated on (choice: 2048, as the support).
         pub ensemble_calibration_views: usize = 2048; "views",
+        /// Length of each individual's latent vector (0: M_ConvNet as the paper has it; at most
+        /// 4). With more, every fish of every training recording is an individual with its own
+        /// embedding, learnt with the network; the embeddings' normal distribution is the
+        /// population new fish are drawn from (choice for M_ConvNet with individuals: 4).
+        pub latent_dim: usize = 0; "floats",
+        /// Weight of the embeddings' standard normal prior, per individual, against the
+        /// training examples' mean NLL (choice: 1: the embeddings are MAP estimates under
+        /// N(0, I)).
+        pub latent_prior: f32 = 1.0; "1",
+        /// Gradient steps when a held-back fish's embedding is fitted to its data with the
+        /// network fixed (choice: 200 minibatches of `batch_size`).
+        pub latent_fit_steps: usize = 200; "steps",
+        /// Adam learning rate of the embeddings (choice: 0.01).
+        pub latent_learning_rate: f32 = 0.01; "1",
     }
 }
 
@@ -98,6 +112,25 @@ impl CloneConfig {
             std::f32::consts::PI,
         )?;
         check::positive("clone", "learning_rate", self.learning_rate)?;
+        check::positive("clone", "latent_learning_rate", self.latent_learning_rate)?;
+        check::within(
+            "clone",
+            "latent_prior",
+            self.latent_prior,
+            0.0,
+            check::MAX_WEIGHT,
+        )?;
+        if self.latent_dim > fishprobe_sim::LATENT_DIM || self.latent_fit_steps > 1_000_000 {
+            return Err(ConfigError::new(
+                "clone",
+                "latent_dim",
+                self.latent_dim,
+                &format!(
+                    "must be at most {} (and latent_fit_steps at most 1000000)",
+                    fishprobe_sim::LATENT_DIM
+                ),
+            ));
+        }
         // The support's own bound, checked before the fit rather than after it.
         check::within(
             "clone",

@@ -60,6 +60,9 @@ const FIT_INPUTS_KEY: &str = "fit_inputs_sha256";
 const TENSORS_KEY: &str = "tensors_sha256";
 /// Sidecar key: the fit's epoch log.
 const LOG_KEY: &str = "log";
+/// The sidecar's record of a network with individuals: the training individuals' names and
+/// embeddings, their population, the held-back fish's fitted latents and NLLs.
+const INDIVIDUALS_KEY: &str = "individuals";
 /// Sidecar key: the fishprobe build that fitted the network (`fishprobe --version`: the
 /// version and the git commit), so that a resumed run takes only networks its own code made.
 const BUILD_KEY: &str = "program_build";
@@ -246,7 +249,10 @@ pub fn fit_convnet(
     progress: &(dyn Fn(FitProgress<'_>) + Sync),
 ) -> Result<FitReport, LearnError> {
     req.cfg.validate()?;
-    let arch = ConvNetArch::default();
+    let arch = ConvNetArch {
+        latent_dim: req.cfg.latent_dim,
+        ..ConvNetArch::default()
+    };
     let (train, val) = load_disjoint(req, &arch)?;
     progress(FitProgress::Loaded {
         train: &train,
@@ -375,7 +381,7 @@ impl Fitting<'_> {
         net: &mut ConvNet,
         t: &PairDataset,
         v: &PairDataset,
-    ) -> Result<Vec<EpochLog>, LearnError> {
+    ) -> Result<(Vec<EpochLog>, super::Embeddings), LearnError> {
         let progress = self.progress;
         let mut rng = fishprobe_sim::stream(seed, &format!("fit-convnet/{label}/shuffle"), 0);
         let on_batch =
@@ -429,12 +435,13 @@ impl Fitting<'_> {
     ) -> Result<(ConvNet, serde_json::Value), LearnError> {
         let mut init = fishprobe_sim::stream(seed, "fit-convnet/init", 0);
         let mut net = ConvNet::new(self.arch.clone(), &mut init);
-        let logs = self.train_net(label, seed, &mut net, &self.train, &self.val)?;
+        let (logs, emb) = self.train_net(label, seed, &mut net, &self.train, &self.val)?;
+        let centre = super::embedding_mean(&emb, self.arch.latent_dim);
         let mut meta = serde_json::json!({
             "arch": self.arch,
             "seed": seed,
             "command": self.req.command,
-            "validation_nll": nll(&net, &self.val),
+            "validation_nll": super::nll_with(&net, &self.val, &super::Latent::Same(&centre)),
             "epochs": logs.len(),
             "program_version": env!("CARGO_PKG_VERSION"),
             BUILD_KEY: self.req.build,
@@ -444,6 +451,12 @@ impl Fitting<'_> {
         });
         if let (Some(m), serde_json::Value::Object(extra)) = (meta.as_object_mut(), extra) {
             m.extend(extra);
+        }
+        if self.arch.latent_dim > 0 {
+            meta[INDIVIDUALS_KEY] = serde_json::json!({
+                "names": self.train.individuals,
+                "embeddings": emb,
+            });
         }
         fishprobe_nn::store::save(file, &net.to_tensors(), &meta)?;
         Ok((net, meta))
@@ -489,6 +502,9 @@ impl Fitting<'_> {
         meta["clone_config"] = serde_json::json!(req.cfg);
         meta["training_files"] = file_names(&train.files).into();
         meta["validation_files"] = file_names(&val.files).into();
+        if self.arch.latent_dim > 0 {
+            self.individuals(&net, &mut meta)?;
+        }
         fishprobe_nn::store::save(req.out, &net.to_tensors(), &meta)?;
         Ok(MainFit {
             net,
@@ -499,6 +515,113 @@ impl Fitting<'_> {
         })
     }
 
+    /// For a network with individuals: the population of the training embeddings (their mean
+    /// and covariance), the held-back fish's latents fitted to their data with the network
+    /// fixed, the validation NLL with each fish's own latent against the population's centre,
+    /// into the sidecar; and the population file beside the weights.
+    fn individuals(&self, net: &ConvNet, meta: &mut serde_json::Value) -> Result<(), LearnError> {
+        let d = self.arch.latent_dim;
+        let emb: Vec<f32> = meta
+            .pointer("/individuals/embeddings")
+            .and_then(|v| serde_json::from_value(v.clone()).ok())
+            .ok_or_else(|| {
+                LearnError::Run("the sidecar holds no individuals' embeddings".into())
+            })?;
+        let n = emb.len() / d;
+        let mean: Vec<f64> = (0..d)
+            .map(|j| (0..n).map(|i| f64::from(emb[i * d + j])).sum::<f64>() / n as f64)
+            .collect();
+        let cov: Vec<Vec<f64>> = (0..d)
+            .map(|a| {
+                (0..d)
+                    .map(|b| {
+                        (0..n)
+                            .map(|i| {
+                                (f64::from(emb[i * d + a]) - mean[a])
+                                    * (f64::from(emb[i * d + b]) - mean[b])
+                            })
+                            .sum::<f64>()
+                            / (n as f64 - 1.0).max(1.0)
+                    })
+                    .collect()
+            })
+            .collect();
+        // Each held-back fish's latent is fitted on the first half of its frames and scored,
+        // against the population's centre, on the second half: the NLL is out of sample for
+        // the latent too.
+        let (first, second) = halves_by_individual(&self.val);
+        let mut rng = fishprobe_sim::stream(self.req.seed, "fit-convnet/held-back-latents", 0);
+        let own = super::fit_latents(net, &first, self.req.cfg, &mut rng);
+        let centre: Vec<f32> = mean.iter().map(|&m| m as f32).collect();
+        let nll_own = super::nll_with(net, &second, &super::Latent::Own(&own));
+        let nll_centre = super::nll_with(net, &second, &super::Latent::Same(&centre));
+        // The population's prediction of a fish it has not seen: its probability averaged
+        // over individuals drawn from it (choice: 64 draws, seeded).
+        let pop_model = fishprobe_models::population::cholesky(&cov)
+            .ok_or_else(|| LearnError::Run("the embeddings' covariance is not one".into()))?;
+        let mut draw_rng = fishprobe_sim::stream(self.req.seed, "fit-convnet/population-draws", 0);
+        let draws: Vec<Vec<f32>> = (0..64)
+            .map(|_| {
+                let eps: Vec<f64> = (0..d)
+                    .map(|_| {
+                        rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut draw_rng)
+                    })
+                    .collect();
+                (0..d)
+                    .map(|i| {
+                        (mean[i] + (0..=i).map(|j| pop_model[i][j] * eps[j]).sum::<f64>()) as f32
+                    })
+                    .collect()
+            })
+            .collect();
+        let nll_pop = super::nll_over_population(net, &second, &draws);
+        // For comparison, the shipped M_ConvNet without individuals on the same frames.
+        let nll_shipped = fishprobe_models::ConvNet::shipped()
+            .ok()
+            .filter(|n| {
+                n.arch.view_len() == net.arch.view_len() && n.arch.cells() == net.arch.cells()
+            })
+            .map(|n| nll(&n, &second));
+        meta[INDIVIDUALS_KEY]["population"] = serde_json::json!({"mean": mean, "cov": cov});
+        meta[INDIVIDUALS_KEY]["held_back"] = serde_json::json!({
+            "names": self.val.individuals,
+            "latents": own,
+            "validation_nll_own_latent": nll_own,
+            "validation_nll_population_centre": nll_centre,
+            "validation_nll_population": nll_pop,
+            "validation_nll_shipped_convnet": nll_shipped,
+            "scored_on": "the second half of each held-back fish's frames; its latent fitted on the first half",
+        });
+        let traits = fishprobe_models::Trait::ALL[6..6 + d].to_vec();
+        let pop = fishprobe_models::PopulationParams {
+            name: "ConvNetPop".into(),
+            source: String::new(),
+            base: Some(Box::new(fishprobe_models::ModelSpec::ConvNet(
+                fishprobe_models::ConvNetParams {
+                    weights: self.req.out.display().to_string(),
+                    ..fishprobe_models::ConvNetParams::default()
+                },
+            ))),
+            traits,
+            mean,
+            cov,
+            fit: serde_json::json!({
+                "method": "behavioural cloning with a per-individual embedding under a standard normal prior; the population is the embeddings' normal distribution (fishprobe_learn::bc)",
+                "command": self.req.command,
+                "training_files": file_names(&self.train.files),
+                "validation_files": file_names(&self.val.files),
+                "validation_nll_own_latent": nll_own,
+                "validation_nll_population": nll_pop,
+                "validation_nll_population_centre": nll_centre,
+            }),
+        };
+        let file = population_beside(self.req.out);
+        let text =
+            serde_json::to_string_pretty(&pop).map_err(|e| LearnError::Run(e.to_string()))?;
+        fishprobe_io::write_atomically(&file, text.as_bytes())?;
+        Ok(())
+    }
+
     /// The validation NLL of the same network fitted without its neighbour channels.
     fn no_neighbour_nll(&self) -> Result<f64, LearnError> {
         let (mut tb, mut vb) = (self.train.clone(), self.val.clone());
@@ -506,8 +629,10 @@ impl Fitting<'_> {
         blind(&mut vb.x, &self.arch);
         let mut init = fishprobe_sim::stream(self.req.seed, "fit-convnet/init-no-neighbour", 0);
         let mut net_b = ConvNet::new(self.arch.clone(), &mut init);
-        self.train_net("no-neighbour baseline", self.req.seed, &mut net_b, &tb, &vb)?;
-        Ok(nll(&net_b, &vb))
+        let (_, emb) =
+            self.train_net("no-neighbour baseline", self.req.seed, &mut net_b, &tb, &vb)?;
+        let centre = super::embedding_mean(&emb, self.arch.latent_dim);
+        Ok(super::nll_with(&net_b, &vb, &super::Latent::Same(&centre)))
     }
 
     /// The support file of the training views beside the weights (whose SHA-256 it records).
@@ -639,6 +764,39 @@ fn remove_stale_ensemble(out: &Path, members: usize) -> Result<(), LearnError> {
     Ok(())
 }
 
+/// Each individual's examples split in time: the first half of its frames and the second.
+fn halves_by_individual(d: &PairDataset) -> (PairDataset, PairDataset) {
+    let len = d.x.len() / d.len().max(1);
+    let mut count = vec![0usize; d.individuals.len()];
+    for &i in &d.ind {
+        count[i as usize] += 1;
+    }
+    let mut seen = vec![0usize; d.individuals.len()];
+    let (mut a, mut b) = (PairDataset::default(), PairDataset::default());
+    for (k, &i) in d.ind.iter().enumerate() {
+        let i = i as usize;
+        let part = if seen[i] < count[i] / 2 {
+            &mut a
+        } else {
+            &mut b
+        };
+        seen[i] += 1;
+        part.x.extend_from_slice(&d.x[k * len..(k + 1) * len]);
+        part.y.push(d.y[k]);
+        part.ind.push(i as u32);
+    }
+    a.individuals = d.individuals.clone();
+    b.individuals = d.individuals.clone();
+    (a, b)
+}
+
+/// The population file of a network with individuals: `WEIGHTS.population.json`.
+pub fn population_beside(weights: &Path) -> PathBuf {
+    let mut s = weights.as_os_str().to_owned();
+    s.push(".population.json");
+    PathBuf::from(s)
+}
+
 /// The support file of a weights (or ONNX) file: `FILE.support.json` beside it.
 pub fn support_beside(weights: &Path) -> PathBuf {
     let mut s = weights.as_os_str().to_owned();
@@ -678,6 +836,7 @@ mod tests {
             skipped: Vec::new(),
             frames_left_out: 0,
             headings_from_motion: 0,
+            ..PairDataset::default()
         };
         let cfg = CloneConfig::default();
         let (t, v) = (set(5, 0.5), set(3, 0.25));
