@@ -94,6 +94,11 @@ pub fn reference() -> String {
         "The approach assay's fish.",
     );
     section::<m::GuppyParams>(&mut o, "`model = \"Guppy\"`", "The virtual lab's guppy.");
+    section::<m::PopulationParams>(
+        &mut o,
+        "`model = \"Population\"`",
+        "A population of a model's individuals (`population:FILE`, or a shipped population's name: FollowPop, ZonePop, ForcePop, ConvNetPop, GuppyPop; docs/guide/individuals.md).",
+    );
     o.push_str("## Training and fitting\n\n");
     section::<fishprobe_learn::PpoConfig>(
         &mut o,
@@ -104,6 +109,11 @@ pub fn reference() -> String {
         &mut o,
         "M_ConvNet fitting (`fishprobe fit-convnet --config FILE`)",
         "Behavioural cloning of the pair recordings.",
+    );
+    section::<fishprobe_learn::population::FitConfig>(
+        &mut o,
+        "Population fitting (`fishprobe fit-population --config FILE`)",
+        "How a population of a model's individuals is fitted to the per-recording statistics of real recordings.",
     );
     section::<fishprobe_models::support::SupportConfig>(
         &mut o,
@@ -330,6 +340,10 @@ mod tests {
         sections.push(plain::<crate::ood_loop::OodLoopConfig>("ood_loop", |p| {
             p.validate().is_ok()
         }));
+        sections.push(plain::<fishprobe_learn::population::FitConfig>(
+            "fit",
+            |p| p.validate().is_ok(),
+        ));
         sections.push(plain::<fishprobe_analysis::AnalysisConfig>(
             "analysis",
             |p| p.validate().is_ok(),
@@ -352,10 +366,13 @@ mod tests {
             "Stationary",
             "ConvNet",
             "Onnx",
+            "Population",
         ] {
-            // An ONNX model names its file (validation does not open it).
+            // An ONNX model names its file (validation does not open it); a population its
+            // source (read when it is built).
             let spec = match model {
                 "Onnx" => json!({ "model": model, "path": "model.onnx" }),
+                "Population" => json!({ "model": model, "source": "ZonePop" }),
                 _ => json!({ "model": model }),
             };
             let base =

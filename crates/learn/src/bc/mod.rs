@@ -112,7 +112,12 @@ impl CloneConfig {
             std::f32::consts::PI,
         )?;
         check::positive("clone", "learning_rate", self.learning_rate)?;
-        check::positive("clone", "latent_learning_rate", self.latent_learning_rate)?;
+        check::positive_at_most(
+            "clone",
+            "latent_learning_rate",
+            self.latent_learning_rate,
+            10.0,
+        )?;
         check::within(
             "clone",
             "latent_prior",
