@@ -335,11 +335,15 @@ impl StudyConfig {
             m.spec
                 .build()
                 .map_err(|e| StudyError::Input(format!("model `{}`: {e}", m.name)))?;
-            if matches!(m.spec, ModelSpec::Stationary(_) | ModelSpec::Guppy(_)) {
+            let base = match &m.spec {
+                ModelSpec::Population(p) => p.base.as_deref().unwrap_or(&m.spec),
+                other => other,
+            };
+            if matches!(base, ModelSpec::Stationary(_) | ModelSpec::Guppy(_)) {
                 return bad(format!(
                     "model `{}`: {} is not a candidate model (it serves the approach assay or the virtual lab)",
                     m.name,
-                    m.spec.name()
+                    m.spec.label()
                 ));
             }
         }

@@ -171,11 +171,11 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
     );
     // The OOD reward needs the model's support: a missing or foreign file is refused here.
     spec.check()
-        .with_context(|| format!("the run against fish model {}", spec.model.name()))?;
+        .with_context(|| format!("the run against fish model {}", spec.model.label()))?;
     let model = spec
         .model
         .build()
-        .with_context(|| format!("building fish model {}", spec.model.name()))?;
+        .with_context(|| format!("building fish model {}", spec.model.label()))?;
     Ok(Fresh {
         spec,
         model,
@@ -297,7 +297,7 @@ pub fn run(a: TrainArgs) -> Result<()> {
     let path = trainer.finish()?;
     emit(&format!(
         "trained {} policy for {} steps ({} iterations): {}\n",
-        trainer.spec().model.name(),
+        trainer.spec().model.label(),
         trainer.timesteps(),
         trainer.iteration(),
         path.display()
