@@ -4,10 +4,14 @@
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
 use super::{fishprobe, stderr};
+use fishprobe_live::biotracker::grpc::{self, Client};
+use fishprobe_live::biotracker::schema::{
+    Empty, Experiment, Feature, RecordingState, SkeletonDescriptor, SkeletonNode,
+};
 use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
-use std::process::Child;
+use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -119,4 +123,158 @@ pub fn record_trial(d: &Path, protocol: &Path) -> PathBuf {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(wait_exit(&mut bridge, Duration::from_secs(20)).is_some());
     out.join("GoalSeeker__VirtualLab/trial_000.hdf5")
+}
+
+/// The core's heartbeat on a thread of its own; `kill` (or dropping the value) ends it as a
+/// dying process would.
+pub struct FakeCore {
+    pub addr: SocketAddr,
+    stop: Option<tokio::sync::oneshot::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl FakeCore {
+    pub fn start() -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+        let thread = std::thread::spawn(move || {
+            // Serving on the runtime until told to die; dropping the runtime then drops every
+            // connection, as a core that exits does (a graceful shutdown would keep them).
+            let rt = runtime();
+            rt.spawn(grpc::serve(
+                listener,
+                grpc::heartbeat_service(),
+                std::future::pending(),
+            ));
+            let _ = rt.block_on(rx);
+        });
+        Self {
+            addr,
+            stop: Some(tx),
+            thread: Some(thread),
+        }
+    }
+
+    pub fn kill(&mut self) {
+        if let Some(tx) = self.stop.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for FakeCore {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// The observer as BioTracker starts it: the address in the environment, and (with
+/// `launcher`) through the Python launcher the core's config names, which must `exec`
+/// fishprobe (the process keeps its id).
+pub fn observer(address: SocketAddr, core: SocketAddr, log: &Path, launcher: bool) -> Child {
+    let exe = env!("CARGO_BIN_EXE_fishprobe");
+    let args = [
+        "--core".to_string(),
+        core.to_string(),
+        "--log".into(),
+        log.to_str().unwrap().into(),
+    ];
+    let mut cmd = if launcher {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../lab/biotracker/fishprobe_biotracker.py");
+        let mut c = Command::new("python3");
+        c.arg(script).env("FISHPROBE_BIN", exe);
+        c
+    } else {
+        let mut c = Command::new(exe);
+        c.args(["live", "biotracker"]);
+        c
+    };
+    cmd.args(args)
+        .env("BIOTRACKER_COMPONENT_ADDRESS", address.to_string())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// A connected client, retried until the observer serves (it starts in well under 20 s).
+pub async fn connect(addr: SocketAddr) -> Client {
+    let start = Instant::now();
+    loop {
+        let mut c = Client::lazy(addr, Duration::from_secs(2)).unwrap();
+        // An empty update is a call like any other; before set_config it is dropped.
+        if c.call::<Experiment, Empty>(grpc::UPDATE_PATH, Experiment::default())
+            .await
+            .is_ok()
+        {
+            return c;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the observer did not start"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+pub fn feature(id: u32, p: [f32; 3]) -> Feature {
+    let node = |x: f32, y: f32| SkeletonNode { x, y, score: 1.0 };
+    Feature {
+        score: 1.0,
+        out_of_bounds: None,
+        id: Some(id),
+        // Front node 1 cm ahead of the centre, the heading's direction.
+        world_nodes: vec![node(p[0] + p[2].cos(), p[1] + p[2].sin()), node(p[0], p[1])],
+    }
+}
+
+pub fn experiment(
+    state: RecordingState,
+    frame: u32,
+    robot: [f32; 3],
+    fish: [f32; 3],
+) -> Experiment {
+    let tracked = |p: [f32; 3]| p.iter().all(|v| v.is_finite());
+    let mut features = Vec::new();
+    if tracked(robot) {
+        features.push(feature(1, robot));
+    }
+    if tracked(fish) {
+        features.push(feature(2, fish));
+    }
+    let skeleton = SkeletonDescriptor {
+        front_index: 0,
+        center_index: 1,
+    };
+    let base = "/recordings/2026-12-07_fake";
+    Experiment::update(FPS, base, state, frame, features, vec![1, 2], skeleton)
+}
+
+/// Lines the robot program read from the sink, each with when it arrived, collected on a
+/// thread.
+pub fn timed_robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<(Instant, String)>>> {
+    let lines = Arc::new(Mutex::new(Vec::new()));
+    let keep = Arc::clone(&lines);
+    std::thread::spawn(move || {
+        let start = Instant::now();
+        let s = loop {
+            match TcpStream::connect(sink) {
+                Ok(s) => break s,
+                Err(_) if start.elapsed() < Duration::from_secs(20) => {
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                Err(e) => panic!("the robot sink never listened: {e}"),
+            }
+        };
+        for l in BufReader::new(s).lines() {
+            let Ok(l) = l else { break };
+            keep.lock().unwrap().push((Instant::now(), l));
+        }
+    });
+    lines
 }

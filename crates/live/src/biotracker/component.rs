@@ -458,7 +458,6 @@ fn session_loop(host: &Host) {
         };
         match next {
             (Some(e), dropped) => {
-                last_update = Instant::now();
                 if dropped != dropped_seen {
                     dropped_seen = dropped;
                     a.observer
@@ -466,10 +465,16 @@ fn session_loop(host: &Host) {
                 }
                 a.observer.set_robot_connected(a.sink.connected());
                 let pilot: &mut PilotMaker<'_> = &mut a.pilot;
-                a.observer.on_update(&e, pilot, &mut events);
-                if e.target_fps > 0.0 {
+                // Only a new tracked frame is a sign of life: it restarts the silence clock
+                // and feeds the robot program's watchdog. A repeated or backwards frame number
+                // does neither, so a tracker whose counter sticks stops the robot.
+                if a.observer.on_update(&e, pilot, &mut events) {
+                    last_update = Instant::now();
                     let frame = e.last_features.as_ref().map_or(0, |f| f.frame_number);
                     a.sink.tick(f64::from(frame) / f64::from(e.target_fps));
+                } else {
+                    a.observer
+                        .on_silence(last_update.elapsed().as_secs_f64(), &mut events);
                 }
             }
             (None, _) => a

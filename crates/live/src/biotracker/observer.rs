@@ -130,33 +130,61 @@ impl Observer {
         }
     }
 
-    /// One update from the tracker core.
-    pub fn on_update(&mut self, e: &Experiment, pilot: &mut PilotMaker<'_>, out: &mut Vec<Event>) {
+    /// One update from the tracker core. Returns whether it was a new tracked frame (a frame
+    /// number after the last one, of a state the trial accepts): the only sign of life the
+    /// component counts, for the silence stop and for the robot program's watchdog ticks. A
+    /// repeated, backwards or wrapped frame number, or a refused state, is none.
+    pub fn on_update(
+        &mut self,
+        e: &Experiment,
+        pilot: &mut PilotMaker<'_>,
+        out: &mut Vec<Event>,
+    ) -> bool {
         let skeleton = match check_experiment(e, &self.ids, &self.expected) {
             Ok(s) => s,
             Err(why) => {
                 self.refuse(why.to_string(), out);
-                return;
+                return false;
             }
         };
+        // The skeleton's layout says which nodes are the front and the centre: frames of
+        // another layout are not frames of this trial.
+        if let Some(t) = &self.trial {
+            if t.skeleton != skeleton {
+                let why = format!(
+                    "the skeleton changed during the trial (front/centre nodes {}/{} became {}/{})",
+                    t.skeleton.front_index,
+                    t.skeleton.center_index,
+                    skeleton.front_index,
+                    skeleton.center_index
+                );
+                self.finish(&why, out);
+                out.push(Event::Log(format!(
+                    "trial ended: {why}; the next recording starts a new one"
+                )));
+                return false;
+            }
+        }
         if let Some(was) = self.refusal.take() {
             out.push(Event::Log(format!(
                 "the tracker's state is accepted now (it was refused: {was})"
             )));
         }
         match self.gate.step(e) {
-            Step::Idle | Step::Stale => {}
+            Step::Stale => return false,
+            Step::Idle => {}
             Step::Start { stem, origin, t } => {
                 if let Some(why) = self.start(e, skeleton, stem.as_deref(), origin, pilot, out) {
                     self.gate.close();
                     self.refuse(why, out);
-                    return;
+                    return false;
                 }
                 self.frame(e, t, out);
             }
             Step::Frame { t } => self.frame(e, t, out),
             Step::End => self.finish("the recording finished", out),
         }
+        true
     }
 
     /// No update for `silence_s` of wall-clock time: the session's silence stop.
