@@ -200,6 +200,17 @@ fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
         ))
         .unwrap_err()
     };
+    // The first configuration is answered with success even when refused (the core would
+    // drop the component for good otherwise); its problems go to the log. Later ones are
+    // refused with the reasons.
+    rt.block_on(probe.clone().call::<ComponentConfig, Empty>(
+        grpc::SET_CONFIG_PATH,
+        ComponentConfig {
+            config_json: "{\"policy\": 3}".into(),
+            id: "x".into(),
+        },
+    ))
+    .unwrap();
     let e = bad("{\"policy\": 3}".into());
     assert_eq!(e.code(), Code::InvalidArgument);
     let e = bad(config_json(&d.join("t"), &protocol, sink, core.addr)

@@ -147,3 +147,202 @@ fn a_skeleton_change_mid_trial_ends_the_trial_with_the_reason() {
     let _ = child.kill();
     let _ = child.wait();
 }
+
+fn call_config(
+    rt: &tokio::runtime::Runtime,
+    client: &grpc::Client,
+    json: String,
+) -> Result<(), tonic::Status> {
+    rt.block_on(client.clone().call::<ComponentConfig, Empty>(
+        grpc::SET_CONFIG_PATH,
+        ComponentConfig {
+            config_json: json,
+            id: "fishprobe".into(),
+        },
+    ))
+    .map(|_| ())
+}
+
+/// A mistaken first configuration does not cost a BioTracker restart: it is answered (the
+/// core keeps the component), every problem is logged at once, the robot stays stopped, and
+/// the corrected entry is taken. A later refusal names its reasons, a huge value cut short.
+#[test]
+fn a_refused_first_config_lists_every_problem_and_a_corrected_one_is_taken() {
+    let d = dir("failsafe-config");
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let mut child = observer(address, core.addr, &log, false);
+    let out = d.join("trials");
+    let rt = runtime();
+    let client = rt.block_on(connect(address));
+    let good = config_json(&out, &protocol, sink, core.addr);
+    // Three problems: the fish id is the robot's, a misspelt key, the core's port 0.
+    let mut wrong: serde_json::Value = serde_json::from_str(&good).unwrap();
+    wrong["fish_ids"] = serde_json::json!([1]);
+    wrong["folow_recording"] = serde_json::json!(true);
+    wrong["core"] = serde_json::json!("127.0.0.1:0");
+    call_config(&rt, &client, wrong.to_string()).unwrap();
+    let text = std::fs::read_to_string(&log).unwrap();
+    for needle in [
+        "first configuration is refused",
+        "entity id 1 is given twice",
+        "unknown key `folow_recording`",
+    ] {
+        assert!(text.contains(needle), "{needle} not in the log:\n{text}");
+    }
+    // A misspelt key is reported before the values are checked; once fixed, the port.
+    wrong.as_object_mut().unwrap().remove("folow_recording");
+    let e = call_config(&rt, &client, wrong.to_string()).unwrap_err();
+    assert!(
+        e.message().contains("entity id 1 is given twice") && e.message().contains("port 0"),
+        "{e:?}"
+    );
+    // Nothing configured: no robot sink yet, so nothing drives a robot.
+    assert!(std::net::TcpStream::connect(sink).is_err());
+    // The corrected entry is taken and runs trials.
+    call_config(&rt, &client, good.clone()).unwrap();
+    let robot = timed_robot_program(sink);
+    // Connected when it has read the robot's current state (a stop).
+    let start = Instant::now();
+    while robot.lock().unwrap().is_empty() {
+        assert!(start.elapsed() < Duration::from_secs(5), "never connected");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mut c = client.clone();
+    for k in 0..30u32 {
+        rt.block_on(c.call::<Experiment, Empty>(
+            grpc::UPDATE_PATH,
+            experiment(
+                RecordingState::Recording,
+                k,
+                [0.0, 0.0, 0.0],
+                [5.0, 5.0, 0.0],
+            ),
+        ))
+        .unwrap();
+    }
+    let start = Instant::now();
+    while !robot
+        .lock()
+        .unwrap()
+        .iter()
+        .any(|(_, l)| l.contains("\"tick\""))
+    {
+        assert!(start.elapsed() < Duration::from_secs(5), "no ticks");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // A later refusal (a trial is not running; the policy names a 900 kB path): the reason is
+    // cut short, the log line too.
+    rt.block_on(c.call::<Experiment, Empty>(
+        grpc::UPDATE_PATH,
+        experiment(
+            RecordingState::Finished,
+            31,
+            [0.0, 0.0, 0.0],
+            [5.0, 5.0, 0.0],
+        ),
+    ))
+    .unwrap();
+    let huge = good.replace("scripted:goal-seeker", &"x".repeat(900_000));
+    let e = call_config(&rt, &client, huge).unwrap_err();
+    assert!(e.message().len() < 4_000, "{} bytes", e.message().len());
+    assert!(
+        e.message().contains("more bytes)"),
+        "{}",
+        &e.message()[..200]
+    );
+    let longest = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .map(str::len)
+        .max()
+        .unwrap();
+    assert!(longest < 20_000, "a log line of {longest} bytes");
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// A `set_config` whose settings file is a FIFO (a hung disk) loads beside tracking: every
+/// update is answered promptly meanwhile, the heartbeat keeps the component alive.
+#[test]
+fn updates_are_answered_while_a_set_config_loads() {
+    let d = dir("failsafe-slow-config");
+    let fifo = d.join("protocol.toml");
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let protocol = d.join("good.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let mut child = observer(address, core.addr, &log, false);
+    let rt = runtime();
+    let client = rt.block_on(connect(address));
+    // A good configuration first, so that the slow one is a later edit.
+    call_config(
+        &rt,
+        &client,
+        config_json(&d.join("t"), &protocol, sink, core.addr),
+    )
+    .unwrap();
+    let slow = config_json(&d.join("t"), &fifo, sink, core.addr);
+    let pending = {
+        let client = client.clone();
+        std::thread::spawn(move || call_config(&runtime(), &client, slow))
+    };
+    std::thread::sleep(Duration::from_millis(300));
+    let mut c = client.clone();
+    let mut slowest = Duration::ZERO;
+    for k in 0..50u32 {
+        let t = Instant::now();
+        rt.block_on(c.call::<Experiment, Empty>(
+            grpc::UPDATE_PATH,
+            experiment(
+                RecordingState::Initial,
+                1000 + k,
+                [0.0, 0.0, 0.0],
+                [5.0, 5.0, 0.0],
+            ),
+        ))
+        .unwrap();
+        slowest = slowest.max(t.elapsed());
+        std::thread::sleep(Duration::from_millis(40));
+    }
+    assert!(
+        slowest < Duration::from_millis(200),
+        "an update waited {slowest:?} for the loading config"
+    );
+    // (The test's client gives up on its call after 2 s; the component is still loading.)
+    let _ = pending.join();
+    assert_eq!(
+        std::fs::read_to_string(&log)
+            .unwrap()
+            .matches("configured (")
+            .count(),
+        1
+    );
+    // The writer comes and goes: the loader reads an empty file, and the configuration (the
+    // protocol's defaults) is taken.
+    drop(std::fs::OpenOptions::new().write(true).open(&fifo).unwrap());
+    let start = Instant::now();
+    while std::fs::read_to_string(&log)
+        .unwrap()
+        .matches("configured (")
+        .count()
+        < 2
+    {
+        assert!(start.elapsed() < Duration::from_secs(5), "never taken");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(child.try_wait().unwrap().is_none(), "the component died");
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(!text.contains("tracker core gone"), "{text}");
+    let _ = child.kill();
+    let _ = child.wait();
+}

@@ -56,3 +56,42 @@ pub use lines::{read_line_at_most, MAX_BRIDGE_LINE_BYTES};
 /// Side (cm) of the square tank of the bridge and the virtual lab: the 1 x 1 m tank every
 /// policy is trained for. A hello with another tank is refused.
 pub const TANK_CM: f32 = 100.0;
+
+/// A moment as a log line's stamp, readable and sortable: `2026-12-07 23:59:01.123Z` (UTC;
+/// the proleptic Gregorian calendar of the Unix epoch's days).
+pub fn utc_stamp(t: std::time::SystemTime) -> String {
+    let d = t.duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+    let secs = d.as_secs();
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    // Days since 1970-01-01 to a civil date (Howard Hinnant's algorithm).
+    let z = days as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02}.{:03}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60,
+        d.subsec_millis()
+    )
+}
+
+#[cfg(test)]
+mod stamp_tests {
+    #[test]
+    fn stamps_are_utc_calendar_dates() {
+        let at = |s: u64, ms: u32| {
+            super::utc_stamp(std::time::UNIX_EPOCH + std::time::Duration::new(s, ms * 1_000_000))
+        };
+        assert_eq!(at(0, 0), "1970-01-01 00:00:00.000Z");
+        // date -u -d @1796774341 → 2026-12-08 23:59:01
+        assert_eq!(at(1_796_774_341, 123), "2026-12-08 23:59:01.123Z");
+        assert_eq!(at(951_782_400, 0), "2000-02-29 00:00:00.000Z");
+    }
+}

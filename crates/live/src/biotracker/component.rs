@@ -40,6 +40,24 @@ fishprobe_sim::documented_params! {
         pub heartbeat_failures: u32 = 2; "1",
         /// Longest a heartbeat may take before it counts as failed.
         pub heartbeat_timeout_s: f64 = 0.5; "s",
+        /// Longest loading a configuration's policy and settings may take before the
+        /// configuration is refused (choice: 30 s; a path naming a FIFO or a hung disk would
+        /// otherwise never answer). Loading runs beside the tracking updates, which are
+        /// answered meanwhile.
+        pub config_load_s: f64 = 30.0; "s",
+    }
+}
+
+/// Longest reason the component puts into a gRPC status or a log line (characters; choice:
+/// 2,000): a 900 kB policy name must not become a 1.8 MB log line or an error the core's
+/// transport refuses.
+pub const MAX_REASON_CHARS: usize = 2000;
+
+/// `text` cut to at most `max` characters, saying how much was left out.
+pub fn clip(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        None => text.to_string(),
+        Some((at, _)) => format!("{}… ({} more bytes)", &text[..at], text.len() - at),
     }
 }
 
@@ -63,12 +81,18 @@ impl ComponentGuard {
                 "must lie in [4096, 64 MiB]",
             ));
         }
-        for (f, v) in [
-            ("heartbeat_s", self.heartbeat_s),
-            ("heartbeat_timeout_s", self.heartbeat_timeout_s),
+        for (f, v, hi) in [
+            ("heartbeat_s", self.heartbeat_s, 60.0),
+            ("heartbeat_timeout_s", self.heartbeat_timeout_s, 60.0),
+            ("config_load_s", self.config_load_s, 3600.0),
         ] {
-            if !(v.is_finite() && v > 0.0 && v <= 60.0) {
-                return Err(ConfigError::new("observer", f, v, "must lie in (0, 60]"));
+            if !(v.is_finite() && v > 0.0 && v <= hi) {
+                return Err(ConfigError::new(
+                    "observer",
+                    f,
+                    v,
+                    &format!("must lie in (0, {hi}]"),
+                ));
             }
         }
         if !(1..=100).contains(&self.heartbeat_failures) {
@@ -121,17 +145,24 @@ struct Log(Option<std::fs::File>);
 impl Log {
     fn line(&mut self, what: &str) {
         if let Some(f) = &mut self.0 {
-            let now = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0.0, |d| d.as_secs_f64());
-            let _ = writeln!(f, "{now:.3} {what}");
+            let _ = writeln!(
+                f,
+                "{} {}",
+                crate::utc_stamp(std::time::SystemTime::now()),
+                clip(what, 4 * MAX_REASON_CHARS)
+            );
         }
     }
 }
 
 /// What the gRPC handlers, the session thread and the heartbeat share.
 struct Host {
-    loader: Box<Loader>,
+    loader: Arc<Loader>,
+    /// Set once the first `set_config` was answered: BioTracker's core drops a component whose
+    /// first configuration fails and refuses every later edit of it, so the first is always
+    /// answered with success (a refused one leaves the component unconfigured, the robot
+    /// stopped, the problems in the log and on stderr) and only later ones are refused.
+    answered_first: AtomicBool,
     guard: ComponentGuard,
     fallback_dir: Option<PathBuf>,
     queue: Mutex<Queue>,
@@ -163,38 +194,52 @@ impl Host {
     }
 }
 
-impl ObserverCalls for Host {
-    fn set_config(&self, config: ComponentConfig) -> Result<(), Status> {
-        let refuse = |why: String| {
-            self.log(&format!("set_config refused: {why}"));
-            Err(Status::invalid_argument(why))
-        };
-        let settings = match ObserverSettings::from_json(&config.config_json) {
-            Ok(s) => s,
-            Err(why) => return refuse(why.to_string()),
-        };
-        let mut active = lock(&self.active);
-        if let Some(a) = active.as_ref() {
+impl Host {
+    /// Takes `config`, or says every reason why not (the previous configuration stays).
+    fn configure(&self, config: &ComponentConfig) -> Result<(), (tonic::Code, String)> {
+        let invalid = |why: String| (tonic::Code::InvalidArgument, why);
+        let settings =
+            ObserverSettings::from_json(&config.config_json).map_err(|e| invalid(e.to_string()))?;
+        if let Some(a) = lock(&self.active).as_ref() {
             if a.observer.in_trial() {
                 if a.settings == settings {
                     return Ok(());
                 }
-                let why = "a trial is running; the component's config can change between trials \
-                           (stop the recording first)";
-                self.log(&format!("set_config refused: {why}"));
-                return Err(Status::failed_precondition(why));
+                return Err((
+                    tonic::Code::FailedPrecondition,
+                    "a trial is running; the component's config can change between trials \
+                     (stop the recording first)"
+                        .into(),
+                ));
             }
         }
-        let prepared = match (self.loader)(&settings) {
-            Ok(p) => p,
-            Err(why) => return refuse(why.to_string()),
+        // The policy and settings load on a thread of their own with a deadline, and outside
+        // the lock the session thread needs: tracking goes on meanwhile.
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (loader, for_loader) = (Arc::clone(&self.loader), settings.clone());
+        std::thread::Builder::new()
+            .name("observer-config".into())
+            .spawn(move || {
+                let _ = tx.send(loader(&for_loader));
+            })
+            .map_err(|e| invalid(format!("cannot start loading: {e}")))?;
+        let wait = Duration::from_secs_f64(self.guard.config_load_s);
+        let prepared = match rx.recv_timeout(wait) {
+            Ok(r) => r.map_err(|e| invalid(e.to_string()))?,
+            Err(_) => {
+                return Err(invalid(format!(
+                    "loading the policy and settings took longer than {} s (does a path name a \
+                     FIFO, a device, or a disk that hangs?); nothing was changed",
+                    self.guard.config_load_s
+                )))
+            }
         };
         let expected = Expected {
             tank_cm: crate::TANK_CM as u32,
             fps: prepared.trained_fps,
             accept_other_fps: settings.accept_other_fps,
         };
-        let observer = match Observer::new(
+        let observer = Observer::new(
             prepared.live,
             prepared.task,
             settings.out.clone(),
@@ -202,10 +247,16 @@ impl ObserverCalls for Host {
             expected,
             settings.follow_recording,
             self.fallback_dir.clone(),
-        ) {
-            Ok(o) => o,
-            Err(e) => return refuse(e.to_string()),
-        };
+        )
+        .map_err(|e| invalid(e.to_string()))?;
+        let mut active = lock(&self.active);
+        if active.as_ref().is_some_and(|a| a.observer.in_trial()) {
+            return Err((
+                tonic::Code::FailedPrecondition,
+                "a trial started while the configuration loaded; it can change between trials"
+                    .into(),
+            ));
+        }
         // The same output directory keeps its lock, the same sink its robot program's
         // connection. What is new is taken before the old is let go, so a refusal (a directory
         // in use, a port taken) leaves the component as it was configured.
@@ -218,10 +269,10 @@ impl ObserverCalls for Host {
         let new_lock = if same_out {
             None
         } else {
-            match fishprobe_io::DirLock::acquire(&settings.out, "live biotracker") {
-                Ok(l) => Some(l),
-                Err(e) => return refuse(e.to_string()),
-            }
+            Some(
+                fishprobe_io::DirLock::acquire(&settings.out, "live biotracker")
+                    .map_err(|e| invalid(e.to_string()))?,
+            )
         };
         let old = active.take();
         let new_sink = if same_sink {
@@ -237,14 +288,14 @@ impl ObserverCalls for Host {
                 Ok(s) => Some(s),
                 Err(why) => {
                     *active = old;
-                    return refuse(why);
+                    return Err(invalid(why));
                 }
             }
         };
         let (out_lock, sink) = match (old, new_lock, new_sink) {
             (Some(a), l, s) => (l.unwrap_or(a.lock), s.unwrap_or(a.sink)),
             (None, Some(l), Some(s)) => (l, s),
-            (None, _, _) => return refuse("internal: nothing to configure from".into()),
+            (None, _, _) => return Err(invalid("internal: nothing to configure from".into())),
         };
         // A kept sink takes the new token for the next program that connects.
         sink.set_token(settings.robot_sink_token.clone());
@@ -252,8 +303,8 @@ impl ObserverCalls for Host {
         self.log(&format!(
             "configured ({}): policy {}, robot id {}, fish ids {:?}, robot sink {}, core {}, \
              trials {}",
-            config.id,
-            settings.policy,
+            clip(&config.id, 200),
+            clip(&settings.policy, 500),
             settings.robot_id,
             settings.fish_ids,
             sink.local_addr(),
@@ -272,6 +323,29 @@ impl ObserverCalls for Host {
             pilot: prepared.pilot,
         });
         Ok(())
+    }
+}
+
+impl ObserverCalls for Host {
+    fn set_config(&self, config: ComponentConfig) -> Result<(), Status> {
+        let first = !self.answered_first.swap(true, Ordering::SeqCst);
+        let Err((code, why)) = self.configure(&config) else {
+            return Ok(());
+        };
+        let why = clip(&why, MAX_REASON_CHARS);
+        if first && code == tonic::Code::InvalidArgument {
+            // BioTracker's core would drop the component for good: answer success, stay
+            // unconfigured (the robot stopped), and say why where the lab looks.
+            let line = format!(
+                "the first configuration is refused, the robot stays stopped until a corrected \
+                 entry arrives (edit the component's config in BioTracker): {why}"
+            );
+            self.log(&line);
+            let _ = writeln!(std::io::stderr(), "fishprobe: {line}");
+            return Ok(());
+        }
+        self.log(&format!("set_config refused: {why}"));
+        Err(Status::new(code, why))
     }
 
     fn update(&self, experiment: Experiment) -> Result<(), Status> {
@@ -328,7 +402,8 @@ pub fn run(
         .local_addr()
         .map_err(|e| LiveError::Net(e.to_string()))?;
     let host = Arc::new(Host {
-        loader,
+        loader: Arc::from(loader),
+        answered_first: AtomicBool::new(false),
         guard: guard.clone(),
         fallback_dir,
         queue: Mutex::new(Queue::default()),

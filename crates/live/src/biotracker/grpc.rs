@@ -94,12 +94,73 @@ impl Methods {
     }
 }
 
+impl Methods {
+    /// Adds the unary method `path` whose `handle` may take long (it loads files): it runs on a
+    /// blocking thread of its own, so the server answers the other methods meanwhile (the
+    /// core's `update`s keep flowing while a `set_config` loads a policy).
+    #[must_use]
+    pub fn unary_blocking<M1, M2, F>(
+        mut self,
+        path: &'static str,
+        max_message_bytes: usize,
+        handle: F,
+    ) -> Self
+    where
+        M1: prost::Message + Default + Send + 'static,
+        M2: prost::Message + Send + 'static,
+        F: Fn(M1) -> Result<M2, Status> + Send + Sync + 'static,
+    {
+        let handle = Arc::new(handle);
+        let route = move |req: http::Request<tonic::body::Body>| -> BoxFuture<_> {
+            let handle = Arc::clone(&handle);
+            Box::pin(async move {
+                let mut grpc =
+                    tonic::server::Grpc::new(tonic_prost::ProstCodec::<M2, M1>::default())
+                        .max_decoding_message_size(max_message_bytes);
+                Ok(grpc.unary(Blocking(handle), req).await)
+            })
+        };
+        self.routes.push((path, Arc::new(route)));
+        self
+    }
+}
+
+/// A unary method run on a blocking thread (see [`Methods::unary_blocking`]).
+struct Blocking<F>(Arc<F>);
+
+impl<M1, M2, F> tower_service::Service<Request<M1>> for Blocking<F>
+where
+    M1: Send + 'static,
+    M2: Send + 'static,
+    F: Fn(M1) -> Result<M2, Status> + Send + Sync + 'static,
+{
+    type Response = Response<M2>;
+    type Error = Status;
+    type Future = Pin<Box<dyn Future<Output = Result<Response<M2>, Status>> + Send>>;
+
+    fn poll_ready(&mut self, _cx: &mut Context<'_>) -> Poll<Result<(), Status>> {
+        Poll::Ready(Ok(()))
+    }
+
+    fn call(&mut self, request: Request<M1>) -> Self::Future {
+        let f = Arc::clone(&self.0);
+        Box::pin(async move {
+            let m = request.into_inner();
+            match tokio::task::spawn_blocking(move || f(m)).await {
+                Ok(r) => r.map(Response::new),
+                Err(e) => Err(Status::internal(format!("the handler failed: {e}"))),
+            }
+        })
+    }
+}
+
 /// The `biotracker.Observer` service over an [`ObserverCalls`]; a request larger than
-/// `max_message_bytes` is answered with an error without being decoded.
+/// `max_message_bytes` is answered with an error without being decoded. `set_config` runs on a
+/// blocking thread (it loads the policy), so `update`s are answered meanwhile.
 pub fn observer_service(calls: Arc<dyn ObserverCalls>, max_message_bytes: usize) -> Methods {
     let other = Arc::clone(&calls);
     Methods::new("fishprobe's observer")
-        .unary(SET_CONFIG_PATH, max_message_bytes, move |c| {
+        .unary_blocking(SET_CONFIG_PATH, max_message_bytes, move |c| {
             calls.set_config(c).map(|()| Empty {})
         })
         .unary(UPDATE_PATH, max_message_bytes, move |e| {

@@ -76,13 +76,80 @@ fn yes() -> bool {
     true
 }
 
+/// The keys of a component's `config_json`, as [`ObserverSettings`] names them.
+pub const SETTINGS_KEYS: [&str; 10] = [
+    "policy",
+    "out",
+    "robot_id",
+    "fish_ids",
+    "robot_sink",
+    "robot_sink_token",
+    "core",
+    "follow_recording",
+    "accept_other_fps",
+    "config",
+];
+
+/// The keys a `config_json` must have.
+const REQUIRED_KEYS: [&str; 4] = ["policy", "out", "robot_id", "fish_ids"];
+
 impl ObserverSettings {
-    /// Reads the settings from a component's `config_json`.
+    /// Reads the settings from a component's `config_json`; a refusal lists every problem
+    /// found, not only the first (each key is checked on its own), so one edit of the entry
+    /// can fix them all.
     pub fn from_json(config_json: &str) -> Result<Self, crate::LiveError> {
-        let s: Self = serde_json::from_str(config_json)
-            .map_err(|e| crate::LiveError::Settings(format!("the component's config_json: {e}")))?;
-        s.validate()?;
-        Ok(s)
+        let problems = |p: Vec<String>| {
+            crate::LiveError::Settings(format!("the component's config_json: {}", p.join("; ")))
+        };
+        let value: serde_json::Value = serde_json::from_str(config_json)
+            .map_err(|e| problems(vec![format!("not JSON: {e}")]))?;
+        let Some(map) = value.as_object() else {
+            return Err(problems(vec!["not a JSON object".into()]));
+        };
+        let mut p = Vec::new();
+        for k in map.keys() {
+            if !SETTINGS_KEYS.contains(&k.as_str()) {
+                p.push(format!(
+                    "unknown key `{k}` (the keys: {})",
+                    SETTINGS_KEYS.join(", ")
+                ));
+            }
+        }
+        for k in REQUIRED_KEYS {
+            if !map.contains_key(k) {
+                p.push(format!("`{k}` is missing"));
+            }
+        }
+        // Each known key on its own, so that every mistyped one is named.
+        for (k, v) in map {
+            if SETTINGS_KEYS.contains(&k.as_str()) {
+                let mut one = serde_json::Map::new();
+                one.insert(k.clone(), v.clone());
+                if let Err(e) = serde_json::from_value::<KeyCheck>(serde_json::Value::Object(one)) {
+                    p.push(format!("`{k}`: {e}"));
+                }
+            }
+        }
+        // The keys that read, checked together too, so that one look finds every problem.
+        let bad: Vec<String> = map
+            .keys()
+            .filter(|k| p.iter().any(|q| q.contains(&format!("`{k}`"))))
+            .cloned()
+            .collect();
+        let mut usable = map.clone();
+        usable.retain(|k, _| !bad.contains(k));
+        match serde_json::from_value::<Self>(serde_json::Value::Object(usable)) {
+            Ok(s) => {
+                p.extend(s.problems());
+                if p.is_empty() {
+                    Ok(s)
+                } else {
+                    Err(problems(p))
+                }
+            }
+            Err(e) if p.is_empty() => Err(problems(vec![e.to_string()])),
+            Err(_) => Err(problems(p)),
+        }
     }
 
     /// The entity ids.
@@ -95,36 +162,72 @@ impl ObserverSettings {
 
     /// Checks what can be checked without loading anything.
     pub fn validate(&self) -> Result<(), crate::LiveError> {
+        let p = self.problems();
+        if p.is_empty() {
+            Ok(())
+        } else {
+            Err(crate::LiveError::Settings(p.join("; ")))
+        }
+    }
+
+    /// Every problem that can be found without loading anything.
+    fn problems(&self) -> Vec<String> {
+        let mut p = Vec::new();
         if self.policy.trim().is_empty() {
-            return Err(crate::LiveError::Settings(
+            p.push(
                 "`policy` is empty: name a training run, a policy file or scripted:<name>".into(),
-            ));
+            );
         }
         if self.fish_ids.len() > fishprobe_sim::MAX_FISH {
-            return Err(crate::LiveError::Settings(format!(
+            p.push(format!(
                 "{} fish entity ids; at most {} fish",
                 self.fish_ids.len(),
                 fishprobe_sim::MAX_FISH
-            )));
+            ));
         }
-        self.ids().validate()?;
+        if let Err(e) = self.ids().validate() {
+            p.push(e.to_string());
+        }
         if self
             .robot_sink_token
             .as_deref()
             .is_some_and(|t| t.trim().is_empty())
         {
-            return Err(crate::LiveError::Settings(
-                "`robot_sink_token` is empty".into(),
-            ));
+            p.push("`robot_sink_token` is empty".into());
         }
         if !self.robot_sink.ip().is_loopback() && self.robot_sink_token.is_none() {
-            return Err(crate::LiveError::Settings(format!(
+            p.push(format!(
                 "the robot sink listens on {} (not loopback): set `robot_sink_token`",
                 self.robot_sink
-            )));
+            ));
         }
-        Ok(())
+        // Port 0 asks the system for any free port: the robot program could not know the
+        // sink's, and no core listens there.
+        if self.robot_sink.port() == 0 {
+            p.push("`robot_sink` has port 0: name the port the robot program connects to".into());
+        }
+        if self.core.port() == 0 {
+            p.push("`core` has port 0: name the core's port (its --port, 27342 by default)".into());
+        }
+        p
     }
+}
+
+/// One key of the settings at a time, to name each mistyped key (see
+/// [`ObserverSettings::from_json`]).
+#[derive(Deserialize)]
+#[allow(dead_code)]
+struct KeyCheck {
+    policy: Option<String>,
+    out: Option<PathBuf>,
+    robot_id: Option<u32>,
+    fish_ids: Option<Vec<u32>>,
+    robot_sink: Option<SocketAddr>,
+    robot_sink_token: Option<Option<String>>,
+    core: Option<SocketAddr>,
+    follow_recording: Option<bool>,
+    accept_other_fps: Option<bool>,
+    config: Option<Option<PathBuf>>,
 }
 
 #[cfg(test)]

@@ -383,8 +383,15 @@ fn settings_come_from_the_config_entry_and_mistakes_are_named() {
     let err = |j: &str| ObserverSettings::from_json(j).unwrap_err().to_string();
     assert!(
         err(r#"{"policy": "p", "out": "o", "robot_id": 1, "fish_ids": [2], "fishids": [3]}"#)
-            .contains("unknown field `fishids`")
+            .contains("unknown key `fishids`")
     );
+    // Every problem at once: a misspelt key, a mistyped value, a duplicate id.
+    let all = err(
+        r#"{"policy": "p", "out": "o", "robot_id": 1, "fish_ids": [1], "fishids": [3], "follow_recording": "yes"}"#,
+    );
+    for needle in ["unknown key `fishids`", "`follow_recording`", "given twice"] {
+        assert!(all.contains(needle), "{needle}: {all}");
+    }
     assert!(
         err(r#"{"policy": "p", "out": "o", "robot_id": 1, "fish_ids": [1]}"#).contains("distinct")
     );
