@@ -8,7 +8,7 @@ use fishprobe_live::biotracker::grpc::{self, Client};
 use fishprobe_live::biotracker::schema::{
     Empty, Experiment, Feature, RecordingState, SkeletonDescriptor, SkeletonNode,
 };
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -64,9 +64,18 @@ pub fn recorded_poses(file: &Path) -> Vec<([f32; 3], [f32; 3])> {
 }
 
 /// Lines the robot program read from the sink, collected on a thread.
+/// A robot program on the sink, as the protocol asks: it reads every line and acknowledges
+/// each tick. Keeps each line.
 pub fn robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<String>>> {
     let lines = Arc::new(Mutex::new(Vec::new()));
     let keep = Arc::clone(&lines);
+    acking_program(sink, move |l| keep.lock().unwrap().push(l));
+    lines
+}
+
+/// Connects to the robot sink (retrying while it is not yet listening) and hands each line
+/// to `keep`, acknowledging ticks.
+fn acking_program(sink: SocketAddr, mut keep: impl FnMut(String) + Send + 'static) {
     std::thread::spawn(move || {
         let start = Instant::now();
         let s = loop {
@@ -78,12 +87,22 @@ pub fn robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<String>>> {
                 Err(e) => panic!("the robot sink never listened: {e}"),
             }
         };
+        let mut ack = s.try_clone().unwrap();
         for l in BufReader::new(s).lines() {
             let Ok(l) = l else { break };
-            keep.lock().unwrap().push(l);
+            if let Some(t) = serde_json::from_str::<serde_json::Value>(&l)
+                .ok()
+                .filter(|v| v["type"] == "tick")
+                .map(|v| v["t"].clone())
+            {
+                let line = serde_json::json!({"type": "ack", "t": t}).to_string() + "\n";
+                if ack.write_all(line.as_bytes()).is_err() {
+                    break;
+                }
+            }
+            keep(l);
         }
     });
-    lines
 }
 
 pub fn wait_exit(child: &mut Child, within: Duration) -> Option<std::process::ExitStatus> {
@@ -260,21 +279,8 @@ pub fn experiment(
 pub fn timed_robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<(Instant, String)>>> {
     let lines = Arc::new(Mutex::new(Vec::new()));
     let keep = Arc::clone(&lines);
-    std::thread::spawn(move || {
-        let start = Instant::now();
-        let s = loop {
-            match TcpStream::connect(sink) {
-                Ok(s) => break s,
-                Err(_) if start.elapsed() < Duration::from_secs(20) => {
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-                Err(e) => panic!("the robot sink never listened: {e}"),
-            }
-        };
-        for l in BufReader::new(s).lines() {
-            let Ok(l) = l else { break };
-            keep.lock().unwrap().push((Instant::now(), l));
-        }
+    acking_program(sink, move |l| {
+        keep.lock().unwrap().push((Instant::now(), l))
     });
     lines
 }

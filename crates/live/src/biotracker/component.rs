@@ -561,6 +561,9 @@ fn session_loop(host: &Host) {
 }
 
 fn deliver(host: &Host, a: &mut Active, events: &mut Vec<Event>) {
+    for why in a.sink.take_dropped() {
+        host.log(&why);
+    }
     for e in events.drain(..) {
         match e {
             Event::Command(m) => a.sink.command(&m),
