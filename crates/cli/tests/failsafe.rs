@@ -9,8 +9,8 @@ mod common;
 
 use common::fresh_dir as dir;
 use common::tracker::{
-    config_json, connect, experiment, free_addr, observer, runtime, timed_robot_program, wait_exit,
-    FakeCore, FPS, PROTOCOL,
+    config_json, connect, experiment, free_addr, observer, observer_with, runtime,
+    timed_robot_program, wait_exit, FakeCore, FPS, PROTOCOL,
 };
 use fishprobe_live::biotracker::grpc;
 use fishprobe_live::biotracker::schema::{ComponentConfig, Empty, Experiment, RecordingState};
@@ -343,6 +343,64 @@ fn updates_are_answered_while_a_set_config_loads() {
     assert!(child.try_wait().unwrap().is_none(), "the component died");
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(!text.contains("tracker core gone"), "{text}");
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// Hundreds of idle connections to the gRPC port, more than the observer's descriptor limit:
+/// they are capped and the quietest closed, tracking goes on, and the trial file is written.
+#[test]
+fn idle_connections_cannot_exhaust_descriptors_and_the_trial_is_written() {
+    let d = dir("failsafe-descriptors");
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let mut child = observer_with(address, core.addr, &log, false, Some(128));
+    let out = d.join("trials");
+    let rt = runtime();
+    let mut client = rt.block_on(connect(address));
+    call_config(&rt, &client, config_json(&out, &protocol, sink, core.addr)).unwrap();
+    let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
+    let mut send = |e: Experiment| {
+        rt.block_on(client.call::<Experiment, Empty>(grpc::UPDATE_PATH, e))
+            .map(|_| ())
+    };
+    for k in 0..25u32 {
+        send(experiment(RecordingState::Recording, k, r, f)).unwrap();
+        std::thread::sleep(Duration::from_millis(40));
+    }
+    // 400 idle connections (the limit is 128), a few at a time between frames.
+    let mut idle = Vec::new();
+    for k in 25..125u32 {
+        for _ in 0..4 {
+            if let Ok(s) = std::net::TcpStream::connect(address) {
+                idle.push(s);
+            }
+        }
+        send(experiment(RecordingState::Recording, k, r, f))
+            .unwrap_or_else(|e| panic!("frame {k} not answered: {e:?}"));
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let fds = std::fs::read_dir(format!("/proc/{}/fd", child.id()))
+        .unwrap()
+        .count();
+    assert!(fds < 100, "the observer holds {fds} descriptors");
+    send(experiment(RecordingState::Finished, 125, r, f)).unwrap();
+    let file = out.join("GoalSeeker__Real/2026-12-07_fake.hdf5");
+    let start = Instant::now();
+    while !file.exists() && start.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let t = fishprobe_io::read_trial(&file).unwrap_or_else(|e| {
+        panic!(
+            "{e}; log:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        )
+    });
+    assert_eq!(t.entities[0].positions.len(), 125);
+    drop(idle);
     let _ = child.kill();
     let _ = child.wait();
 }

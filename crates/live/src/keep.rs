@@ -2,6 +2,12 @@
 //! disk, a vanished directory) goes to a fallback directory; if that fails too it stays in
 //! memory and every later trial's end tries again. The bridge keeps serving either way, and
 //! the client is told where its trial went.
+//!
+//! The descriptors the write needs are secured when a trial starts ([`Keeper::reserve`]) and
+//! given back just before it is written, so a process whose descriptor table filled up during
+//! the trial (a flood of connections, say) still writes the trial. A running trial is written
+//! now and then as a checkpoint ([`Keeper::checkpoint`]), so even a kill that cannot be caught
+//! leaves a readable file of the frames so far.
 
 use fishprobe_io::TrialFile;
 use std::path::{Path, PathBuf};
@@ -53,11 +59,22 @@ impl Kept {
     }
 }
 
+/// Descriptors held for a trial's write (its temporary file, and the fallback's).
+const RESERVED_DESCRIPTORS: usize = 2;
+
+/// What a checkpoint's `ended_because` says until the trial's real end replaces the file.
+pub const CHECKPOINT_NOTE: &str =
+    "still running: a checkpoint written during the trial (fishprobe ended before the trial did)";
+
 /// Trials waiting to be written.
 #[derive(Debug, Default)]
 pub struct Keeper {
     unsaved: Vec<(PathBuf, TrialFile)>,
     fallback: Option<PathBuf>,
+    /// Descriptors held for the next write.
+    reserved: Vec<std::fs::File>,
+    /// Checkpoints written where a trial belongs (removed if the trial goes elsewhere).
+    checkpoints: Vec<PathBuf>,
 }
 
 impl Keeper {
@@ -67,7 +84,32 @@ impl Keeper {
         Self {
             unsaved: Vec::new(),
             fallback,
+            reserved: Vec::new(),
+            checkpoints: Vec::new(),
         }
+    }
+
+    /// Secures the descriptors a trial's write needs (call when the trial starts); whether
+    /// they are held. They are given back when the trial is kept.
+    pub fn reserve(&mut self) -> bool {
+        while self.reserved.len() < RESERVED_DESCRIPTORS {
+            match spare_descriptor() {
+                Ok(f) => self.reserved.push(f),
+                Err(_) => return false,
+            }
+        }
+        true
+    }
+
+    /// Writes a running trial where it belongs (replacing the last checkpoint at once, so
+    /// the file there is always readable); the trial's end replaces it. A checkpoint that
+    /// fails changes nothing: the trial is still kept at its end.
+    pub fn checkpoint(&mut self, file: &Path, trial: &TrialFile) -> Result<(), String> {
+        write(file, trial)?;
+        if !self.checkpoints.iter().any(|c| c == file) {
+            self.checkpoints.push(file.to_path_buf());
+        }
+        Ok(())
     }
 
     fn fallback_dir(&self) -> PathBuf {
@@ -78,6 +120,10 @@ impl Keeper {
 
     /// Writes `trial` to `file`, else to the fallback directory, else keeps it.
     pub fn keep(&mut self, file: &Path, trial: TrialFile) -> Kept {
+        // The descriptors held since the trial started are what this write uses.
+        self.reserved.clear();
+        let had_checkpoint = self.checkpoints.iter().any(|c| c == file);
+        self.checkpoints.retain(|c| c != file);
         let first = match write(file, &trial) {
             Ok(()) => return Kept::Written(file.to_path_buf()),
             Err(e) => format!("cannot write {}: {e}", file.display()),
@@ -97,10 +143,16 @@ impl Keeper {
             .join(arm)
             .join(format!("{stamp}-{}-{name}", std::process::id()));
         match write(&alt, &trial) {
-            Ok(()) => Kept::Fallback {
-                file: alt,
-                why: first,
-            },
+            Ok(()) => {
+                if had_checkpoint {
+                    // The whole trial is in the fallback: no half of it where it belongs.
+                    let _ = std::fs::remove_file(file);
+                }
+                Kept::Fallback {
+                    file: alt,
+                    why: first,
+                }
+            }
             Err(e) => {
                 self.unsaved.push((file.to_path_buf(), trial));
                 Kept::InMemory {
@@ -129,6 +181,11 @@ impl Keeper {
     pub fn unsaved(&self) -> Vec<&Path> {
         self.unsaved.iter().map(|(f, _)| f.as_path()).collect()
     }
+}
+
+/// A descriptor to hold: the null device, which any process may open.
+fn spare_descriptor() -> std::io::Result<std::fs::File> {
+    std::fs::File::open(if cfg!(windows) { "NUL" } else { "/dev/null" })
 }
 
 fn write(file: &Path, trial: &TrialFile) -> Result<(), String> {

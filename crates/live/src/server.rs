@@ -488,6 +488,19 @@ fn run_trial(
         &arm,
     ));
     let file = next_free(&dir, n);
+    // The descriptors the trial's file needs are held from now on, so connections arriving
+    // during the trial cannot take them.
+    if !keeper.reserve() {
+        session.note(
+            "file_descriptors",
+            "none spare when the trial started; the file may fall back".into(),
+        );
+    }
+    let label = if session.kind() == fishprobe_io::TrialKind::Virtual {
+        "virtual guppy"
+    } else {
+        opts.fish_label.as_str()
+    };
     let welcome = ServerMsg::Welcome {
         protocol: PROTOCOL_VERSION,
         policy: session.policy(),
@@ -524,12 +537,12 @@ fn run_trial(
                 }
             }
         }
+        // A live trial is checkpointed; the virtual lab in lockstep is reproducible, so a
+        // lost one is run again instead.
+        if watch_silence && session.checkpoint_due() {
+            let _ = keeper.checkpoint(&file, &session.checkpoint_file(label));
+        }
     }
-    let label = if session.kind() == fishprobe_io::TrialKind::Virtual {
-        "virtual guppy"
-    } else {
-        opts.fish_label.as_str()
-    };
     let kept = keeper.keep(&file, session.trial_file(label));
     // Trials held in memory since an earlier failure get another chance.
     keeper.retry();

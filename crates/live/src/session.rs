@@ -46,6 +46,10 @@ fishprobe_sim::documented_params! {
         /// observation), from the headings of the tracker's frames. Must match how the policy
         /// was trained.
         pub heading_bins: bool = false; "-",
+        /// A running trial is written to its file this often (s of trial time; choice: 10 s,
+        /// a write of a few hundred kB), so a kill that cannot be caught (or a power cut)
+        /// leaves the frames up to the last checkpoint; the trial's end replaces the file.
+        pub checkpoint_s: f64 = 10.0; "s",
     }
 }
 
@@ -65,6 +69,7 @@ impl LiveConfig {
             ("control_s", self.control_s, day),
             ("stale_s", self.stale_s, day),
             ("command_hz", self.command_hz, MAX_COMMAND_HZ),
+            ("checkpoint_s", self.checkpoint_s, day),
         ] {
             if !(v.is_finite() && v > 0.0 && v <= hi) {
                 return Err(ConfigError::new(
@@ -194,6 +199,8 @@ pub struct Session {
     pilot_fault: Option<String>,
     /// What the front end adds to the trial file's record (see [`Session::note`]).
     notes: serde_json::Map<String, serde_json::Value>,
+    /// Frames stored when the last checkpoint was written.
+    checkpointed_frames: usize,
 }
 
 impl std::fmt::Debug for Session {
@@ -263,6 +270,7 @@ impl Session {
             accepted: 0,
             pilot_fault: None,
             notes: serde_json::Map::new(),
+            checkpointed_frames: 0,
         })
     }
 
@@ -590,6 +598,34 @@ impl Session {
         } else {
             turn
         }
+    }
+
+    /// Whether a checkpoint of the running trial is due (every `checkpoint_s` of stored
+    /// frames); a `true` counts as written.
+    pub fn checkpoint_due(&mut self) -> bool {
+        let every = (self.cfg.checkpoint_s * f64::from(self.cfg.file_rate_hz)).max(1.0);
+        let due = (self.frames() - self.checkpointed_frames) as f64 >= every;
+        if due {
+            self.checkpointed_frames = self.frames();
+        }
+        due
+    }
+
+    /// The trial so far as a file whose `ended_because` says it is a checkpoint.
+    pub fn checkpoint_file(&self, fish_model: &str) -> TrialFile {
+        let mut f = self.trial_file(fish_model);
+        if let Some(task) = f.task.as_mut() {
+            if let Ok(serde_json::Value::Object(mut config)) =
+                serde_json::from_str::<serde_json::Value>(&task.config_json)
+            {
+                let front = config
+                    .entry("front_end")
+                    .or_insert_with(|| serde_json::json!({}));
+                front["ended_because"] = crate::keep::CHECKPOINT_NOTE.into();
+                task.config_json = serde_json::Value::Object(config).to_string();
+            }
+        }
+        f
     }
 
     /// The trial file of what was recorded (complete up to the last frame).

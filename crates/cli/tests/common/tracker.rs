@@ -195,6 +195,17 @@ impl Drop for FakeCore {
 /// `launcher`) through the Python launcher the core's config names, which must `exec`
 /// fishprobe (the process keeps its id).
 pub fn observer(address: SocketAddr, core: SocketAddr, log: &Path, launcher: bool) -> Child {
+    observer_with(address, core, log, launcher, None)
+}
+
+/// [`observer`], optionally with the process's descriptor limit lowered to `nofile`.
+pub fn observer_with(
+    address: SocketAddr,
+    core: SocketAddr,
+    log: &Path,
+    launcher: bool,
+    nofile: Option<u32>,
+) -> Child {
     let exe = env!("CARGO_BIN_EXE_fishprobe");
     let args = [
         "--core".to_string(),
@@ -207,6 +218,11 @@ pub fn observer(address: SocketAddr, core: SocketAddr, log: &Path, launcher: boo
             .join("../../lab/biotracker/fishprobe_biotracker.py");
         let mut c = Command::new("python3");
         c.arg(script).env("FISHPROBE_BIN", exe);
+        c
+    } else if let Some(n) = nofile {
+        let mut c = Command::new("sh");
+        c.args(["-c", &format!("ulimit -n {n} && exec \"$0\" \"$@\"")])
+            .args([exe, "live", "biotracker"]);
         c
     } else {
         let mut c = Command::new(exe);

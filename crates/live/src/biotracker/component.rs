@@ -45,6 +45,20 @@ fishprobe_sim::documented_params! {
         /// otherwise never answer). Loading runs beside the tracking updates, which are
         /// answered meanwhile.
         pub config_load_s: f64 = 30.0; "s",
+        /// Connections the gRPC port holds at once (choice: 16; the core needs one, a
+        /// reconnecting core a second). One more closes the connection silent longest, never
+        /// the tracker's, which sends every frame; so idle peers cannot take the file
+        /// descriptors a trial file needs.
+        pub max_connections: usize = 16; "connections",
+        /// A new gRPC connection must send its first bytes within this long (choice: 2 s; a
+        /// gRPC client sends its preface at once).
+        pub connection_first_bytes_s: f64 = 2.0; "s",
+        /// A gRPC connection that sends nothing for this long is closed (choice: 60 s, three
+        /// keepalive pings unanswered).
+        pub connection_idle_s: f64 = 60.0; "s",
+        /// The observer pings each gRPC connection this often (choice: 20 s); a live peer's
+        /// transport answers, so only a dead or hostile one goes idle.
+        pub keepalive_s: f64 = 20.0; "s",
     }
 }
 
@@ -85,6 +99,13 @@ impl ComponentGuard {
             ("heartbeat_s", self.heartbeat_s, 60.0),
             ("heartbeat_timeout_s", self.heartbeat_timeout_s, 60.0),
             ("config_load_s", self.config_load_s, 3600.0),
+            (
+                "connection_first_bytes_s",
+                self.connection_first_bytes_s,
+                600.0,
+            ),
+            ("connection_idle_s", self.connection_idle_s, 86_400.0),
+            ("keepalive_s", self.keepalive_s, 3600.0),
         ] {
             if !(v.is_finite() && v > 0.0 && v <= hi) {
                 return Err(ConfigError::new(
@@ -95,6 +116,14 @@ impl ComponentGuard {
                 ));
             }
         }
+        if !(1..=1024).contains(&self.max_connections) {
+            return Err(ConfigError::new(
+                "observer",
+                "max_connections",
+                self.max_connections,
+                "must lie in [1, 1024]",
+            ));
+        }
         if !(1..=100).contains(&self.heartbeat_failures) {
             return Err(ConfigError::new(
                 "observer",
@@ -104,6 +133,18 @@ impl ComponentGuard {
             ));
         }
         Ok(())
+    }
+}
+
+impl ComponentGuard {
+    /// The gRPC port's connection limits.
+    pub fn connection_limits(&self) -> grpc::ConnectionLimits {
+        grpc::ConnectionLimits {
+            max_connections: self.max_connections,
+            first_bytes_s: self.connection_first_bytes_s,
+            idle_s: self.connection_idle_s,
+            keepalive_s: self.keepalive_s,
+        }
     }
 }
 
@@ -432,7 +473,12 @@ pub fn run(
     let served = runtime.block_on(async {
         // The server runs until the runtime is dropped: no graceful shutdown, which would wait
         // for the core's connections to close (a hung core never closes them).
-        let server = tokio::spawn(grpc::serve(listener, service, std::future::pending()));
+        let server = tokio::spawn(grpc::serve_with(
+            listener,
+            service,
+            guard.connection_limits(),
+            std::future::pending(),
+        ));
         let h = Arc::clone(&host);
         let mut tick = tokio::time::interval(Duration::from_secs_f64(h.guard.heartbeat_s));
         let timeout = Duration::from_secs_f64(h.guard.heartbeat_timeout_s);

@@ -219,7 +219,32 @@ impl tower_service::Service<http::Request<tonic::body::Body>> for Methods {
     }
 }
 
-/// Serves `service` on `listener` (HTTP/2, no TLS: loopback) until `shutdown` completes.
+/// How many connections the gRPC port holds and how long an idle one lives. Every connection
+/// costs a file descriptor; without a cap, idle peers could take the descriptors the trial
+/// file needs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConnectionLimits {
+    /// Connections held at once at most; one more closes the connection that has been
+    /// silent longest (a tracker sends every frame, so its connection is never that one).
+    pub max_connections: usize,
+    /// A new connection must send its first bytes within this long (s).
+    pub first_bytes_s: f64,
+    /// A connection that sends nothing for this long (s) is closed.
+    pub idle_s: f64,
+    /// The server pings each connection this often (s), so a live peer's transport answers
+    /// and is never idle while one that cannot answer is.
+    pub keepalive_s: f64,
+}
+
+impl Default for ConnectionLimits {
+    /// The observer's defaults (see [`super::component::ComponentGuard`]).
+    fn default() -> Self {
+        super::component::ComponentGuard::default().connection_limits()
+    }
+}
+
+/// Serves `service` (a [`Methods`], or any tonic service) over HTTP/2 on `listener` until
+/// `shutdown` resolves, with the default [`ConnectionLimits`].
 pub async fn serve<S>(
     listener: std::net::TcpListener,
     service: S,
@@ -235,19 +260,236 @@ where
         + 'static,
     S::Future: Send + 'static,
 {
+    serve_with(listener, service, ConnectionLimits::default(), shutdown).await
+}
+
+/// [`serve`] with the given connection limits.
+pub async fn serve_with<S>(
+    listener: std::net::TcpListener,
+    service: S,
+    limits: ConnectionLimits,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), crate::LiveError>
+where
+    S: tower_service::Service<
+            http::Request<tonic::body::Body>,
+            Response = http::Response<tonic::body::Body>,
+            Error = std::convert::Infallible,
+        > + Clone
+        + Send
+        + 'static,
+    S::Future: Send + 'static,
+{
     let net = |e: &dyn std::fmt::Display| crate::LiveError::Net(format!("gRPC server: {e}"));
     listener.set_nonblocking(true).map_err(|e| net(&e))?;
     let listener = tokio::net::TcpListener::from_std(listener).map_err(|e| net(&e))?;
-    tonic::transport::Server::builder()
+    let (tx, rx) = tokio::sync::mpsc::channel(1);
+    let accept = tokio::spawn(limited::accept(listener, limits, tx));
+    let served = tonic::transport::Server::builder()
         // A frame's headers are a few hundred bytes; anything near this is not a tracker.
         .http2_max_header_list_size(16 * 1024)
+        .http2_keepalive_interval(Some(Duration::from_secs_f64(limits.keepalive_s)))
+        .http2_keepalive_timeout(Some(Duration::from_secs_f64(limits.keepalive_s)))
         .serve_with_incoming_shutdown(
             service,
-            tonic::transport::server::TcpIncoming::from(listener),
+            tokio_stream::wrappers::ReceiverStream::new(rx),
             shutdown,
         )
         .await
-        .map_err(|e| net(&e))
+        .map_err(|e| net(&e));
+    accept.abort();
+    served
+}
+
+/// Accepting within [`ConnectionLimits`].
+mod limited {
+    use super::ConnectionLimits;
+    use std::collections::HashMap;
+    use std::future::Future;
+    use std::io;
+    use std::pin::Pin;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::{Arc, Mutex, PoisonError};
+    use std::task::{Context, Poll};
+    use std::time::{Duration, Instant};
+    use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+
+    /// One held connection, as the accept loop sees it: a handle to close it and when it last
+    /// sent bytes (ms since the server's start, plus one; 0 until it sends any).
+    struct Entry {
+        close: std::net::TcpStream,
+        last_ms: Arc<AtomicU64>,
+    }
+
+    type Table = Arc<Mutex<HashMap<u64, Entry>>>;
+
+    fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+        m.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    pub(super) async fn accept(
+        listener: tokio::net::TcpListener,
+        limits: ConnectionLimits,
+        tx: tokio::sync::mpsc::Sender<io::Result<Conn>>,
+    ) {
+        let table: Table = Arc::default();
+        let start = Instant::now();
+        let mut next = 0u64;
+        loop {
+            let stream = match listener.accept().await {
+                Ok((s, _)) => s,
+                Err(_) => {
+                    // Out of descriptors (or another passing fault): wait instead of spinning,
+                    // and make room by closing the longest-silent connection.
+                    close_quietest(&table);
+                    tokio::time::sleep(Duration::from_millis(50)).await;
+                    continue;
+                }
+            };
+            let Ok(close) = stream.into_std().and_then(|s| {
+                let c = s.try_clone()?;
+                Ok((s, c))
+            }) else {
+                continue;
+            };
+            let (std_stream, close) = close;
+            let Ok(stream) = tokio::net::TcpStream::from_std(std_stream) else {
+                continue;
+            };
+            while lock(&table).len() >= limits.max_connections {
+                if !close_quietest(&table) {
+                    break;
+                }
+            }
+            next += 1;
+            let last_ms = Arc::new(AtomicU64::new(0));
+            lock(&table).insert(
+                next,
+                Entry {
+                    close,
+                    last_ms: Arc::clone(&last_ms),
+                },
+            );
+            let conn = Conn {
+                inner: stream,
+                idle: Box::pin(tokio::time::sleep(Duration::from_secs_f64(
+                    limits.first_bytes_s,
+                ))),
+                idle_after: Duration::from_secs_f64(limits.idle_s),
+                last_ms,
+                start,
+                id: next,
+                table: Arc::clone(&table),
+            };
+            if tx.send(Ok(conn)).await.is_err() {
+                return;
+            }
+        }
+    }
+
+    /// Milliseconds since `start`, plus one (0 means "never").
+    fn ms(start: Instant) -> u64 {
+        u64::try_from(start.elapsed().as_millis())
+            .unwrap_or(u64::MAX - 1)
+            .saturating_add(1)
+    }
+
+    /// Closes the connection that has been silent longest; whether there was one.
+    fn close_quietest(table: &Table) -> bool {
+        let mut t = lock(table);
+        // Connections that never sent a byte go first (the longest-waiting of them), then
+        // the one whose last bytes are oldest.
+        let Some(id) = t
+            .iter()
+            .min_by_key(|(id, e)| (e.last_ms.load(Ordering::Relaxed), **id))
+            .map(|(id, _)| *id)
+        else {
+            return false;
+        };
+        if let Some(e) = t.remove(&id) {
+            let _ = e.close.shutdown(std::net::Shutdown::Both);
+        }
+        true
+    }
+
+    /// A connection that ends itself when its peer stays silent too long.
+    pub(super) struct Conn {
+        inner: tokio::net::TcpStream,
+        idle: Pin<Box<tokio::time::Sleep>>,
+        idle_after: Duration,
+        last_ms: Arc<AtomicU64>,
+        start: Instant,
+        id: u64,
+        table: Table,
+    }
+
+    impl Drop for Conn {
+        fn drop(&mut self) {
+            lock(&self.table).remove(&self.id);
+        }
+    }
+
+    impl tonic::transport::server::Connected for Conn {
+        type ConnectInfo = tonic::transport::server::TcpConnectInfo;
+        fn connect_info(&self) -> Self::ConnectInfo {
+            self.inner.connect_info()
+        }
+    }
+
+    impl AsyncRead for Conn {
+        fn poll_read(
+            mut self: Pin<&mut Self>,
+            cx: &mut Context<'_>,
+            buf: &mut ReadBuf<'_>,
+        ) -> Poll<io::Result<()>> {
+            let before = buf.filled().len();
+            match Pin::new(&mut self.inner).poll_read(cx, buf) {
+                Poll::Ready(Ok(())) => {
+                    if buf.filled().len() > before {
+                        let deadline = tokio::time::Instant::now() + self.idle_after;
+                        self.idle.as_mut().reset(deadline);
+                        let now = ms(self.start);
+                        self.last_ms.store(now, Ordering::Relaxed);
+                    }
+                    Poll::Ready(Ok(()))
+                }
+                Poll::Ready(Err(e)) => Poll::Ready(Err(e)),
+                Poll::Pending => match self.idle.as_mut().poll(cx) {
+                    Poll::Ready(()) => Poll::Ready(Err(io::Error::new(
+                        io::ErrorKind::TimedOut,
+                        "the peer was silent too long",
+                    ))),
+                    Poll::Pending => Poll::Pending,
+                },
+            }
+        }
+    }
+
+    impl AsyncWrite for Conn {
+        fn poll_write(
+            mut self: Pin<&mut Self>,
+            cx: &mut Context<'_>,
+            buf: &[u8],
+        ) -> Poll<io::Result<usize>> {
+            Pin::new(&mut self.inner).poll_write(cx, buf)
+        }
+        fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+            Pin::new(&mut self.inner).poll_flush(cx)
+        }
+        fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+            Pin::new(&mut self.inner).poll_shutdown(cx)
+        }
+        fn poll_write_vectored(
+            mut self: Pin<&mut Self>,
+            cx: &mut Context<'_>,
+            bufs: &[io::IoSlice<'_>],
+        ) -> Poll<io::Result<usize>> {
+            Pin::new(&mut self.inner).poll_write_vectored(cx, bufs)
+        }
+        fn is_write_vectored(&self) -> bool {
+            self.inner.is_write_vectored()
+        }
+    }
 }
 
 /// A gRPC client of one address (the core, or in tests an observer).

@@ -306,6 +306,12 @@ impl Observer {
             file.display()
         )));
         out.push(Event::Started(file.clone()));
+        // The descriptors the trial's file needs are held from now on.
+        if !self.keeper.reserve() {
+            out.push(Event::Log(
+                "no file descriptors spare as the trial starts; its file may fall back".into(),
+            ));
+        }
         self.trial = Some(Trial {
             session,
             skeleton,
@@ -338,6 +344,12 @@ impl Observer {
                 .into_iter()
                 .map(Event::Command),
         );
+        if trial.session.checkpoint_due() {
+            let f = trial.session.checkpoint_file("live guppy");
+            if let Err(e) = self.keeper.checkpoint(&trial.file, &f) {
+                out.push(Event::Log(format!("checkpoint not written: {e}")));
+            }
+        }
         if trial.session.is_done() {
             self.finish("the protocol's control time is over", out);
         }
