@@ -404,3 +404,189 @@ fn idle_connections_cannot_exhaust_descriptors_and_the_trial_is_written() {
     let _ = child.kill();
     let _ = child.wait();
 }
+
+/// Sends `signal` (a name for `kill -s`) to the process `pid`.
+fn signal(pid: u32, signal: &str) {
+    let s = std::process::Command::new("kill")
+        .args(["-s", signal, &pid.to_string()])
+        .status()
+        .unwrap();
+    assert!(s.success(), "kill -s {signal} {pid}");
+}
+
+/// The observer's process, the robot program's timed lines and the trial file's path.
+type MidTrial = (
+    std::process::Child,
+    std::sync::Arc<std::sync::Mutex<Vec<(Instant, String)>>>,
+    std::path::PathBuf,
+);
+
+/// An observer in a trial of 150 frames, with a robot program on its sink: returns the child,
+/// the robot program's lines and the trial file's path.
+fn observer_mid_trial(d: &std::path::Path, core: &FakeCore) -> MidTrial {
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let (address, sink) = (free_addr(), free_addr());
+    let child = observer(address, core.addr, &d.join("observer.log"), false);
+    let out = d.join("trials");
+    let rt = runtime();
+    let mut client = rt.block_on(connect(address));
+    call_config(&rt, &client, config_json(&out, &protocol, sink, core.addr)).unwrap();
+    let robot = timed_robot_program(sink);
+    let start = Instant::now();
+    while robot.lock().unwrap().is_empty() {
+        assert!(start.elapsed() < Duration::from_secs(5), "never connected");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
+    for k in 0..150u32 {
+        rt.block_on(client.call::<Experiment, Empty>(
+            grpc::UPDATE_PATH,
+            experiment(RecordingState::Recording, k, r, f),
+        ))
+        .unwrap();
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    // The session has taken the frames (its queue drains within milliseconds).
+    std::thread::sleep(Duration::from_millis(200));
+    (
+        child,
+        robot,
+        out.join("GoalSeeker__Real/2026-12-07_fake.hdf5"),
+    )
+}
+
+/// SIGTERM, SIGINT or SIGHUP mid-trial (as BioTracker's shutdown or a closed terminal sends):
+/// the robot program's last line is a stop saying why, the trial file is complete with that
+/// reason, and the status is 128 + the signal.
+#[test]
+fn a_polite_signal_mid_trial_stops_the_robot_and_writes_the_trial() {
+    for (name, number) in [("TERM", 15), ("INT", 2), ("HUP", 1)] {
+        let d = dir(&format!("failsafe-sig{name}"));
+        let core = FakeCore::start();
+        let (mut child, robot, file) = observer_mid_trial(&d, &core);
+        signal(child.id(), name);
+        let status = wait_exit(&mut child, Duration::from_secs(5))
+            .unwrap_or_else(|| panic!("SIG{name}: still running after 5 s"));
+        assert_eq!(status.code(), Some(128 + number), "SIG{name}");
+        std::thread::sleep(Duration::from_millis(100));
+        let lines = robot.lock().unwrap().clone();
+        let last = &lines.last().unwrap().1;
+        assert!(
+            last.contains("\"stop\":true") && last.contains(&format!("received SIG{name}")),
+            "SIG{name}: the robot program's last line: {last}"
+        );
+        let t = fishprobe_io::read_trial(&file).unwrap();
+        assert_eq!(t.entities[0].positions.len(), 150, "SIG{name}");
+        let record: serde_json::Value = serde_json::from_str(&t.task.unwrap().config_json).unwrap();
+        assert_eq!(
+            record["front_end"]["ended_because"],
+            format!("fishprobe received SIG{name}")
+        );
+    }
+}
+
+/// SIGKILL cannot be caught: the trial's last checkpoint (every 2 s of frames) is a readable
+/// file of the frames so far, saying it is one.
+#[test]
+fn a_kill_mid_trial_leaves_a_readable_checkpoint() {
+    let d = dir("failsafe-sigkill");
+    let core = FakeCore::start();
+    let (mut child, _robot, file) = observer_mid_trial(&d, &core);
+    signal(child.id(), "KILL");
+    let _ = child.wait();
+    let t = fishprobe_io::read_trial(&file).unwrap();
+    let frames = t.entities[0].positions.len();
+    assert!((100..=150).contains(&frames), "{frames} frames");
+    let record: serde_json::Value = serde_json::from_str(&t.task.unwrap().config_json).unwrap();
+    assert!(record["front_end"]["ended_because"]
+        .as_str()
+        .unwrap()
+        .contains("checkpoint"));
+}
+
+/// `fishprobe live serve` asked to stop mid-trial: the client hears a stop with the reason and
+/// `done`, the trial file is complete with that reason, the status is 143.
+#[test]
+fn live_serve_on_sigterm_stops_the_robot_and_writes_the_trial() {
+    use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
+    use std::io::{BufRead, BufReader, Write};
+    let d = dir("failsafe-serve-sigterm");
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let listen = free_addr();
+    let out = d.join("trials");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_fishprobe"))
+        .args(["live", "serve", "--policy", "scripted:goal-seeker"])
+        .args(["--listen", &listen.to_string(), "--out"])
+        .arg(&out)
+        .arg("--config")
+        .arg(&protocol)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    let s = loop {
+        match std::net::TcpStream::connect(listen) {
+            Ok(s) => break s,
+            Err(_) if start.elapsed() < Duration::from_secs(20) => {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Err(e) => panic!("the bridge never listened: {e}"),
+        }
+    };
+    let mut w = s.try_clone().unwrap();
+    let mut r = BufReader::new(s);
+    let hello = ClientMsg::Hello {
+        protocol: 1,
+        world_size_cm: [100.0, 100.0],
+        tracking_hz: FPS,
+        source: "lab".into(),
+        token: None,
+        sync: false,
+    };
+    w.write_all(to_line(&hello).as_bytes()).unwrap();
+    let mut line = String::new();
+    r.read_line(&mut line).unwrap();
+    assert!(line.contains("welcome"), "{line}");
+    let pose = |x: f32, y: f32| Some(Pose { x, y, heading: 0.0 });
+    for k in 0..150u32 {
+        let frame = ClientMsg::Frame {
+            t: f64::from(k) / f64::from(FPS),
+            robot: pose(-10.0, 0.0),
+            fish: vec![FishPose {
+                id: "f".into(),
+                pose: pose(10.0, 5.0),
+            }],
+        };
+        w.write_all(to_line(&frame).as_bytes()).unwrap();
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    std::thread::sleep(Duration::from_millis(200));
+    signal(child.id(), "TERM");
+    let mut tail = Vec::new();
+    r.get_ref()
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    for l in r.lines() {
+        let Ok(l) = l else { break };
+        tail.push(l);
+    }
+    let status = wait_exit(&mut child, Duration::from_secs(5)).expect("exits");
+    assert_eq!(status.code(), Some(143));
+    let n = tail.len();
+    assert!(n >= 2, "{tail:?}");
+    assert!(
+        tail[n - 2].contains("\"stop\":true") && tail[n - 2].contains("received SIGTERM"),
+        "{tail:?}"
+    );
+    assert!(tail[n - 1].contains("done"), "{tail:?}");
+    let t = fishprobe_io::read_trial(&out.join("GoalSeeker__Real/trial_000.hdf5")).unwrap();
+    assert_eq!(t.entities[0].positions.len(), 150);
+    let record: serde_json::Value = serde_json::from_str(&t.task.unwrap().config_json).unwrap();
+    assert_eq!(
+        record["front_end"]["ended_because"],
+        "fishprobe received SIGTERM"
+    );
+}

@@ -75,6 +75,8 @@ pub struct Keeper {
     reserved: Vec<std::fs::File>,
     /// Checkpoints written where a trial belongs (removed if the trial goes elsewhere).
     checkpoints: Vec<PathBuf>,
+    /// The checkpoint being written.
+    checkpointing: Option<std::thread::JoinHandle<Result<(), String>>>,
 }
 
 impl Keeper {
@@ -86,6 +88,7 @@ impl Keeper {
             fallback,
             reserved: Vec::new(),
             checkpoints: Vec::new(),
+            checkpointing: None,
         }
     }
 
@@ -101,15 +104,39 @@ impl Keeper {
         true
     }
 
-    /// Writes a running trial where it belongs (replacing the last checkpoint at once, so
-    /// the file there is always readable); the trial's end replaces it. A checkpoint that
-    /// fails changes nothing: the trial is still kept at its end.
-    pub fn checkpoint(&mut self, file: &Path, trial: &TrialFile) -> Result<(), String> {
-        write(file, trial)?;
+    /// Writes a running trial where it belongs, on a thread of its own (a slow disk never
+    /// delays a frame or a command), replacing the last checkpoint at once, so the file there
+    /// is always readable; the trial's end replaces it. While the previous checkpoint is still
+    /// being written this one is skipped. Returns why the previous one failed, if it did: a
+    /// failed checkpoint changes nothing, the trial is still kept at its end.
+    pub fn checkpoint(&mut self, file: &Path, trial: TrialFile) -> Option<String> {
+        if self
+            .checkpointing
+            .as_ref()
+            .is_some_and(|h| !h.is_finished())
+        {
+            return None;
+        }
+        let failed = self.settle();
+        let target = file.to_path_buf();
+        self.checkpointing = std::thread::Builder::new()
+            .name("trial-checkpoint".into())
+            .spawn(move || write(&target, &trial))
+            .ok();
         if !self.checkpoints.iter().any(|c| c == file) {
             self.checkpoints.push(file.to_path_buf());
         }
-        Ok(())
+        failed
+    }
+
+    /// Waits for a checkpoint being written; why it failed, if it did.
+    fn settle(&mut self) -> Option<String> {
+        let h = self.checkpointing.take()?;
+        match h.join() {
+            Ok(Ok(())) => None,
+            Ok(Err(e)) => Some(e),
+            Err(_) => Some("the checkpoint's writer failed".into()),
+        }
     }
 
     fn fallback_dir(&self) -> PathBuf {
@@ -120,6 +147,8 @@ impl Keeper {
 
     /// Writes `trial` to `file`, else to the fallback directory, else keeps it.
     pub fn keep(&mut self, file: &Path, trial: TrialFile) -> Kept {
+        // A checkpoint still being written must not land after the trial's file.
+        let _ = self.settle();
         // The descriptors held since the trial started are what this write uses.
         self.reserved.clear();
         let had_checkpoint = self.checkpoints.iter().any(|c| c == file);

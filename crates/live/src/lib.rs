@@ -48,6 +48,7 @@ mod lines;
 pub mod protocol;
 pub mod server;
 pub mod session;
+pub mod shutdown;
 pub mod sink;
 
 pub use error::LiveError;

@@ -206,12 +206,19 @@ pub fn serve(
             if opts.max_trials.is_some_and(|m| outcomes.len() >= m) {
                 break Ok(outcomes);
             }
-            let Ok(adm) = rx.recv() else {
-                let why = sh.accept_error.lock().map(|e| e.clone()).ok().flatten();
-                break Err(LiveError::Net(format!(
-                    "accept: {}",
-                    why.unwrap_or_else(|| "the listener stopped".into())
-                )));
+            if crate::shutdown::requested().is_some() {
+                break Ok(outcomes);
+            }
+            let adm = match rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(a) => a,
+                Err(mpsc::RecvTimeoutError::Timeout) => continue,
+                Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    let why = sh.accept_error.lock().map(|e| e.clone()).ok().flatten();
+                    break Err(LiveError::Net(format!(
+                        "accept: {}",
+                        why.unwrap_or_else(|| "the listener stopped".into())
+                    )));
+                }
             };
             let p = match pilot() {
                 Ok(p) => p,
@@ -517,6 +524,13 @@ fn run_trial(
     // Without a live robot (the virtual lab in lockstep) a slow client is no danger.
     let watch_silence = !(sync && source == "virtual_lab");
     while !session.is_done() {
+        if let Some(why) = crate::shutdown::requested() {
+            let stop = session.end_early(&why);
+            if alive && send(&mut stream, &stop).is_err() {
+                alive = false;
+            }
+            break;
+        }
         let Some(replies) = replies_to(
             reader.next(),
             &mut session,
@@ -540,7 +554,7 @@ fn run_trial(
         // A live trial is checkpointed; the virtual lab in lockstep is reproducible, so a
         // lost one is run again instead.
         if watch_silence && session.checkpoint_due() {
-            let _ = keeper.checkpoint(&file, &session.checkpoint_file(label));
+            let _ = keeper.checkpoint(&file, session.checkpoint_file(label));
         }
     }
     let kept = keeper.keep(&file, session.trial_file(label));

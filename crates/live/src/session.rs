@@ -46,10 +46,11 @@ fishprobe_sim::documented_params! {
         /// observation), from the headings of the tracker's frames. Must match how the policy
         /// was trained.
         pub heading_bins: bool = false; "-",
-        /// A running trial is written to its file this often (s of trial time; choice: 10 s,
-        /// a write of a few hundred kB), so a kill that cannot be caught (or a power cut)
-        /// leaves the frames up to the last checkpoint; the trial's end replaces the file.
-        pub checkpoint_s: f64 = 10.0; "s",
+        /// A running trial is written to its file this often (s of trial time; choice: 2 s,
+        /// so a kill that cannot be caught, or a power cut, loses at most 2 s; the write, at
+        /// most a MB for a whole trial, runs beside the trial); the trial's end replaces the
+        /// file.
+        pub checkpoint_s: f64 = 2.0; "s",
     }
 }
 
@@ -399,6 +400,22 @@ impl Session {
         self.stop(t, format!("malformed input: {reason}"), &mut out);
         // A later good frame lifts a stop for malformed input like any other.
         out
+    }
+
+    /// The trial ends before its time (fishprobe was asked to stop, say): the robot is
+    /// stopped with `reason`, which the trial file records as why it ended; returns the stop
+    /// command for the robot side.
+    pub fn end_early(&mut self, reason: &str) -> ServerMsg {
+        let t = if self.last_t.is_finite() {
+            self.last_t
+        } else {
+            0.0
+        };
+        if self.t0.is_some() {
+            self.mark_stopped(t, reason.to_string());
+        }
+        self.note("ended_because", reason.into());
+        ServerMsg::stop_outside_trial(t, reason, self.goals_reached)
     }
 
     /// No frame for `silence_s` of wall-clock time (the lab's tracker hangs): stop.

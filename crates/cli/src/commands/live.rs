@@ -244,8 +244,23 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         a.policy,
         a.out.display()
     );
+    fishprobe_live::shutdown::install()?;
     let done = serve(&listener, &opts, &mut make, report)?;
-    emit(&format!("{} trials served\n", done.len()))
+    emit(&format!("{} trials served\n", done.len()))?;
+    exit_if_signalled()
+}
+
+/// After a stop that SIGTERM, SIGINT or SIGHUP asked for (the trial was ended and written):
+/// says so and exits with 128 + the signal's number, the shell's convention.
+fn exit_if_signalled() -> Result<()> {
+    if let (Some(why), Some(code)) = (
+        fishprobe_live::shutdown::requested(),
+        fishprobe_live::shutdown::exit_status(),
+    ) {
+        say!("stopped: {why}; the running trial was ended and written");
+        std::process::exit(code);
+    }
+    Ok(())
 }
 
 fn replay_cmd(a: ReplayArgs) -> Result<()> {
@@ -364,9 +379,13 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
             (addr, Some(h))
         }
     };
+    fishprobe_live::shutdown::install()?;
     let mut text = String::from("VIRTUAL LAB (virtual guppies, not live fish)\n");
     let mut bridge = bridge;
     for k in 0..a.trials {
+        if fishprobe_live::shutdown::requested().is_some() {
+            break;
+        }
         let seed = fishprobe_sim::derive_seed(a.seed, "lab/trial", k as u64);
         let t = match run_trial(addr, &lab, seed) {
             Ok(t) => t,
@@ -415,5 +434,6 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
             .map_err(|_| anyhow::anyhow!("the bridge thread panicked"))?
             .context("the in-process bridge")?;
     }
-    emit(&text)
+    emit(&text)?;
+    exit_if_signalled()
 }

@@ -74,6 +74,7 @@ pub(super) fn run(a: BiotrackerArgs) -> Result<()> {
     let listener =
         TcpListener::bind(address).with_context(|| format!("serving the observer on {address}"))?;
     let stop = Arc::new(AtomicBool::new(false));
+    fishprobe_live::shutdown::install()?;
     let end = component::run(
         listener,
         a.core,
@@ -86,7 +87,9 @@ pub(super) fn run(a: BiotrackerArgs) -> Result<()> {
     .with_context(|| format!("the observer component (log: {})", a.log.display()))?;
     // The core may be gone with its pipes: the log has said everything; only the status
     // remains to be told.
-    if end.reason == "stopped" && end.unsaved.is_empty() {
+    if let Some(code) = fishprobe_live::shutdown::exit_status() {
+        std::process::exit(code)
+    } else if end.reason == "stopped" && end.unsaved.is_empty() {
         Ok(())
     } else {
         std::process::exit(EXIT_ENDED)

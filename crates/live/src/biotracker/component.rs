@@ -486,7 +486,11 @@ pub fn run(
         let mut client = Client::lazy(current, timeout).ok();
         let mut failures = 0u32;
         loop {
-            tick.tick().await;
+            // The heartbeat's period, or sooner when the session ends the component.
+            tokio::select! {
+                _ = tick.tick() => {}
+                () = wait_for_stop(&h) => {}
+            }
             if stop.load(Ordering::SeqCst) {
                 h.end("stopped");
             }
@@ -540,11 +544,21 @@ pub fn run(
 }
 
 /// The session thread: takes updates off the queue, runs the observer, feeds the sink.
+/// Resolves once the component is ending (checked every 50 ms).
+async fn wait_for_stop(h: &Host) {
+    while !h.stop.load(Ordering::SeqCst) {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 fn session_loop(host: &Host) {
     let mut last_update = Instant::now();
     let mut dropped_seen = 0u64;
     let mut events = Vec::new();
     loop {
+        if let Some(why) = crate::shutdown::requested() {
+            host.end(&why);
+        }
         let next = {
             let mut q = lock(&host.queue);
             if q.updates.is_empty() && !host.stop.load(Ordering::SeqCst) {

@@ -346,7 +346,7 @@ impl Observer {
         );
         if trial.session.checkpoint_due() {
             let f = trial.session.checkpoint_file("live guppy");
-            if let Err(e) = self.keeper.checkpoint(&trial.file, &f) {
+            if let Some(e) = self.keeper.checkpoint(&trial.file, f) {
                 out.push(Event::Log(format!("checkpoint not written: {e}")));
             }
         }
