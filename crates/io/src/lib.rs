@@ -49,7 +49,7 @@ pub use run::{RunLayout, RunRecord};
 pub use scratch::ScratchDir;
 pub use trial::{
     heading_from_motion, Category, Entity, TaskRecord, TrialFile, TrialKind, TrialMeta,
-    INDIVIDUAL_ATTRIBUTE,
+    INDIVIDUAL_ATTRIBUTE, TRACKER_ID_ATTRIBUTE,
 };
 
 /// Every entry directly in `dir` named `*.hdf5` or `*.h5`, sorted by name; none when `dir`

@@ -212,6 +212,10 @@ impl TrialKind {
 /// (JSON of `fishprobe_sim::Individual`: its multipliers, pause rate and duration, latent).
 pub const INDIVIDUAL_ATTRIBUTE: &str = "fishprobe_individual";
 
+/// The fish entity attribute that holds the id the live tracker gave the fish (the first one,
+/// when the tracker changed it; the changes are in the trial's record).
+pub const TRACKER_ID_ATTRIBUTE: &str = "tracker_id";
+
 /// The task of a trial: what robofish.io does not hold (SPEC §10), in `/fishprobe`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TaskRecord {

@@ -42,6 +42,7 @@
 
 pub mod biotracker;
 pub mod error;
+pub mod fish_ids;
 pub mod keep;
 pub mod lab;
 mod lines;

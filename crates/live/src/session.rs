@@ -182,6 +182,8 @@ pub struct Session {
     last_robot: Option<Pose>,
     /// Per fish, its last tracked pose.
     last_fish: Vec<Option<Pose>>,
+    /// Which entry of a frame is which fish (by the tracker's ids).
+    fish_ids: crate::fish_ids::FishIds,
     stopped: Option<String>,
     robot: Vec<[f32; 3]>,
     /// Per fish, its pose per stored frame.
@@ -257,6 +259,7 @@ impl Session {
             last_good: None,
             last_robot: None,
             last_fish: vec![None; n_fish],
+            fish_ids: crate::fish_ids::FishIds::new(n_fish),
             stopped: None,
             robot: Vec::new(),
             fish: vec![Vec::new(); n_fish],
@@ -457,10 +460,9 @@ impl Session {
             return out;
         }
         let robot = robot.filter(Pose::is_valid);
-        // The fish in the frame's order; those beyond fish_count are not ours to track.
-        let fish_poses: Vec<Option<Pose>> = (0..self.fish.len())
-            .map(|i| fish.get(i).and_then(|f| f.pose).filter(Pose::is_valid))
-            .collect();
+        // The fish matched by the tracker's ids (see `fish_ids`), whatever their order.
+        let k = self.frame_index(t) as usize;
+        let fish_poses = self.fish_ids.assign(k as u64, fish);
         let any_fish = fish_poses.iter().any(Option::is_some);
         // The fish count from their release on; before, only the robot must be tracked.
         let need_fish = rel >= self.cfg.release_s;
@@ -474,7 +476,6 @@ impl Session {
             }
         }
         // Store the frame (gaps as NaN; frames skipped by the tracker as NaN too).
-        let k = self.frame_index(t) as usize;
         while self.robot.len() < k {
             self.robot.push(LOST);
             for f in &mut self.fish {
@@ -679,6 +680,14 @@ impl Session {
             "tracking_gaps_frames": self.gaps,
             "malformed_messages": self.malformed,
         });
+        let ids = &self.fish_ids;
+        if !ids.changes().is_empty() || ids.ignored() > 0 || ids.by_order() > 0 {
+            config["fish_matching"] = serde_json::json!({
+                "id_changes": ids.changes(),
+                "entries_ignored": ids.ignored(),
+                "frames_matched_by_order": ids.by_order(),
+            });
+        }
         // Only a front end that has something to say adds the key, so the bridge's and the
         // virtual lab's files stay as they were.
         if !self.notes.is_empty() {
@@ -688,11 +697,16 @@ impl Session {
             world_size_cm: [crate::TANK_CM; 2],
             frame_rate_hz: self.cfg.file_rate_hz,
             entities: std::iter::once(entity("robot", Category::Robot, "robot", &self.robot))
-                .chain(
-                    self.fish.iter().enumerate().map(|(i, f)| {
-                        entity(&format!("fish_{}", i + 1), Category::Fish, "fish", f)
-                    }),
-                )
+                .chain(self.fish.iter().enumerate().map(|(i, f)| {
+                    let mut e = entity(&format!("fish_{}", i + 1), Category::Fish, "fish", f);
+                    if let Some(Some(id)) = self.fish_ids.first_ids().get(i) {
+                        e.attributes.insert(
+                            fishprobe_io::TRACKER_ID_ATTRIBUTE.into(),
+                            Attr::Text(id.clone()),
+                        );
+                    }
+                    e
+                }))
                 .collect(),
             attributes,
             task: Some(TaskRecord {

@@ -418,10 +418,10 @@ fn a_write_failure_keeps_the_bridge_alive_and_the_trial() {
 
 /// A group bridge (3 fish) fed frames whose fish lists disagree with it and with each other:
 /// more fish than it tracks, fewer, none, and one id given to every fish. Documented
-/// behaviour (docs/live-protocol.md, "Groups"): the k-th entry is the k-th fish whatever its
-/// id, a missing entry is that fish untracked, entries past the third are ignored. Every frame
-/// is stored (3 fish each), the robot stops when no fish is tracked for `stale_s`, nothing
-/// panics and the trial file is written.
+/// behaviour (docs/live-protocol.md, "How fish are matched"): fish are matched by id, a missing
+/// entry is that fish untracked, a fish too many is ignored, an id given twice counts once.
+/// Every frame is stored (3 fish each), the robot stops when no fish is tracked for
+/// `stale_s`, nothing panics and the trial file is written with what was matched how.
 #[test]
 fn a_group_bridge_takes_inconsistent_fish_lists_as_documented() {
     let out = tmp("group");
@@ -490,8 +490,62 @@ fn a_group_bridge_takes_inconsistent_fish_lists_as_documented() {
     // Frame 10 held only "a": fish 2 and 3 untracked there (NaN), fish 1 tracked.
     assert!(stored[0].positions[10][0].is_finite());
     assert!(stored[1].positions[10][0].is_nan() && stored[2].positions[10][0].is_nan());
-    // Frame 20 held five: the first three were taken, in order.
+    // Frame 20 held five: the three known ids were taken, "d" and "e" are fish too many.
     assert!((stored[2].positions[20][0] - 16.0).abs() < 1e-4);
-    // Frame 30 gave every fish the same id: still three fish, by position.
-    assert!((stored[1].positions[30][0] - 13.0).abs() < 1e-4);
+    // Frame 30 gave every fish the same new id: a fish found again under a new id, once; the
+    // two repeats are ignored.
+    assert!((stored[0].positions[30][0] - 10.0).abs() < 1e-4);
+    assert!(stored[1].positions[30][0].is_nan() && stored[2].positions[30][0].is_nan());
+    let record: serde_json::Value =
+        serde_json::from_str(&f.task.as_ref().unwrap().config_json).unwrap();
+    let m = &record["fish_matching"];
+    assert_eq!(m["id_changes"][0]["new"], "same", "{m}");
+    assert!(m["entries_ignored"].as_u64().unwrap() > 0, "{m}");
+}
+
+/// Two fish whose entries come as `[a, b]` in one frame and `[b, a]` in the next: each fish
+/// is followed by its id, never swapped, and the ids are in the trial file.
+#[test]
+fn fish_that_change_places_in_the_frame_are_followed_by_id() {
+    let dir = tmp("swap");
+    let mut opts = options(&dir, 1);
+    opts.live.fish_count = 2;
+    opts.live.control_s = 2.0;
+    let (addr, bridge) = start(opts, "Swap", 0.1);
+    let mut c = Client::connect(addr);
+    c.send(&hello("lab", false, None));
+    c.until("welcome", Duration::from_secs(5));
+    let pose = |x: f32| Pose {
+        x,
+        y: 0.0,
+        heading: 0.0,
+    };
+    let fish = |id: &str, x: f32| FishPose {
+        id: id.into(),
+        pose: Some(pose(x)),
+    };
+    for k in 0..120u32 {
+        let t = f64::from(k) / 25.0;
+        let (a, b) = (fish("7", -20.0), fish("12", 30.0));
+        let entries = if k % 2 == 0 { vec![a, b] } else { vec![b, a] };
+        c.send(&to_line(&ClientMsg::Frame {
+            t,
+            robot: Some(pose(0.0)),
+            fish: entries,
+        }));
+    }
+    c.send(&to_line(&ClientMsg::End));
+    let outcomes = bridge.join().unwrap().unwrap();
+    let t = read_trial(outcomes[0].file.as_ref().unwrap()).unwrap();
+    let fish: Vec<_> = t.fish().collect();
+    assert_eq!(fish.len(), 2);
+    assert!(fish[0].positions.iter().all(|p| p[0] == -20.0));
+    assert!(fish[1].positions.iter().all(|p| p[0] == 30.0));
+    let id = |e: &fishprobe_io::Entity| {
+        e.attributes
+            .get(fishprobe_io::TRACKER_ID_ATTRIBUTE)
+            .cloned()
+    };
+    assert_eq!(id(fish[0]), Some(fishprobe_io::Attr::Text("7".into())));
+    assert_eq!(id(fish[1]), Some(fishprobe_io::Attr::Text("12".into())));
 }
