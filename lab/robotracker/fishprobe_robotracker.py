@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import numbers
 import os
 import socket
 import time
@@ -85,8 +86,16 @@ DEFAULTS = {
     "log_file": None,
 }
 
-# The longest line the bridge sends is far below this; a longer one is a broken peer.
-MAX_LINE_BYTES = 1 << 20
+# The longest line the bridge sends is far below this (its own limit for what it reads is the
+# same); a longer one is a broken peer.
+MAX_LINE_BYTES = 1 << 16
+
+# What one tick reads from the bridge at most: the bridge sends a few hundred bytes a tick, so
+# a bridge that streams without end costs a tick no more than this, and the rest waits.
+READ_PER_TICK_BYTES = 1 << 16
+
+# Fish a welcome may announce (the bridge's own limit).
+MAX_FISH = 16
 
 
 class SettingsError(ValueError):
@@ -156,12 +165,13 @@ class Frames:
         self.sy = -1.0 if settings["flip_y"] else 1.0
 
     def pose(self, agent) -> dict | None:
-        """An agent's pose in fishprobe's frame, or None when it is not tracked (no or a
-        non-finite position or orientation)."""
+        """An agent's pose in fishprobe's frame, or None when it is not tracked (no position or
+        orientation, or not two finite numbers each: a string, a boolean, a number too large
+        for a float are not)."""
         try:
-            px, py = (float(v) for v in agent.position)
-            dx, dy = (float(v) for v in agent.orientation)
-        except (AttributeError, TypeError, ValueError):
+            px, py = two_numbers(agent.position)
+            dx, dy = two_numbers(agent.orientation)
+        except (AttributeError, TypeError, ValueError, OverflowError):
             return None
         if not all(math.isfinite(v) for v in (px, py, dx, dy)) or (dx == 0.0 and dy == 0.0):
             return None
@@ -170,6 +180,19 @@ class Frames:
 
     def to_robotracker(self, x: float, y: float) -> tuple[float, float]:
         return (x * self.sx + self.ox, y * self.sy + self.oy)
+
+
+def two_numbers(value) -> tuple[float, float]:
+    """`value` as two floats; raises unless it is a sequence of exactly two real numbers."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError("a string is not a position")
+    items = list(value)
+    if len(items) != 2:
+        raise ValueError(f"{len(items)} values, not 2")
+    for v in items:
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise TypeError(f"{v!r} is not a number")
+    return float(items[0]), float(items[1])
 
 
 def target_point(pose: dict, turn: float, step_cm: float) -> tuple[float, float]:
@@ -218,6 +241,12 @@ class Behavior(PythonBehavior):
         return []
 
     def activate(self, robot, world):
+        try:
+            self._activate(robot)
+        except Exception as e:  # never raise into RoboTracker: halt and say why
+            self.halt(f"activation failed: {type(e).__name__}: {e}")
+
+    def _activate(self, robot):
         self.uid = getattr(robot, "uid", None) if self.settings["robot_uid"] is None \
             else self.settings["robot_uid"]
         self.close()
@@ -230,6 +259,13 @@ class Behavior(PythonBehavior):
         LOG.info("fishprobe: activated for robot %s", self.uid)
 
     def deactivate(self):
+        try:
+            return self._deactivate()
+        except Exception as e:  # never raise into RoboTracker: halt and say why
+            self.halt(f"deactivation failed: {type(e).__name__}: {e}")
+            return []
+
+    def _deactivate(self):
         if self.sock is not None:
             try:
                 self.sock.setblocking(True)
@@ -241,6 +277,16 @@ class Behavior(PythonBehavior):
         return self.halt_actions()
 
     def next_speeds(self, robots, fish, timestep):
+        try:
+            return self._next_speeds(robots, fish)
+        except Exception as e:  # never raise into RoboTracker: halt and say why
+            self.halt(f"the behaviour failed: {type(e).__name__}: {e}")
+            try:
+                return self.halt_actions()
+            except Exception:
+                return []
+
+    def _next_speeds(self, robots, fish):
         robot = self.pick_robot(robots)
         if self.uid is None and robot is not None:
             self.uid = getattr(robot, "uid", None)
@@ -286,7 +332,14 @@ class Behavior(PythonBehavior):
             sock.close()
             self.halt(f"the bridge refused the trial: {welcome.get('reason', welcome)}")
             return
-        self.fish_count = int(welcome.get("fish_count", 1))
+        fish_count = welcome.get("fish_count", 1)
+        if isinstance(fish_count, bool) or not isinstance(fish_count, int) \
+                or not 1 <= fish_count <= MAX_FISH:
+            sock.close()
+            self.halt(f"the bridge's welcome says fish_count {fish_count!r}, not a whole "
+                      f"number in [1, {MAX_FISH}]")
+            return
+        self.fish_count = fish_count
         sock.setblocking(False)
         self.sock = sock
         self.state = "running"
@@ -340,16 +393,21 @@ class Behavior(PythonBehavior):
             raise ValueError(f"the bridge has not read {len(self.outbox)} bytes of frames")
 
     def read_commands(self) -> list:
-        while True:
-            try:
-                chunk = self.sock.recv(65536)
-            except (BlockingIOError, InterruptedError):
-                break
-            if not chunk:
-                if self.state == "running":
-                    raise ValueError("the bridge closed the connection")
-                break
+        # One read a tick: a bridge that streams without end cannot hold the tick.
+        try:
+            chunk = self.sock.recv(READ_PER_TICK_BYTES)
+        except (BlockingIOError, InterruptedError):
+            chunk = None
+        if chunk == b"":
+            raise ValueError("the bridge closed the connection")
+        if chunk and len(chunk) >= READ_PER_TICK_BYTES:
+            # Hundreds of times what a bridge sends: its commands would be stale by now.
+            raise ValueError(f"the bridge sent {len(chunk)} bytes or more within one tick")
+        if chunk:
             self.inbox += chunk
+        partial = len(self.inbox) - (self.inbox.rfind(b"\n") + 1)
+        if partial > MAX_LINE_BYTES:
+            raise ValueError(f"a line of more than {MAX_LINE_BYTES} bytes from the bridge")
         actions = []
         while b"\n" in self.inbox:
             line, _, self.inbox = self.inbox.partition(b"\n")
@@ -361,8 +419,6 @@ class Behavior(PythonBehavior):
             actions = self.handle(msg, actions)
             if self.state != "running":
                 return actions
-        if len(self.inbox) > MAX_LINE_BYTES:
-            raise ValueError("an over-long line from the bridge")
         return actions
 
     def handle(self, msg: dict, actions: list) -> list:
@@ -373,8 +429,11 @@ class Behavior(PythonBehavior):
                 LOG.warning("fishprobe: stop (%s)", msg.get("reason", "no reason given"))
                 return self.halt_actions()
             turn = msg.get("turn")
-            if self.robot_pose is None or not isinstance(turn, (int, float)) \
+            if isinstance(turn, bool) or not isinstance(turn, (int, float)) \
                     or not math.isfinite(turn):
+                self.halt(f"the bridge sent a command with turn {turn!r}, not a finite number")
+                return self.halt_actions()
+            if self.robot_pose is None:
                 return self.halt_actions()
             x, y = target_point(self.robot_pose, float(turn), float(self.settings["step_cm"]))
             tx, ty = self.frames.to_robotracker(x, y)

@@ -312,3 +312,115 @@ def test_settings_are_checked_and_a_wrong_file_keeps_the_robot_halted(rt, tmp_pa
     good.write_text(json.dumps({"port": 4600, "flip_y": True, "origin_cm": [50, 50]}))
     s = shim.load_settings(str(good))
     assert s["port"] == 4600 and s["step_cm"] == shim.SIMULATED_STEP_CM
+
+
+class FakeBridge:
+    """A bridge that misbehaves: it welcomes with `welcome` (a dict, or raw bytes), then sends
+    `then` (bytes), or, with `stream`, the same bytes without end while the behaviour reads."""
+
+    def __init__(self, welcome, then=b"", stream=False):
+        import socket
+        import threading
+
+        self.srv = socket.socket()
+        self.srv.bind(("127.0.0.1", 0))
+        self.srv.listen(1)
+        self.port = self.srv.getsockname()[1]
+        self.sent = 0
+        self.stop = False
+
+        def serve():
+            try:
+                conn, _ = self.srv.accept()
+            except OSError:
+                return
+            with conn:
+                f = conn.makefile("rb")
+                f.readline()  # the hello
+                w = welcome if isinstance(welcome, bytes) else (json.dumps(welcome) + "\n").encode()
+                conn.sendall(w)
+                try:
+                    if stream:
+                        while not self.stop:
+                            conn.sendall(then)
+                            self.sent += len(then)
+                    elif then:
+                        conn.sendall(then)
+                        self.sent += len(then)
+                    while not self.stop:
+                        time.sleep(0.02)
+                except OSError:
+                    pass
+
+        self.thread = threading.Thread(target=serve, daemon=True)
+        self.thread.start()
+
+    def close(self):
+        self.stop = True
+        self.srv.close()
+
+
+WELCOME = {"type": "welcome", "protocol": 1, "policy": "P", "habituation_s": 1, "release_s": 1,
+           "control_s": 10, "command_hz": 1}
+
+
+def run_against(shim, fake, seconds=0.6, robot=None, fish=None):
+    """Ticks a behaviour against `fake` for `seconds`: its actions per tick and the longest."""
+    b = behaviour(shim, fake.port)
+    robot = robot or Agent(4, (50.0, 50.0), (1.0, 0.0))
+    fish = [Agent(1, (40.0, 40.0), (1.0, 0.0))] if fish is None else fish
+    b.activate(robot, None)
+    try:
+        log, longest = ticks(b, seconds, robot, fish)
+    finally:
+        fake.close()
+    return b, log, longest
+
+
+@pytest.mark.parametrize("count", ["abc", None, 1e999, 0, 17, True, 2.5])
+def test_a_welcome_with_a_bad_fish_count_halts_with_the_reason(rt, count):
+    shim, _ = rt
+    b, log, _ = run_against(shim, FakeBridge(dict(WELCOME, fish_count=count)))
+    assert b.state == "halted", b.state
+    assert "fish_count" in b.reason, b.reason
+    assert all(kinds(x) in (["RobotActionFlush", "RobotActionHalt"], []) for x in log)
+
+
+@pytest.mark.parametrize("line, why", [
+    (b"[" * 20_000 + b"]" * 20_000 + b"\n", "RecursionError"),
+    (b"x" * 70_000, "bytes"),
+    (b'{"type": "command", "turn": true, "stop": false}\n', "turn True"),
+    (b'{"type": "command", "turn": "0.5", "stop": false}\n', "turn '0.5'"),
+    (b'{"type": "command", "turn": 1e999, "stop": false}\n', "turn inf"),
+    (b"[1, 2]\n", "not a JSON object"),
+])
+def test_a_bridge_sending_garbage_halts_the_behaviour_with_the_reason(rt, line, why):
+    shim, _ = rt
+    b, log, longest = run_against(shim, FakeBridge(WELCOME, line))
+    assert b.state == "halted", (b.state, b.reason)
+    assert why in b.reason, b.reason
+    assert not any("RobotActionToTarget" in kinds(x) for x in log)
+    assert longest < 0.1
+
+
+def test_a_bridge_that_streams_without_end_never_holds_a_tick(rt):
+    shim, _ = rt
+    command = b'{"type": "command", "turn": 0.1, "stop": false}\n' * 2000
+    b, log, longest = run_against(shim, FakeBridge(WELCOME, command, stream=True))
+    assert longest < 0.1, f"a tick took {longest:.3f} s"
+    assert b.state == "halted" and "within one tick" in b.reason, b.reason
+    assert len(b.inbox) == 0  # closed, nothing buffered
+
+
+def test_agents_that_are_not_poses_are_untracked_or_halt_with_the_reason(rt):
+    shim, _ = rt
+    frames = shim.Frames(dict(shim.DEFAULTS))
+    for position in ((10 ** 400, 1.0), "12", (True, 1.0), (1.0,), (1.0, 2.0, 3.0), None,
+                     (float("inf"), 0.0)):
+        assert frames.pose(Agent(1, position, (1.0, 0.0))) is None, position
+    assert frames.pose(Agent(1, (1, 2.0), (0.0, 1.0))) is not None
+    # A fish list that is not a list: the behaviour halts and says why, RoboTracker sees no
+    # exception.
+    b, log, _ = run_against(shim, FakeBridge(WELCOME), fish=5)
+    assert b.state == "halted" and "TypeError" in b.reason, b.reason
+    assert kinds(log[-1]) == []
