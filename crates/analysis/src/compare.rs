@@ -124,7 +124,12 @@ pub fn analyze(study: &StudyFiles, cfg: &AnalysisConfig, seed: u64) -> Results {
         if let Some(a) = arm {
             match study.rollouts.get(&(p.clone(), a.to_string())) {
                 Some(files) => {
-                    let r = valid(files, &loaded, &mut skipped);
+                    let r = crate::conditions::one_protocol(
+                        &format!("{p}__{a}"),
+                        valid(files, &loaded, &mut skipped),
+                        cfg.control_length_tolerance_s,
+                        &mut skipped,
+                    );
                     if r.is_empty() {
                         skipped.push(Skipped {
                             what: format!("{p}__{a}"),

@@ -72,6 +72,95 @@ pub(crate) fn driven_by_other(own: &str, theirs: &str) -> String {
     )
 }
 
+/// The trials of a reality arm that were recorded under one protocol, and the others named in
+/// `skipped`: a trial recorded at another frame rate, in another tank, without fishprobe's
+/// task record (a foreign recording) or with another `experiment_setup` than most of the
+/// arm's, or whose control phase differs from the arm's median by more than
+/// `tolerance_s`, is not one more trial of that protocol. The arm is its largest group
+/// (ties: the group with fishprobe's task record, then the one whose first file comes
+/// first); an arm of foreign recordings alone is one protocol and is kept whole.
+pub(crate) fn one_protocol<'a>(
+    what: &str,
+    trials: Vec<&'a TrialData>,
+    tolerance_s: f64,
+    skipped: &mut Vec<Skipped>,
+) -> Vec<&'a TrialData> {
+    use crate::trial::TrialProtocol;
+    fn same(a: &TrialProtocol, b: &TrialProtocol) -> bool {
+        a.frame_rate_hz == b.frame_rate_hz
+            && a.world_size_cm == b.world_size_cm
+            && a.has_task == b.has_task
+            && a.setup == b.setup
+    }
+    let mut groups: Vec<Vec<&'a TrialData>> = Vec::new();
+    for t in trials {
+        match groups
+            .iter_mut()
+            .find(|g| same(&g[0].protocol, &t.protocol))
+        {
+            Some(g) => g.push(t),
+            None => groups.push(vec![t]),
+        }
+    }
+    let Some(best) = (0..groups.len()).max_by(|&a, &b| {
+        let key = |g: &Vec<&TrialData>| (g.len(), g[0].protocol.has_task);
+        key(&groups[a])
+            .cmp(&key(&groups[b]))
+            .then_with(|| groups[b][0].path.cmp(&groups[a][0].path))
+    }) else {
+        return Vec::new();
+    };
+    let arm = groups.swap_remove(best);
+    let mut lengths: Vec<f64> = arm.iter().map(|t| t.protocol.control_s).collect();
+    lengths.sort_by(f64::total_cmp);
+    let median = lengths[lengths.len() / 2];
+    let norm = arm[0].protocol.clone();
+    let describe = |p: &TrialProtocol| {
+        format!(
+            "{} Hz, a {} x {} cm tank, {}, set-up {}, {:.1} min of control",
+            p.frame_rate_hz,
+            p.world_size_cm[0],
+            p.world_size_cm[1],
+            if p.has_task {
+                "fishprobe's task record"
+            } else {
+                "no fishprobe task record (a foreign recording)"
+            },
+            p.setup
+                .as_deref()
+                .map_or_else(|| "not given".to_string(), |s| format!("{s:?}")),
+            p.control_s / 60.0
+        )
+    };
+    let (kept, long_or_short): (Vec<&TrialData>, Vec<&TrialData>) = arm
+        .into_iter()
+        .partition(|t| (t.protocol.control_s - median).abs() <= tolerance_s);
+    let n = kept.len();
+    let arm_is = |p: &TrialProtocol| {
+        let mut norm = norm.clone();
+        norm.control_s = median;
+        format!(
+            "recorded with {}; the arm's {n} other trials with {}",
+            describe(p),
+            describe(&norm)
+        )
+    };
+    for t in long_or_short
+        .iter()
+        .copied()
+        .chain(groups.iter().flatten().copied())
+    {
+        skipped.push(Skipped {
+            what: t.path.display().to_string(),
+            reason: format!(
+                "left out of {what}, which must hold one protocol: {}",
+                arm_is(&t.protocol)
+            ),
+        });
+    }
+    kept
+}
+
 /// Groups: notes in `skipped` where the arms of a policy hold different numbers of fish (the
 /// group metrics are then not compared: a group of four is not a group of two; the pair
 /// metrics, per fish, still are) and where fish were untracked in group trials (those
@@ -152,6 +241,76 @@ mod tests {
         assert!(arms(vec![four], vec![pair])[0]
             .what
             .contains("group metrics"));
+    }
+
+    #[test]
+    fn a_mixed_reality_arm_keeps_its_protocol_and_names_the_rest() {
+        use crate::trial::TrialProtocol;
+        let ours = TrialProtocol {
+            frame_rate_hz: 25.0,
+            world_size_cm: [100.0, 100.0],
+            has_task: true,
+            setup: Some("fishprobe live bridge".into()),
+            control_s: 900.0,
+        };
+        let at = |path: &str, p: TrialProtocol| TrialData {
+            protocol: p,
+            ..TrialData::blank(path, 1)
+        };
+        let foreign = TrialProtocol {
+            frame_rate_hz: 20.0,
+            has_task: false,
+            setup: None,
+            control_s: 668.8,
+            ..ours.clone()
+        };
+        let trials = [
+            at("a.hdf5", ours.clone()),
+            at("b.hdf5", ours.clone()),
+            at(
+                "c.hdf5",
+                TrialProtocol {
+                    control_s: 899.0,
+                    ..ours.clone()
+                },
+            ),
+            at(
+                "short.hdf5",
+                TrialProtocol {
+                    control_s: 600.0,
+                    ..ours.clone()
+                },
+            ),
+            at("robot.hdf5", foreign.clone()),
+        ];
+        let mut skipped = Vec::new();
+        let kept = one_protocol("Zone__Real", trials.iter().collect(), 2.0, &mut skipped);
+        let names: Vec<_> = kept.iter().map(|t| t.path.display().to_string()).collect();
+        assert_eq!(names, ["a.hdf5", "b.hdf5", "c.hdf5"]);
+        assert_eq!(skipped.len(), 2, "{skipped:?}");
+        assert_eq!(skipped[0].what, "short.hdf5");
+        assert!(
+            skipped[0].reason.contains("10.0 min of control"),
+            "{skipped:?}"
+        );
+        assert_eq!(skipped[1].what, "robot.hdf5");
+        for needle in [
+            "20 Hz",
+            "a foreign recording",
+            "11.1 min",
+            "25 Hz",
+            "15.0 min",
+        ] {
+            assert!(skipped[1].reason.contains(needle), "{needle}: {skipped:?}");
+        }
+        // An arm of foreign recordings alone is one protocol.
+        let only = [at("r1.hdf5", foreign.clone()), at("r2.hdf5", foreign)];
+        let mut none = Vec::new();
+        assert_eq!(
+            one_protocol("Zone__Real", only.iter().collect(), 2.0, &mut none).len(),
+            2
+        );
+        assert!(none.is_empty());
     }
 
     #[test]

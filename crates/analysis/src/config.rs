@@ -52,6 +52,11 @@ fishprobe_sim::documented_params! {
         /// between-trial spread (the data README's threshold, as in `compare-offline`:
         /// 0.5 cm/s).
         pub pause_cm_s: f32 = 0.5; "cm/s",
+        /// A reality-arm trial whose control phase is longer or shorter than the arm's
+        /// (median) by more than this is left out and named: goals count over the whole
+        /// control phase, so a trial ended early is not one more trial of the protocol
+        /// (choice: 2 s, a command period of slack either way).
+        pub control_length_tolerance_s: f64 = 2.0; "s",
     }
 }
 
@@ -122,6 +127,15 @@ impl AnalysisConfig {
             ("robot_reach_cm", self.robot_reach_cm),
         ] {
             check::positive_at_most("analysis", f, v, check::MAX_LENGTH_CM)?;
+        }
+        let tol = self.control_length_tolerance_s;
+        if !(tol.is_finite() && (0.0..=f64::from(check::MAX_DURATION_S)).contains(&tol)) {
+            return Err(ConfigError::new(
+                "analysis",
+                "control_length_tolerance_s",
+                check::shown(tol),
+                &format!("must lie in [0, {}] s", check::MAX_DURATION_S),
+            ));
         }
         check::within(
             "analysis",

@@ -57,6 +57,24 @@ pub struct TrialData {
     /// In a group trial, fish-frames of control in which a fish was untracked (left out of
     /// that frame's metrics); 0 for a pair.
     pub untracked_fish_frames: usize,
+    /// What protocol the trial was recorded under, to tell a mixed reality arm.
+    pub protocol: TrialProtocol,
+}
+
+/// The recording conditions of a trial: what must agree across the trials of one arm.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct TrialProtocol {
+    /// Frames per second.
+    pub frame_rate_hz: f32,
+    /// The tank (cm).
+    pub world_size_cm: [f32; 2],
+    /// Whether the file records fishprobe's task (goals, policy); a foreign recording does
+    /// not, and its goals are recomputed.
+    pub has_task: bool,
+    /// The file's `experiment_setup` attribute, if any.
+    pub setup: Option<String>,
+    /// Seconds of control the trial holds.
+    pub control_s: f64,
 }
 
 #[cfg(test)]
@@ -75,6 +93,7 @@ impl TrialData {
             time_to_reach_s: None,
             fish,
             untracked_fish_frames: 0,
+            protocol: TrialProtocol::default(),
         }
     }
 }
@@ -230,6 +249,16 @@ pub fn load_trial(
         time_to_reach_s,
         fish: fish.len(),
         untracked_fish_frames,
+        protocol: TrialProtocol {
+            frame_rate_hz: t.frame_rate_hz,
+            world_size_cm: t.world_size_cm,
+            has_task: t.task.is_some(),
+            setup: match t.attributes.get("experiment_setup") {
+                Some(fishprobe_io::Attr::Text(s)) => Some(s.clone()),
+                _ => None,
+            },
+            control_s: (frames - control_start) as f64 / rate,
+        },
     })
 }
 

@@ -254,6 +254,39 @@ fn real_robot_fish_recordings_serve_as_the_reality_arm() {
     );
 }
 
+/// A foreign recording (20 Hz, 11 minutes, no task, another set-up) dropped among a policy's
+/// live trials is not counted as one more trial: it is left out and named, in results.json
+/// and the summary, with how it differs.
+#[test]
+fn a_foreign_recording_in_a_reality_arm_is_left_out_and_named() {
+    let Some(data) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return;
+    };
+    let s = small_study("mixed-real");
+    let real = s.join("rollouts/Follow__Real");
+    let before = fishprobe_io::trial_files(&real).len();
+    let foreign = std::fs::read_dir(data.join("robot-fish"))
+        .unwrap()
+        .map(|f| f.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "hdf5"))
+        .unwrap();
+    std::fs::copy(&foreign, real.join(foreign.file_name().unwrap())).unwrap();
+    let r = analyze(&s, &s.join("out"), "2");
+    assert_eq!(
+        r["goals"]["Follow"]["real"].as_array().unwrap().len(),
+        before,
+        "the foreign recording counted as a trial"
+    );
+    let skipped = r["skipped"].to_string();
+    assert!(
+        skipped.contains("Robotracker") && skipped.contains("20 Hz") && skipped.contains("foreign"),
+        "{skipped}"
+    );
+    let summary = std::fs::read_to_string(s.join("out/summary.md")).unwrap();
+    assert!(summary.contains("must hold one protocol"), "{summary}");
+}
+
 #[test]
 fn a_directory_without_a_study_is_an_error() {
     let d = dir("nostudy");
