@@ -7,8 +7,8 @@
 mod common;
 
 use common::tracker::{
-    config_json, connect, experiment, free_addr, observer, one_trial_bridge, record_trial,
-    recorded_poses, robot_program, runtime, wait_exit, FakeCore, FPS, PROTOCOL,
+    config_json, connect, experiment, final_trial, free_addr, observer, one_trial_bridge,
+    record_trial, recorded_poses, robot_program, runtime, wait_exit, FakeCore, FPS, PROTOCOL,
 };
 use common::{fishprobe, fresh_dir as dir, stderr};
 use fishprobe_live::biotracker::grpc::{self, Client};
@@ -116,17 +116,7 @@ fn a_recording_through_the_observer_makes_the_trial_replay_makes_and_the_core_go
 
     // The trial lies beside the recording's files, named after them.
     let file = out.join("GoalSeeker__Real/2026-12-07_fake.hdf5");
-    let start = Instant::now();
-    while !file.exists() {
-        assert!(
-            start.elapsed() < Duration::from_secs(10),
-            "no trial file; log:\n{}",
-            std::fs::read_to_string(&log).unwrap_or_default()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(Duration::from_millis(200));
-    let got = fishprobe_io::read_trial(&file).unwrap();
+    let got = final_trial(&file, &log, Duration::from_secs(10));
     let (g, w) = (got.task.as_ref().unwrap(), want.task.as_ref().unwrap());
     // The same commands at the same frames, the same goals: one engine behind both.
     assert_eq!(g.command_frames, w.command_frames);

@@ -9,7 +9,7 @@ mod common;
 
 use common::fresh_dir as dir;
 use common::tracker::{
-    config_json, connect, experiment, free_addr, observer, observer_with, runtime,
+    config_json, connect, experiment, final_trial, free_addr, observer, observer_with, runtime,
     timed_robot_program, wait_exit, FakeCore, FPS, PROTOCOL,
 };
 use fishprobe_live::biotracker::grpc;
@@ -120,12 +120,7 @@ fn a_skeleton_change_mid_trial_ends_the_trial_with_the_reason() {
         std::thread::sleep(Duration::from_millis(5));
     }
     let file = out.join("GoalSeeker__Real/2026-12-07_fake.hdf5");
-    let start = Instant::now();
-    while !file.exists() && start.elapsed() < Duration::from_secs(10) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(Duration::from_millis(200));
-    let t = fishprobe_io::read_trial(&file).unwrap();
+    let t = final_trial(&file, &log, Duration::from_secs(10));
     let record: serde_json::Value = serde_json::from_str(&t.task.unwrap().config_json).unwrap();
     let why = record["front_end"]["ended_because"]
         .as_str()
@@ -292,10 +287,13 @@ fn updates_are_answered_while_a_set_config_loads() {
     )
     .unwrap();
     let slow = config_json(&d.join("t"), &fifo, sink, core.addr);
-    let pending = {
-        let client = client.clone();
-        std::thread::spawn(move || call_config(&runtime(), &client, slow))
-    };
+    // The slow call has its own runtime and connection: a channel's timers and connection
+    // task run on the runtime that made it, which this thread stops driving at `join`.
+    let pending = std::thread::spawn(move || {
+        let rt = runtime();
+        let client = rt.block_on(connect(address));
+        call_config(&rt, &client, slow)
+    });
     std::thread::sleep(Duration::from_millis(300));
     let mut c = client.clone();
     let mut slowest = Duration::ZERO;
@@ -389,16 +387,7 @@ fn idle_connections_cannot_exhaust_descriptors_and_the_trial_is_written() {
     assert!(fds < 100, "the observer holds {fds} descriptors");
     send(experiment(RecordingState::Finished, 125, r, f)).unwrap();
     let file = out.join("GoalSeeker__Real/2026-12-07_fake.hdf5");
-    let start = Instant::now();
-    while !file.exists() && start.elapsed() < Duration::from_secs(10) {
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let t = fishprobe_io::read_trial(&file).unwrap_or_else(|e| {
-        panic!(
-            "{e}; log:\n{}",
-            std::fs::read_to_string(&log).unwrap_or_default()
-        )
-    });
+    let t = final_trial(&file, &log, Duration::from_secs(10));
     assert_eq!(t.entities[0].positions.len(), 125);
     drop(idle);
     let _ = child.kill();

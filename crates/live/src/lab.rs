@@ -8,7 +8,8 @@
 //! deterministic for a seed and as fast as the bridge answers.
 
 use crate::error::LiveError;
-use crate::protocol::{to_line, ClientMsg, FishPose, Pose, ServerMsg, PROTOCOL_VERSION};
+use crate::protocol::{to_line, ClientMsg, ServerMsg, PROTOCOL_VERSION};
+use crate::track::{Command, FishPose, Pose};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{
@@ -333,9 +334,9 @@ impl<'a> VirtualTank<'a> {
     /// `out`. Whether the trial is done.
     fn apply(&mut self, m: ServerMsg, out: &mut LabTrial) -> bool {
         match m {
-            ServerMsg::Command {
+            ServerMsg::Command(Command {
                 seq, turn, stop, ..
-            } => {
+            }) => {
                 if stop {
                     if !self.stopped {
                         out.stops += 1;

@@ -43,6 +43,7 @@
 pub mod biotracker;
 pub mod error;
 pub mod fish_ids;
+pub mod host;
 pub mod keep;
 pub mod lab;
 mod lines;
@@ -51,6 +52,7 @@ pub mod server;
 pub mod session;
 pub mod shutdown;
 pub mod sink;
+pub mod track;
 
 pub use error::LiveError;
 pub use lines::{read_line_at_most, MAX_BRIDGE_LINE_BYTES};

@@ -7,37 +7,7 @@ use serde::{Deserialize, Serialize};
 /// Protocol version spoken by this build.
 pub const PROTOCOL_VERSION: u32 = 1;
 
-/// A pose as the tracker reports it (cm, rad); absent or `null` when lost.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Pose {
-    /// x (cm, tank centre origin, x right).
-    pub x: f32,
-    /// y (cm, y up).
-    pub y: f32,
-    /// Heading (rad, counter-clockwise from +x).
-    pub heading: f32,
-}
-
-impl Pose {
-    /// All three values finite and inside a 100 x 100 cm tank (with 5 cm of slack).
-    pub fn is_valid(&self) -> bool {
-        self.x.is_finite()
-            && self.y.is_finite()
-            && self.heading.is_finite()
-            && self.x.abs() <= 55.0
-            && self.y.abs() <= 55.0
-    }
-}
-
-/// A tracked fish.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FishPose {
-    /// The tracker's id of the fish.
-    pub id: String,
-    /// Its pose, or `null` when lost.
-    #[serde(flatten)]
-    pub pose: Option<Pose>,
-}
+pub use crate::track::{Command, FishPose, Phase, Pose};
 
 /// Messages from the lab side.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -76,18 +46,6 @@ pub enum ClientMsg {
     End,
 }
 
-/// Trial phases.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Phase {
-    /// Robot mills in the centre; the fish is released after `release_s`.
-    Habituation,
-    /// The policy leads.
-    Control,
-    /// The trial is over.
-    Done,
-}
-
 /// Messages from the bridge.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
@@ -116,29 +74,8 @@ pub enum ServerMsg {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         policy_sha256: Option<String>,
     },
-    /// A robot command. Scheduled ones (`seq` = the second of the trial) come once per
-    /// 1 / command_hz of tracking time; unscheduled ones (`seq` null) stop the robot at once.
-    Command {
-        /// Tracking time of the frame that triggered it.
-        t: f64,
-        /// Schedule index, or null for an immediate stop.
-        seq: Option<u64>,
-        /// Relative turn (rad) to execute within the next second.
-        turn: f32,
-        /// Stop the robot (tracking lost or input malformed) and hold still.
-        stop: bool,
-        /// Why it stops.
-        #[serde(skip_serializing_if = "Option::is_none")]
-        reason: Option<String>,
-        /// Current phase.
-        phase: Phase,
-        /// Whether the fish has been released.
-        released: bool,
-        /// The active goal during control.
-        active_goal: Option<[f32; 2]>,
-        /// Goals reached so far.
-        goals_reached: u32,
-    },
+    /// A robot command (see [`Command`]).
+    Command(Command),
     /// The trial is over; where it was written.
     Done {
         /// The trial file.
@@ -158,21 +95,9 @@ pub enum ServerMsg {
     },
 }
 
-impl ServerMsg {
-    /// A stop outside a trial's schedule (before a trial, at its end, on a refusal): the robot
-    /// holds still, and `reason` says why.
-    pub fn stop_outside_trial(t: f64, reason: &str, goals_reached: u32) -> Self {
-        ServerMsg::Command {
-            t,
-            seq: None,
-            turn: 0.0,
-            stop: true,
-            reason: Some(reason.to_string()),
-            phase: Phase::Done,
-            released: false,
-            active_goal: None,
-            goals_reached,
-        }
+impl From<Command> for ServerMsg {
+    fn from(c: Command) -> Self {
+        ServerMsg::Command(c)
     }
 }
 
@@ -244,7 +169,7 @@ mod tests {
 
     #[test]
     fn commands_round_trip() {
-        let c = ServerMsg::Command {
+        let c = ServerMsg::Command(Command {
             t: 3.0,
             seq: Some(3),
             turn: 0.5,
@@ -254,7 +179,7 @@ mod tests {
             released: true,
             active_goal: Some([-20.0, -20.0]),
             goals_reached: 2,
-        };
+        });
         let line = to_line(&c);
         assert!(line.ends_with('\n') && line.contains("\"type\":\"command\""));
         let back: ServerMsg = serde_json::from_str(&line).expect("parses");

@@ -13,17 +13,21 @@
 //! that cannot be written is kept (see [`crate::keep`]).
 
 use crate::error::LiveError;
-use crate::keep::{Keeper, Kept};
+use crate::host::{
+    Ended, HostConfig, Reactions, SourceEvent, Started, TrackerSource, TrialHost, TrialOutcome,
+    TrialStart,
+};
 use crate::lines::{Line, LineReader};
 use crate::protocol::{parse_client, to_line, ClientMsg, ServerMsg, PROTOCOL_VERSION};
-use crate::session::{LiveConfig, Session};
-use fishprobe_io::{Arm, StudyLayout};
+use crate::session::LiveConfig;
+use crate::track::{Command, Frame};
+use fishprobe_io::TrialKind;
 use fishprobe_sim::params::ConfigError;
 use fishprobe_sim::{Controller, TaskParams};
 use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Mutex};
 use std::time::{Duration, Instant};
@@ -102,21 +106,6 @@ impl ServeOptions {
     }
 }
 
-/// What one connection produced.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TrialOutcome {
-    /// The trial file (None when it is held in memory because nothing could be written).
-    pub file: Option<PathBuf>,
-    /// Goals reached.
-    pub goals_reached: u32,
-    /// Whether the trial ran to its end (else the client left early).
-    pub complete: bool,
-    /// Frames recorded.
-    pub frames: usize,
-    /// What went wrong writing the trial (it went to the fallback, or stays in memory).
-    pub warning: Option<String>,
-}
-
 fn send(stream: &mut TcpStream, m: &ServerMsg) -> std::io::Result<()> {
     stream.write_all(to_line(m).as_bytes())
 }
@@ -125,19 +114,6 @@ fn refuse(mut stream: TcpStream, reason: String) {
     let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
     let _ = send(&mut stream, &ServerMsg::Error { reason });
     let _ = stream.shutdown(std::net::Shutdown::Both);
-}
-
-impl TrialOutcome {
-    /// What a finished session produced, kept as `kept`.
-    pub(crate) fn of(kept: &Kept, session: &Session) -> Self {
-        Self {
-            file: kept.written().map(Path::to_path_buf),
-            goals_reached: session.goals_reached(),
-            complete: session.is_done(),
-            frames: session.frames(),
-            warning: kept.warning(),
-        }
-    }
 }
 
 /// Whether an address is on this machine only.
@@ -184,7 +160,19 @@ pub fn serve(
     mut on_trial: impl FnMut(&TrialOutcome),
 ) -> Result<Vec<TrialOutcome>, LiveError> {
     opts.validate()?;
-    check_provenance(&opts.out, pilot()?.as_ref())?;
+    let mut host = TrialHost::new(
+        HostConfig {
+            live: opts.live.clone(),
+            task: opts.task.clone(),
+            out: opts.out.clone(),
+            fish_label: opts.fish_label.clone(),
+            fallback_dir: opts.guard.fallback_dir.clone(),
+        },
+        pilot,
+    )?;
+    // A pilot that cannot be made, or an output directory holding another policy's trials
+    // under its name, is refused before the bridge listens.
+    host.check_pilot()?;
     listener
         .set_nonblocking(true)
         .map_err(|e| LiveError::Net(format!("listener: {e}")))?;
@@ -195,13 +183,11 @@ pub fn serve(
         waiting: Mutex::new(Waiting::default()),
         accept_error: Mutex::new(None),
     };
-    let mut keeper = Keeper::new(opts.guard.fallback_dir.clone());
     let (tx, rx) = mpsc::channel::<Admitted>();
     let result = std::thread::scope(|scope| {
         let sh = &shared;
         scope.spawn(move || accept_loop(listener, sh, tx, scope));
         let mut outcomes = Vec::new();
-        let mut n = 0usize;
         let r = loop {
             if opts.max_trials.is_some_and(|m| outcomes.len() >= m) {
                 break Ok(outcomes);
@@ -220,15 +206,10 @@ pub fn serve(
                     )));
                 }
             };
-            let p = match pilot() {
-                Ok(p) => p,
-                Err(e) => {
-                    refuse(adm.stream, format!("the bridge cannot make its pilot: {e}"));
-                    break Err(e);
-                }
-            };
-            let o = run_trial(adm, opts, p, &mut n, &mut keeper, &sh.busy);
+            let mut conn = Connection::new(adm, &opts.live, &sh.busy);
+            crate::host::drive(&mut host, &mut conn);
             sh.busy.store(false, Ordering::SeqCst);
+            let o = conn.outcome();
             on_trial(&o);
             outcomes.push(o);
         };
@@ -240,11 +221,10 @@ pub fn serve(
         r
     });
     let _ = listener.set_nonblocking(false);
-    keeper.retry();
-    let unsaved = keeper.unsaved();
+    let unsaved = host.unsaved();
     if !unsaved.is_empty() {
         return Err(LiveError::Write {
-            path: unsaved[0].to_path_buf(),
+            path: unsaved[0].clone(),
             what: format!(
                 "{} trial(s) could not be written anywhere and are lost when the bridge exits",
                 unsaved.len()
@@ -429,207 +409,200 @@ fn check_hello(
     }
 }
 
-/// Refuses to add the pilot's trials to directories that hold another policy's under its
-/// name (trials that record no fingerprint, from scripted pilots or older files, pass).
-pub(crate) fn check_provenance(out: &Path, pilot: &dyn Controller) -> Result<(), LiveError> {
-    let Some(sha) = pilot.fingerprint() else {
-        return Ok(());
-    };
-    let name = StudyLayout::safe_name(&pilot.name());
-    for arm in [Arm::Real, Arm::VirtualLab] {
-        let dir = out.join(StudyLayout::arm_dir_name(&name, &arm));
-        let p = fishprobe_io::Provenance::of_dir(&dir, &sha);
-        if let Some(why) = p.describe_other(&dir, &sha) {
-            return Err(LiveError::Mixed(why));
-        }
-        // The bridge writes whole files only: one it cannot read was put there by hand.
-        if let Some((f, e)) = p.unreadable.first() {
-            return Err(LiveError::Mixed(format!(
-                "{} cannot be read ({e}), so which policy drove it cannot be told",
-                f.display()
-            )));
-        }
-    }
-    Ok(())
+/// One admitted connection as a tracker source: its hello begins a trial, its lines are
+/// frames (or malformed input, or silence), its `end` or its leaving ends the trial; the
+/// trial's commands, lockstep acks, warnings and `done` go back to it.
+struct Connection<'a> {
+    stream: TcpStream,
+    reader: LineReader,
+    /// The trial to begin (taken at the first event).
+    start: Option<TrialStart>,
+    sync: bool,
+    /// The silence stop applies (everything but the virtual lab in lockstep).
+    watch_silence: bool,
+    /// When the last complete, valid frame (or the welcome) came.
+    last_frame: Instant,
+    /// Frames the session had taken before the current one.
+    max_message_bytes: usize,
+    /// The client still reads.
+    alive: bool,
+    busy: &'a AtomicBool,
+    cfg: &'a LiveConfig,
+    outcome: Option<TrialOutcome>,
+    /// The connection is finished with (refused, or the trial kept).
+    over: bool,
 }
 
-/// Runs one admitted trial to its end and keeps its file.
-fn run_trial(
-    adm: Admitted,
-    opts: &ServeOptions,
-    pilot: Box<dyn Controller>,
-    n: &mut usize,
-    keeper: &mut Keeper,
-    busy: &AtomicBool,
-) -> TrialOutcome {
-    let Admitted {
-        mut stream,
-        mut reader,
-        source,
-        sync,
-    } = adm;
-    let cfg = &opts.live;
-    let mut session = match Session::new(cfg.clone(), opts.task.clone(), pilot, &source) {
-        Ok(s) => s,
-        Err(e) => {
-            refuse(stream, e.to_string());
-            return TrialOutcome {
-                file: None,
-                goals_reached: 0,
-                complete: false,
-                frames: 0,
-                warning: Some(e.to_string()),
-            };
-        }
-    };
-    let poll = Duration::from_secs_f64((cfg.stale_s / 5.0).clamp(0.01, 0.2));
-    let _ = reader.get_ref().set_read_timeout(Some(poll));
-    let _ = stream.set_write_timeout(Some(Duration::from_secs(2)));
-    let arm = if source == "virtual_lab" {
-        Arm::VirtualLab
-    } else {
-        Arm::Real
-    };
-    let dir = opts.out.join(StudyLayout::arm_dir_name(
-        &StudyLayout::safe_name(&session.policy()),
-        &arm,
-    ));
-    let file = next_free(&dir, n);
-    // The descriptors the trial's file needs are held from now on, so connections arriving
-    // during the trial cannot take them.
-    if !keeper.reserve() {
-        session.note(
-            "file_descriptors",
-            "none spare when the trial started; the file may fall back".into(),
-        );
-    }
-    let label = if session.kind() == fishprobe_io::TrialKind::Virtual {
-        "virtual guppy"
-    } else {
-        opts.fish_label.as_str()
-    };
-    let welcome = ServerMsg::Welcome {
-        protocol: PROTOCOL_VERSION,
-        policy: session.policy(),
-        habituation_s: cfg.habituation_s,
-        release_s: cfg.release_s,
-        control_s: cfg.control_s,
-        command_hz: cfg.command_hz,
-        fish_count: cfg.fish_count,
-        policy_sha256: session.fingerprint(),
-    };
-    let mut alive = send(&mut stream, &welcome).is_ok();
-    // The silence stop counts from the last complete, valid frame (or the welcome).
-    let mut last_frame = Instant::now();
-    // Without a live robot (the virtual lab in lockstep) a slow client is no danger.
-    let watch_silence = !(sync && source == "virtual_lab");
-    while !session.is_done() {
-        if let Some(why) = crate::shutdown::requested() {
-            let stop = session.end_early(&why);
-            if alive && send(&mut stream, &stop).is_err() {
-                alive = false;
-            }
-            break;
-        }
-        let Some(replies) = replies_to(
-            reader.next(),
-            &mut session,
+impl<'a> Connection<'a> {
+    fn new(adm: Admitted, cfg: &'a LiveConfig, busy: &'a AtomicBool) -> Self {
+        let Admitted {
+            mut stream,
+            reader,
+            source,
+            sync,
+        } = adm;
+        let poll = Duration::from_secs_f64((cfg.stale_s / 5.0).clamp(0.01, 0.2));
+        let _ = reader.get_ref().set_read_timeout(Some(poll));
+        let _ = stream.set_write_timeout(Some(Duration::from_secs(2)));
+        let kind = if source == "virtual_lab" {
+            TrialKind::Virtual
+        } else {
+            TrialKind::Real
+        };
+        // Without a live robot (the virtual lab in lockstep) a slow client is no danger.
+        let watch_silence = !(sync && kind == TrialKind::Virtual);
+        let _ = &mut stream;
+        Self {
+            stream,
+            reader,
+            start: Some(TrialStart {
+                kind,
+                stem: None,
+                origin: None,
+                notes: Vec::new(),
+                checkpoints: watch_silence,
+            }),
             sync,
             watch_silence,
-            &mut last_frame,
-            cfg.max_message_bytes,
-        ) else {
-            break;
+            last_frame: Instant::now(),
+            max_message_bytes: cfg.max_message_bytes,
+            alive: true,
+            busy,
+            cfg,
+            outcome: None,
+            over: false,
+        }
+    }
+
+    fn send(&mut self, m: &ServerMsg) {
+        if self.alive && send(&mut self.stream, m).is_err() {
+            // A client that stopped listening may still have frames on the way: keep reading
+            // them (into the trial file), only stop answering.
+            self.alive = false;
+        }
+    }
+
+    fn silence(&self) -> Option<SourceEvent> {
+        self.watch_silence
+            .then(|| SourceEvent::Silence(self.last_frame.elapsed().as_secs_f64()))
+    }
+
+    /// What the connection produced.
+    fn outcome(self) -> TrialOutcome {
+        self.outcome.unwrap_or(TrialOutcome {
+            file: None,
+            goals_reached: 0,
+            complete: false,
+            frames: 0,
+            warning: Some("the trial did not begin".into()),
+        })
+    }
+}
+
+impl Reactions for Connection<'_> {
+    fn command(&mut self, c: Command) {
+        self.send(&ServerMsg::Command(c));
+    }
+
+    fn started(&mut self, s: &Started) {
+        let cfg = self.cfg;
+        let welcome = ServerMsg::Welcome {
+            protocol: PROTOCOL_VERSION,
+            policy: s.policy.clone(),
+            habituation_s: cfg.habituation_s,
+            release_s: cfg.release_s,
+            control_s: cfg.control_s,
+            command_hz: cfg.command_hz,
+            fish_count: cfg.fish_count,
+            policy_sha256: s.fingerprint.clone(),
         };
-        // A client that stopped listening may still have frames on the way: keep reading
-        // them (into the trial file), only stop answering.
-        if alive {
-            for r in &replies {
-                if send(&mut stream, r).is_err() {
-                    alive = false;
-                    break;
-                }
-            }
+        self.send(&welcome);
+        // The silence stop counts from the last complete, valid frame (or the welcome).
+        self.last_frame = Instant::now();
+    }
+
+    fn refused(&mut self, why: &str) {
+        self.send(&ServerMsg::Error {
+            reason: why.to_string(),
+        });
+        let _ = self.stream.shutdown(std::net::Shutdown::Both);
+        self.outcome = Some(TrialOutcome {
+            file: None,
+            goals_reached: 0,
+            complete: false,
+            frames: 0,
+            warning: Some(why.to_string()),
+        });
+        self.over = true;
+    }
+
+    fn after_frame(&mut self, t: f64, accepted: bool, done: bool) {
+        if accepted {
+            self.last_frame = Instant::now();
         }
-        // A live trial is checkpointed; the virtual lab in lockstep is reproducible, so a
-        // lost one is run again instead.
-        if watch_silence && session.checkpoint_due() {
-            let _ = keeper.checkpoint(&file, session.checkpoint_file(label));
+        if self.sync && !done {
+            self.send(&ServerMsg::Ack { t });
         }
     }
-    let kept = keeper.keep(&file, session.trial_file(label));
-    // Trials held in memory since an earlier failure get another chance.
-    keeper.retry();
-    // The slot is free before `done` goes out, so a client that reconnects on `done` (the
-    // virtual lab's next trial) is never told "busy".
-    busy.store(false, Ordering::SeqCst);
-    let warning = kept.warning();
-    if alive {
-        if let Some(w) = &warning {
-            let _ = send(&mut stream, &ServerMsg::Error { reason: w.clone() });
+
+    fn ended(&mut self, e: &Ended) {
+        // The slot is free before `done` goes out, so a client that reconnects on `done` (the
+        // virtual lab's next trial) is never told "busy".
+        self.busy.store(false, Ordering::SeqCst);
+        if e.reason.is_some() {
+            // Ended before its time (fishprobe asked to stop): the robot holds still.
+            let stop = ServerMsg::Command(e.stop.clone());
+            self.send(&stop);
         }
-        let _ = send(
-            &mut stream,
-            &ServerMsg::Done {
-                file: kept
-                    .written()
-                    .map_or_else(String::new, |f| f.display().to_string()),
-                goals_reached: session.goals_reached(),
-            },
-        );
+        if let Some(w) = &e.outcome.warning {
+            self.send(&ServerMsg::Error { reason: w.clone() });
+        }
+        let done = ServerMsg::Done {
+            file: e
+                .outcome
+                .file
+                .as_ref()
+                .map_or_else(String::new, |f| f.display().to_string()),
+            goals_reached: e.outcome.goals_reached,
+        };
+        self.send(&done);
+        drain(&mut self.stream);
+        self.outcome = Some(e.outcome.clone());
+        self.over = true;
     }
-    drain(&mut stream);
-    TrialOutcome::of(&kept, &session)
 }
 
-/// The bridge's answers to one read from the client: the session's replies (in lockstep with
-/// the frame's ack); `None` when the client ended the trial or the connection closed.
-/// `last_frame` moves when the session accepted a frame.
-fn replies_to(
-    read: std::io::Result<Line>,
-    session: &mut Session,
-    sync: bool,
-    watch_silence: bool,
-    last_frame: &mut Instant,
-    max_message_bytes: usize,
-) -> Option<Vec<ServerMsg>> {
-    Some(match read {
-        Ok(Line::Text(l)) if l.trim().is_empty() => silence(session, watch_silence, *last_frame),
-        Ok(Line::Text(l)) => match parse_client(&l) {
-            Ok(ClientMsg::End) => return None,
-            Ok(m) => {
-                let t = match &m {
-                    ClientMsg::Frame { t, .. } => Some(*t),
-                    _ => None,
-                };
-                let accepted = session.frames_accepted();
-                let mut r = session.on_message(m);
-                if session.frames_accepted() > accepted {
-                    *last_frame = Instant::now();
-                }
-                if let (true, Some(t)) = (sync, t) {
-                    if !session.is_done() {
-                        r.push(ServerMsg::Ack { t });
+impl TrackerSource for Connection<'_> {
+    fn next_event(&mut self) -> Option<SourceEvent> {
+        if let Some(start) = self.start.take() {
+            return Some(SourceEvent::Begin(start));
+        }
+        loop {
+            if self.over {
+                return None;
+            }
+            let ev = match self.reader.next() {
+                Ok(Line::Text(l)) if l.trim().is_empty() => self.silence(),
+                Ok(Line::Text(l)) => Some(match parse_client(&l) {
+                    Ok(ClientMsg::End) => return None,
+                    Ok(ClientMsg::Frame { t, robot, fish }) => {
+                        SourceEvent::Frame(Frame { t, robot, fish })
                     }
-                }
-                r
+                    Ok(ClientMsg::Hello { .. }) => SourceEvent::Malformed("a second hello".into()),
+                    Err(e) => SourceEvent::Malformed(e.to_string()),
+                }),
+                Ok(Line::TooLong(len)) => Some(SourceEvent::Malformed(format!(
+                    "message of more than {} bytes ({len} read) dropped",
+                    self.max_message_bytes
+                ))),
+                Ok(Line::Binary) => Some(SourceEvent::Malformed("not UTF-8".into())),
+                Ok(Line::Partial | Line::Timeout) => self.silence(),
+                Ok(Line::Closed) | Err(_) => return None,
+            };
+            if let Some(ev) = ev {
+                return Some(ev);
             }
-            Err(e) => session.on_malformed(&e.to_string()),
-        },
-        Ok(Line::TooLong(len)) => session.on_malformed(&format!(
-            "message of more than {max_message_bytes} bytes ({len} read) dropped"
-        )),
-        Ok(Line::Binary) => session.on_malformed("not UTF-8"),
-        Ok(Line::Partial | Line::Timeout) => silence(session, watch_silence, *last_frame),
-        Ok(Line::Closed) | Err(_) => return None,
-    })
-}
-
-fn silence(session: &mut Session, watch: bool, last_frame: Instant) -> Vec<ServerMsg> {
-    if watch {
-        session.on_silence(last_frame.elapsed().as_secs_f64())
-    } else {
-        Vec::new()
+        }
     }
 }
 
@@ -638,16 +611,6 @@ fn drain(stream: &mut TcpStream) {
     let _ = stream.set_read_timeout(Some(Duration::from_millis(50)));
     let mut sink = [0u8; 1024];
     let _ = stream.read(&mut sink);
-}
-
-pub(crate) fn next_free(dir: &Path, n: &mut usize) -> PathBuf {
-    loop {
-        let p = dir.join(format!("trial_{:03}.hdf5", *n));
-        *n += 1;
-        if !p.exists() {
-            return p;
-        }
-    }
 }
 
 #[cfg(test)]

@@ -2,7 +2,7 @@
 //! and at the end the trial file. Decisions use the tracking time stamps only, so the same
 //! session runs at real time with the lab and faster than real time with the virtual lab.
 
-use crate::protocol::{ClientMsg, FishPose, Phase, Pose, ServerMsg};
+use crate::track::{Command, Frame, Phase, Pose};
 use fishprobe_io::{Attr, Category, Entity, TaskRecord, TrialFile, TrialKind};
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{
@@ -219,12 +219,12 @@ impl std::fmt::Debug for Session {
 const LOST: [f32; 3] = [f32::NAN; 3];
 
 impl Session {
-    /// A session for a peer that said it is `source` ("lab" or "virtual_lab").
+    /// A session of a trial of `kind` (real, or the virtual lab's).
     pub fn new(
         cfg: LiveConfig,
         task: TaskParams,
         pilot: Box<dyn Controller>,
-        source: &str,
+        kind: TrialKind,
     ) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let tank = Tank::new(&TankParams::default());
@@ -238,11 +238,7 @@ impl Session {
         let goals = GoalTracker::start(TaskMode::Evaluation, &task, &tank, &[], &mut rng);
         let n_fish = cfg.fish_count as usize;
         Ok(Self {
-            kind: if source == "virtual_lab" {
-                TrialKind::Virtual
-            } else {
-                TrialKind::Real
-            },
+            kind,
             cfg,
             task,
             pilot,
@@ -358,9 +354,9 @@ impl Session {
             .max(0.0) as u64
     }
 
-    fn command(&self, t: f64, seq: Option<u64>, turn: f32, phase: Phase) -> ServerMsg {
+    fn command(&self, t: f64, seq: Option<u64>, turn: f32, phase: Phase) -> Command {
         let rel = self.rel(t);
-        ServerMsg::Command {
+        Command {
             t,
             seq,
             turn,
@@ -384,7 +380,7 @@ impl Session {
         true
     }
 
-    fn stop(&mut self, t: f64, reason: String, out: &mut Vec<ServerMsg>) {
+    fn stop(&mut self, t: f64, reason: String, out: &mut Vec<Command>) {
         if self.mark_stopped(t, reason) {
             let phase = self.phase_at(self.rel(t));
             out.push(self.command(t, None, 0.0, phase));
@@ -392,7 +388,7 @@ impl Session {
     }
 
     /// A line that could not be used: stop the robot and say why.
-    pub fn on_malformed(&mut self, reason: &str) -> Vec<ServerMsg> {
+    pub fn on_malformed(&mut self, reason: &str) -> Vec<Command> {
         self.malformed += 1;
         let mut out = Vec::new();
         let t = if self.last_t.is_finite() {
@@ -405,24 +401,26 @@ impl Session {
         out
     }
 
-    /// The trial ends before its time (fishprobe was asked to stop, say): the robot is
-    /// stopped with `reason`, which the trial file records as why it ended; returns the stop
-    /// command for the robot side.
-    pub fn end_early(&mut self, reason: &str) -> ServerMsg {
-        let t = if self.last_t.is_finite() {
+    /// The time stamp of the last frame taken (0 before the first).
+    pub fn last_time(&self) -> f64 {
+        if self.last_t.is_finite() {
             self.last_t
         } else {
             0.0
-        };
-        if self.t0.is_some() {
-            self.mark_stopped(t, reason.to_string());
         }
+    }
+
+    /// The trial ends before its time (fishprobe was asked to stop, say): the robot is
+    /// stopped with `reason`, which the trial file records as why it ended; returns the stop
+    /// command for the robot side.
+    pub fn end_early(&mut self, reason: &str) -> Command {
+        let t = self.last_time();
         self.note("ended_because", reason.into());
-        ServerMsg::stop_outside_trial(t, reason, self.goals_reached)
+        Command::stop_outside_trial(t, reason, self.goals_reached)
     }
 
     /// No frame for `silence_s` of wall-clock time (the lab's tracker hangs): stop.
-    pub fn on_silence(&mut self, silence_s: f64) -> Vec<ServerMsg> {
+    pub fn on_silence(&mut self, silence_s: f64) -> Vec<Command> {
         let mut out = Vec::new();
         if silence_s >= self.cfg.stale_s && self.t0.is_some() {
             let t = self.last_t;
@@ -435,16 +433,9 @@ impl Session {
         out
     }
 
-    /// A message from the lab side; returns what to send back.
-    pub fn on_message(&mut self, m: ClientMsg) -> Vec<ServerMsg> {
-        match m {
-            ClientMsg::Frame { t, robot, fish } => self.on_frame(t, robot, &fish),
-            ClientMsg::Hello { .. } => self.on_malformed("a second hello"),
-            ClientMsg::End => Vec::new(),
-        }
-    }
-
-    fn on_frame(&mut self, t: f64, robot: Option<Pose>, fish: &[FishPose]) -> Vec<ServerMsg> {
+    /// One tracked frame; returns the commands for the robot.
+    pub fn on_frame(&mut self, frame: &Frame) -> Vec<Command> {
+        let (t, robot, fish) = (frame.t, frame.robot, frame.fish.as_slice());
         let mut out = Vec::new();
         if !t.is_finite() || t <= self.last_t {
             return self.on_malformed(&format!("time stamp {t} not after {}", self.last_t));
@@ -732,6 +723,7 @@ impl Session {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::track::FishPose;
 
     #[derive(Clone)]
     struct Straight;
@@ -745,8 +737,8 @@ mod tests {
         }
     }
 
-    fn frame(t: f64, robot: Option<(f32, f32)>, fish: Option<(f32, f32)>) -> ClientMsg {
-        ClientMsg::Frame {
+    fn frame(t: f64, robot: Option<(f32, f32)>, fish: Option<(f32, f32)>) -> Frame {
+        Frame {
             t,
             robot: robot.map(|(x, y)| Pose { x, y, heading: 0.0 }),
             fish: vec![FishPose {
@@ -771,7 +763,7 @@ mod tests {
             short(),
             TaskParams::default(),
             Box::new(Straight),
-            "virtual_lab",
+            TrialKind::Virtual,
         )
         .unwrap();
         let mut scheduled = 0;
@@ -783,8 +775,8 @@ mod tests {
             } else {
                 (30.0, 30.0)
             };
-            for m in s.on_message(frame(t, Some((0.0, 0.0)), Some(fish))) {
-                if let ServerMsg::Command {
+            for m in s.on_frame(&frame(t, Some((0.0, 0.0)), Some(fish))) {
+                if let Command {
                     seq: Some(q),
                     phase,
                     turn,
@@ -817,12 +809,17 @@ mod tests {
 
     #[test]
     fn a_set_origin_makes_the_first_frame_delivered_the_frame_of_its_time() {
-        let mut s =
-            Session::new(short(), TaskParams::default(), Box::new(Straight), "lab").unwrap();
+        let mut s = Session::new(
+            short(),
+            TaskParams::default(),
+            Box::new(Straight),
+            TrialKind::Real,
+        )
+        .unwrap();
         s.set_origin(0.0);
         // The recording's frames 2, 3, 4 (0 and 1 never delivered).
         for k in 2..5 {
-            let _ = s.on_message(frame(
+            let _ = s.on_frame(&frame(
                 f64::from(k) * 0.04,
                 Some((1.0, k as f32)),
                 Some((10.0, 0.0)),
@@ -830,7 +827,7 @@ mod tests {
         }
         // Too late once a frame was accepted: the time zero stays.
         s.set_origin(7.0);
-        let _ = s.on_message(frame(0.2, Some((1.0, 5.0)), Some((10.0, 0.0))));
+        let _ = s.on_frame(&frame(0.2, Some((1.0, 5.0)), Some((10.0, 0.0))));
         let f = s.trial_file("Guppy");
         let robot = &f.entities[0].positions;
         assert_eq!(robot.len(), 6);
@@ -842,22 +839,26 @@ mod tests {
 
     #[test]
     fn lost_tracking_stops_within_one_frame_of_the_timeout_and_resumes() {
-        let mut s =
-            Session::new(short(), TaskParams::default(), Box::new(Straight), "lab").unwrap();
+        let mut s = Session::new(
+            short(),
+            TaskParams::default(),
+            Box::new(Straight),
+            TrialKind::Real,
+        )
+        .unwrap();
         let mut stop_at = None;
         let mut resumed = false;
         for k in 0..200 {
             let t = f64::from(k) * 0.04;
             let lost = (120..150).contains(&k);
-            let msgs = s.on_message(frame(t, Some((0.0, 0.0)), (!lost).then_some((10.0, 0.0))));
+            let msgs = s.on_frame(&frame(t, Some((0.0, 0.0)), (!lost).then_some((10.0, 0.0))));
             for m in msgs {
-                if let ServerMsg::Command { stop, seq, .. } = m {
-                    if stop && seq.is_none() && stop_at.is_none() {
-                        stop_at = Some(k);
-                    }
-                    if !stop && k >= 150 {
-                        resumed = true;
-                    }
+                let Command { stop, seq, .. } = m;
+                if stop && seq.is_none() && stop_at.is_none() {
+                    stop_at = Some(k);
+                }
+                if !stop && k >= 150 {
+                    resumed = true;
                 }
             }
         }
@@ -874,12 +875,17 @@ mod tests {
 
     #[test]
     fn malformed_input_and_time_going_backwards_stop_the_robot() {
-        let mut s =
-            Session::new(short(), TaskParams::default(), Box::new(Straight), "lab").unwrap();
-        s.on_message(frame(1.0, Some((0.0, 0.0)), Some((1.0, 1.0))));
+        let mut s = Session::new(
+            short(),
+            TaskParams::default(),
+            Box::new(Straight),
+            TrialKind::Real,
+        )
+        .unwrap();
+        s.on_frame(&frame(1.0, Some((0.0, 0.0)), Some((1.0, 1.0))));
         let out = s.on_malformed("garbage");
-        assert!(matches!(out[0], ServerMsg::Command { stop: true, .. }));
-        let out = s.on_message(frame(0.5, Some((0.0, 0.0)), Some((1.0, 1.0))));
+        assert!(matches!(out[0], Command { stop: true, .. }));
+        let out = s.on_frame(&frame(0.5, Some((0.0, 0.0)), Some((1.0, 1.0))));
         assert!(out.is_empty(), "already stopped");
         assert_eq!(s.stops().len(), 1);
         assert!(LiveConfig {
@@ -994,7 +1000,7 @@ mod tests {
     #[test]
     fn a_group_is_tracked_per_fish_stops_only_when_every_fish_is_lost_and_reaches_goals_by_its_rule(
     ) {
-        let group = |t: f64, fish: [Option<(f32, f32)>; 3]| ClientMsg::Frame {
+        let group = |t: f64, fish: [Option<(f32, f32)>; 3]| Frame {
             t,
             robot: Some(Pose {
                 x: 0.0,
@@ -1018,7 +1024,7 @@ mod tests {
             group_goal: fishprobe_sim::GroupGoal::Centroid,
             ..TaskParams::default()
         };
-        let mut s = Session::new(cfg, task, Box::new(Straight), "virtual_lab").unwrap();
+        let mut s = Session::new(cfg, task, Box::new(Straight), TrialKind::Virtual).unwrap();
         let mut stopped = false;
         for k in 0..300 {
             let t = 100.0 + f64::from(k) * 0.04;
@@ -1032,8 +1038,8 @@ mod tests {
                 // Both tracked fish around the goal: the centroid is inside it.
                 [Some((-22.0, -20.0)), Some((-18.0, -20.0)), None]
             };
-            for m in s.on_message(group(t, fish)) {
-                if let ServerMsg::Command { stop: true, .. } = m {
+            for m in s.on_frame(&group(t, fish)) {
+                if let Command { stop: true, .. } = m {
                     stopped = true;
                 }
             }
@@ -1064,14 +1070,14 @@ mod tests {
             },
             TaskParams::default(),
             Box::new(Straight),
-            "lab",
+            TrialKind::Real,
         )
         .unwrap();
         let mut reason = None;
         for k in 0..150 {
             let t = 100.0 + f64::from(k) * 0.04;
-            for m in s.on_message(group(t, [None, None, None])) {
-                if let ServerMsg::Command {
+            for m in s.on_frame(&group(t, [None, None, None])) {
+                if let Command {
                     stop: true,
                     reason: r,
                     ..
@@ -1086,7 +1092,12 @@ mod tests {
             fish_count: 17,
             ..short()
         };
-        let e = Session::new(bad, TaskParams::default(), Box::new(Straight), "lab");
+        let e = Session::new(
+            bad,
+            TaskParams::default(),
+            Box::new(Straight),
+            TrialKind::Real,
+        );
         assert!(e.err().unwrap().to_string().contains("fish_count"));
     }
 }

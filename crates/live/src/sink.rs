@@ -22,6 +22,7 @@
 
 use crate::lines::{Line, LineReader};
 use crate::protocol::{to_line, ServerMsg};
+use crate::track::Command;
 use std::collections::VecDeque;
 use std::io::Write;
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -142,7 +143,11 @@ impl std::fmt::Debug for RobotSink {
 }
 
 fn stop_line() -> String {
-    to_line(&ServerMsg::stop_outside_trial(0.0, "no command yet", 0))
+    to_line(&ServerMsg::Command(Command::stop_outside_trial(
+        0.0,
+        "no command yet",
+        0,
+    )))
 }
 
 /// Closes a connection with a reset: what the kernel still holds for it is discarded on
@@ -208,8 +213,8 @@ impl RobotSink {
     }
 
     /// Sends a command (and remembers it as the robot's current state).
-    pub fn command(&self, m: &ServerMsg) {
-        let line = to_line(m);
+    pub fn command(&self, c: &Command) {
+        let line = to_line(&ServerMsg::Command(c.clone()));
         let mut st = self.lock();
         st.current = Some(line.clone());
         write_or_drop(&mut st, &line, None);
@@ -503,14 +508,14 @@ mod tests {
         l
     }
 
-    fn command(turn: f32) -> ServerMsg {
-        ServerMsg::Command {
+    fn command(turn: f32) -> Command {
+        Command {
             t: 1.0,
             seq: Some(1),
             turn,
             stop: false,
             reason: None,
-            phase: crate::protocol::Phase::Control,
+            phase: crate::track::Phase::Control,
             released: true,
             active_goal: None,
             goals_reached: 0,

@@ -27,7 +27,7 @@ fn a_trial_is_written_under_an_exhausted_descriptor_table() {
         LiveConfig::default(),
         TaskParams::default(),
         Box::new(Straight),
-        "lab",
+        fishprobe_io::TrialKind::Real,
     )
     .unwrap();
     let trial = session.trial_file("live guppy");

@@ -4,8 +4,9 @@
 #![allow(clippy::unwrap_used)] // a failure is a test failure
 
 use fishprobe_io::read_trial;
+use fishprobe_live::host::TrialOutcome;
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose};
-use fishprobe_live::server::{serve, BridgeGuard, ServeOptions, TrialOutcome};
+use fishprobe_live::server::{serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
 use fishprobe_live::LiveError;
 use fishprobe_sim::{ControlInput, Controller, SimRng, TaskParams};

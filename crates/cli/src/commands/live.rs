@@ -4,9 +4,10 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use fishprobe_learn::controller;
+use fishprobe_live::host::TrialOutcome;
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
-use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions, TrialOutcome};
+use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
 use fishprobe_sim::Controller;
 use std::io::{BufReader, Write};

@@ -300,3 +300,27 @@ pub fn timed_robot_program(sink: SocketAddr) -> Arc<Mutex<Vec<(Instant, String)>
     });
     lines
 }
+
+/// The trial at `file` once its end has written it (not a checkpoint of the running trial),
+/// within `within`; the observer's `log` in the failure message.
+pub fn final_trial(file: &Path, log: &Path, within: Duration) -> fishprobe_io::TrialFile {
+    let start = Instant::now();
+    loop {
+        if let Ok(t) = fishprobe_io::read_trial(file) {
+            let checkpoint = t.task.as_ref().is_some_and(|k| {
+                k.config_json
+                    .contains(fishprobe_live::keep::CHECKPOINT_NOTE)
+            });
+            if !checkpoint {
+                return t;
+            }
+        }
+        assert!(
+            start.elapsed() < within,
+            "no finished trial at {}; log:\n{}",
+            file.display(),
+            std::fs::read_to_string(log).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}

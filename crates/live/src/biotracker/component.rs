@@ -6,12 +6,12 @@
 //! core dies. Everything the component has to say goes to its log file.
 
 use super::grpc::{self, Client, ObserverCalls};
-use super::observer::{Event, Observer, PilotMaker};
+use super::observer::{Event, Observer};
 use super::schema::{ComponentConfig, Experiment};
 use super::{Expected, ObserverSettings};
-use crate::protocol::ServerMsg;
 use crate::session::LiveConfig;
 use crate::sink::RobotSink;
+use crate::track::Command;
 use crate::LiveError;
 use fishprobe_sim::{Controller, TaskParams};
 use std::collections::VecDeque;
@@ -157,21 +157,23 @@ pub struct Prepared {
     /// The tracking rate the policy was trained at (Hz).
     pub trained_fps: f32,
     /// Makes the pilot of each trial.
-    pub pilot: Box<dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + Send>,
+    pub pilot: Pilots,
 }
 
 /// Loads what a config entry names: the policy (checked to fit the fish count) and the
 /// protocol's settings. An error says what is wrong, for the core's user.
 pub type Loader = dyn Fn(&ObserverSettings) -> Result<Prepared, LiveError> + Send + Sync;
 
+/// Makes the pilot of each trial of a configuration.
+type Pilots = Box<dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + Send>;
+
 struct Active {
     settings: ObserverSettings,
     /// The output directory's one-writer lock (as `live serve` takes it), held while
     /// configured: two commands writing trials into one directory would mix them.
     lock: fishprobe_io::DirLock,
-    observer: Observer,
+    observer: Observer<Pilots>,
     sink: RobotSink,
-    pilot: Box<dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + Send>,
 }
 
 #[derive(Default)]
@@ -288,6 +290,7 @@ impl Host {
             expected,
             settings.follow_recording,
             self.fallback_dir.clone(),
+            prepared.pilot,
         )
         .map_err(|e| invalid(e.to_string()))?;
         let mut active = lock(&self.active);
@@ -361,7 +364,6 @@ impl Host {
             lock: out_lock,
             observer,
             sink,
-            pilot: prepared.pilot,
         });
         Ok(())
     }
@@ -580,9 +582,7 @@ fn session_loop(host: &Host) {
                 a.observer.finish(&reason, &mut events);
                 if !events.iter().any(|e| matches!(e, Event::Command(_))) {
                     // No trial to end: the robot program still hears why fishprobe goes.
-                    events.push(Event::Command(ServerMsg::stop_outside_trial(
-                        0.0, &reason, 0,
-                    )));
+                    events.push(Event::Command(Command::stop_outside_trial(0.0, &reason, 0)));
                 }
                 deliver(host, a, &mut events);
             }
@@ -599,11 +599,10 @@ fn session_loop(host: &Host) {
                         .note("updates_dropped_queue_full", dropped.into());
                 }
                 a.observer.set_robot_connected(a.sink.connected());
-                let pilot: &mut PilotMaker<'_> = &mut a.pilot;
                 // Only a new tracked frame is a sign of life: it restarts the silence clock
                 // and feeds the robot program's watchdog. A repeated or backwards frame number
                 // does neither, so a tracker whose counter sticks stops the robot.
-                if a.observer.on_update(&e, pilot, &mut events) {
+                if a.observer.on_update(&e, &mut events) {
                     last_update = Instant::now();
                     let frame = e.last_features.as_ref().map_or(0, |f| f.frame_number);
                     a.sink.tick(f64::from(frame) / f64::from(e.target_fps));

@@ -2,7 +2,7 @@
 //! robot and who the fish, their poses, the trial's time, and which updates to drop.
 
 use super::schema::{Experiment, Feature, RecordingState, SkeletonDescriptor};
-use crate::protocol::{ClientMsg, FishPose, Pose};
+use crate::track::{FishPose, Frame, Pose};
 
 /// The entities an observer follows, by BioTracker entity id.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -73,13 +73,8 @@ fn pose_of_id(e: &Experiment, skeleton: &SkeletonDescriptor, id: u32) -> Option<
 }
 
 /// The tracking frame of an update at time `t` (s): the robot and the fish by id.
-pub fn frame_of(
-    e: &Experiment,
-    skeleton: &SkeletonDescriptor,
-    ids: &EntityIds,
-    t: f64,
-) -> ClientMsg {
-    ClientMsg::Frame {
+pub fn frame_of(e: &Experiment, skeleton: &SkeletonDescriptor, ids: &EntityIds, t: f64) -> Frame {
+    Frame {
         t,
         robot: pose_of_id(e, skeleton, ids.robot),
         fish: ids
@@ -388,16 +383,12 @@ mod tests {
                 feature(Some(1), (11.0, 10.0), (10.0, 10.0)),
             ],
         );
-        match frame_of(&e, &SK, &ids(), 0.2) {
-            ClientMsg::Frame { t, robot, fish } => {
-                assert_eq!(t, 0.2);
-                assert_eq!(robot.map(|p| p.x), Some(10.0));
-                assert_eq!(fish.len(), 1);
-                assert_eq!(fish[0].id, "2");
-                assert_eq!(fish[0].pose.map(|p| p.x), Some(0.0));
-            }
-            other => panic!("{other:?}"),
-        }
+        let Frame { t, robot, fish } = frame_of(&e, &SK, &ids(), 0.2);
+        assert_eq!(t, 0.2);
+        assert_eq!(robot.map(|p| p.x), Some(10.0));
+        assert_eq!(fish.len(), 1);
+        assert_eq!(fish[0].id, "2");
+        assert_eq!(fish[0].pose.map(|p| p.x), Some(0.0));
         // Two features claim the robot's id; the fish's is missing.
         let e = update(
             RecordingState::Recording,
@@ -407,13 +398,9 @@ mod tests {
                 feature(Some(1), (3.0, 0.0), (2.0, 0.0)),
             ],
         );
-        match frame_of(&e, &SK, &ids(), 0.24) {
-            ClientMsg::Frame { robot, fish, .. } => {
-                assert!(robot.is_none());
-                assert!(fish[0].pose.is_none());
-            }
-            other => panic!("{other:?}"),
-        }
+        let Frame { robot, fish, .. } = frame_of(&e, &SK, &ids(), 0.24);
+        assert!(robot.is_none());
+        assert!(fish[0].pose.is_none());
     }
 
     #[test]

@@ -1,26 +1,28 @@
-//! The observer's trial logic, free of sockets: BioTracker's updates in, robot commands and
-//! finished trials out. It feeds the same [`Session`] as the bridge (`live serve`): the same
-//! protocol phases, goal logic, safety stops and trial file.
+//! The BioTracker source: BioTracker's updates in, the trial host's events out (a recording
+//! starts a trial, a new tracked frame is a frame, the recording's end or an unusable state
+//! ends it), the robot's commands and the trials' ends back. Free of sockets: the component
+//! (`component.rs`) carries the updates in and the commands to the robot sink. The trial's
+//! life (pilot, provenance, file, checkpoints, keeping) is the [`TrialHost`]'s, the same as
+//! for the NDJSON bridge (`live serve`).
 
 use super::frames::{check_experiment, frame_of, EntityIds, Expected, RecordingGate, Step};
 use super::schema::{Experiment, SkeletonDescriptor};
 use crate::error::LiveError;
-use crate::keep::Keeper;
-use crate::protocol::ServerMsg;
-use crate::server::{check_provenance, next_free, TrialOutcome};
-use crate::session::{LiveConfig, Session};
-use fishprobe_io::{Arm, StudyLayout};
-use fishprobe_sim::{Controller, TaskParams};
-use std::path::{Path, PathBuf};
-
-/// Makes the pilot (policy) of a trial.
-pub type PilotMaker<'a> = dyn FnMut() -> Result<Box<dyn Controller>, LiveError> + 'a;
+use crate::host::{
+    Ended, HostConfig, PilotMaker, Reactions, SourceEvent, Started, TrialHost, TrialOutcome,
+    TrialStart,
+};
+use crate::session::LiveConfig;
+use crate::track::Command;
+use fishprobe_io::TrialKind;
+use fishprobe_sim::TaskParams;
+use std::path::PathBuf;
 
 /// What the observer asks its front end to do.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Event {
     /// Send this command to the robot.
-    Command(ServerMsg),
+    Command(Command),
     /// Write this line to the component's log.
     Log(String),
     /// A trial began; its file will be written here.
@@ -29,10 +31,9 @@ pub enum Event {
     Ended(TrialOutcome),
 }
 
+/// What the observer keeps of the running trial besides the host's.
 struct Trial {
-    session: Session,
     skeleton: SkeletonDescriptor,
-    file: PathBuf,
     last_t: f64,
     /// Since when (trial time, s) no robot program has been connected, if so.
     absent_since: Option<f64>,
@@ -41,21 +42,17 @@ struct Trial {
 }
 
 /// The observer's state between updates; see the module's docs.
-pub struct Observer {
-    live: LiveConfig,
-    task: TaskParams,
-    out: PathBuf,
+pub struct Observer<P: PilotMaker> {
+    host: TrialHost<P>,
     ids: EntityIds,
     expected: Expected,
     gate: RecordingGate,
     refusal: Option<String>,
     trial: Option<Trial>,
-    keeper: Keeper,
-    n: usize,
     robot_connected: bool,
 }
 
-impl std::fmt::Debug for Observer {
+impl<P: PilotMaker> std::fmt::Debug for Observer<P> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Observer")
             .field("ids", &self.ids)
@@ -65,10 +62,81 @@ impl std::fmt::Debug for Observer {
     }
 }
 
-impl Observer {
+/// The host's answers, said as [`Event`]s; with what the observer records in a trial's file.
+struct Say<'a> {
+    out: &'a mut Vec<Event>,
+    trial: &'a mut Option<Trial>,
+    stale: u64,
+    refused: Option<String>,
+}
+
+impl Reactions for Say<'_> {
+    fn command(&mut self, c: Command) {
+        self.out.push(Event::Command(c));
+    }
+
+    fn warn(&mut self, line: &str) {
+        self.out.push(Event::Log(line.to_string()));
+    }
+
+    fn started(&mut self, s: &Started) {
+        self.out.push(Event::Log(format!(
+            "trial started: policy {}, file {}",
+            s.policy,
+            s.file.display()
+        )));
+        self.out.push(Event::Started(s.file.clone()));
+        self.out.extend(s.warnings.iter().cloned().map(Event::Log));
+    }
+
+    fn refused(&mut self, why: &str) {
+        self.refused = Some(why.to_string());
+    }
+
+    fn ended(&mut self, e: &Ended) {
+        *self.trial = None;
+        self.out.push(Event::Command(e.stop.clone()));
+        let o = &e.outcome;
+        if let Some(w) = &o.warning {
+            self.out.push(Event::Log(w.clone()));
+        }
+        self.out.push(Event::Log(format!(
+            "trial ended ({}): {} frames, {} goals reached{}",
+            e.reason.as_deref().unwrap_or("the client ended it"),
+            o.frames,
+            o.goals_reached,
+            o.file
+                .as_ref()
+                .map_or_else(String::new, |f| format!(", written to {}", f.display()))
+        )));
+        self.out.push(Event::Ended(o.clone()));
+    }
+
+    fn done_reason(&self) -> Option<String> {
+        Some("the protocol's control time is over".into())
+    }
+
+    fn closing_notes(&mut self) -> Vec<(String, serde_json::Value)> {
+        let mut notes = vec![("stale_updates_dropped".to_string(), self.stale.into())];
+        if let Some(t) = self.trial.as_mut() {
+            if let Some(a) = t.absent_since.take() {
+                t.absences.push([a, t.last_t]);
+            }
+            notes.push((
+                "robot_program_absent_s".into(),
+                serde_json::json!(t.absences),
+            ));
+        }
+        notes
+    }
+}
+
+impl<P: PilotMaker> Observer<P> {
     /// An observer writing trials under `out` (`<out>/<Policy>__Real/`), following the
-    /// tracker's recording when `follow_recording` is set. `fallback_dir` is where a trial
-    /// goes that cannot be written under `out` (see [`crate::keep`]).
+    /// tracker's recording when `follow_recording` is set, flown by the pilots `pilot` makes.
+    /// `fallback_dir` is where a trial goes that cannot be written under `out` (see
+    /// [`crate::keep`]).
+    #[allow(clippy::too_many_arguments)] // each is one of the config entry's settings
     pub fn new(
         live: LiveConfig,
         task: TaskParams,
@@ -77,8 +145,8 @@ impl Observer {
         expected: Expected,
         follow_recording: bool,
         fallback_dir: Option<PathBuf>,
+        pilot: P,
     ) -> Result<Self, LiveError> {
-        live.validate()?;
         ids.validate()?;
         if ids.fish.len() != live.fish_count as usize {
             return Err(LiveError::Observer(format!(
@@ -87,24 +155,30 @@ impl Observer {
                 live.fish_count
             )));
         }
+        let host = TrialHost::new(
+            HostConfig {
+                live,
+                task,
+                out,
+                fish_label: "live guppy".into(),
+                fallback_dir,
+            },
+            pilot,
+        )?;
         Ok(Self {
-            live,
-            task,
-            out,
+            host,
             ids,
             expected,
             gate: RecordingGate::new(follow_recording),
             refusal: None,
             trial: None,
-            keeper: Keeper::new(fallback_dir),
-            n: 0,
             robot_connected: true,
         })
     }
 
     /// Whether a trial is running.
     pub fn in_trial(&self) -> bool {
-        self.trial.is_some()
+        self.host.in_trial()
     }
 
     /// Updates dropped because their frame number was not newer than the last one's.
@@ -123,23 +197,29 @@ impl Observer {
         self.robot_connected = connected;
     }
 
-    /// Records `value` under `key` in the running trial's file (see [`Session::note`]).
+    /// Records `value` under `key` in the running trial's file (see
+    /// [`crate::session::Session::note`]).
     pub fn note(&mut self, key: &str, value: serde_json::Value) {
-        if let Some(t) = &mut self.trial {
-            t.session.note(key, value);
-        }
+        self.host.note(key, value);
+    }
+
+    /// Applies `ev` to the host; the reason when a trial could not begin.
+    fn apply(&mut self, ev: SourceEvent, out: &mut Vec<Event>) -> Option<String> {
+        let mut say = Say {
+            out,
+            trial: &mut self.trial,
+            stale: self.gate.stale(),
+            refused: None,
+        };
+        self.host.apply(ev, &mut say);
+        say.refused
     }
 
     /// One update from the tracker core. Returns whether it was a new tracked frame (a frame
     /// number after the last one, of a state the trial accepts): the only sign of life the
     /// component counts, for the silence stop and for the robot program's watchdog ticks. A
     /// repeated, backwards or wrapped frame number, or a refused state, is none.
-    pub fn on_update(
-        &mut self,
-        e: &Experiment,
-        pilot: &mut PilotMaker<'_>,
-        out: &mut Vec<Event>,
-    ) -> bool {
+    pub fn on_update(&mut self, e: &Experiment, out: &mut Vec<Event>) -> bool {
         let skeleton = match check_experiment(e, &self.ids, &self.expected) {
             Ok(s) => s,
             Err(why) => {
@@ -174,11 +254,18 @@ impl Observer {
             Step::Stale => return false,
             Step::Idle => {}
             Step::Start { stem, origin, t } => {
-                if let Some(why) = self.start(e, skeleton, stem.as_deref(), origin, pilot, out) {
+                let start = self.trial_start(e, stem, origin);
+                if let Some(why) = self.apply(SourceEvent::Begin(start), out) {
                     self.gate.close();
                     self.refuse(why, out);
                     return false;
                 }
+                self.trial = Some(Trial {
+                    skeleton,
+                    last_t: 0.0,
+                    absent_since: None,
+                    absences: Vec::new(),
+                });
                 self.frame(e, t, out);
             }
             Step::Frame { t } => self.frame(e, t, out),
@@ -187,15 +274,38 @@ impl Observer {
         true
     }
 
+    /// How a trial of the recording `stem` (starting at tracking time `origin`) begins.
+    fn trial_start(&self, e: &Experiment, stem: Option<String>, origin: f64) -> TrialStart {
+        let mut notes = vec![
+            (
+                "tracker".to_string(),
+                "BioTracker v4 (observer component)".into(),
+            ),
+            ("tracker_target_fps".into(), f64::from(e.target_fps).into()),
+            (
+                "entity_ids".into(),
+                serde_json::json!({ "robot": self.ids.robot, "fish": self.ids.fish }),
+            ),
+        ];
+        if e.target_fps != self.expected.fps {
+            notes.push(("accepted_other_fps".into(), true.into()));
+        }
+        if let Some(c) = &e.recording_config {
+            notes.push(("recording_base_path".into(), c.base_path.clone().into()));
+        }
+        TrialStart {
+            kind: TrialKind::Real,
+            stem,
+            origin: Some(origin),
+            notes,
+            checkpoints: true,
+        }
+    }
+
     /// No update for `silence_s` of wall-clock time: the session's silence stop.
     pub fn on_silence(&mut self, silence_s: f64, out: &mut Vec<Event>) {
-        if let Some(t) = &mut self.trial {
-            out.extend(
-                t.session
-                    .on_silence(silence_s)
-                    .into_iter()
-                    .map(Event::Command),
-            );
+        if self.in_trial() {
+            self.apply(SourceEvent::Silence(silence_s), out);
         }
     }
 
@@ -203,131 +313,35 @@ impl Observer {
     /// is stopped and the trial kept, with `reason` in its file.
     pub fn finish(&mut self, reason: &str, out: &mut Vec<Event>) {
         self.gate.close();
-        let Some(mut trial) = self.trial.take() else {
-            return;
-        };
-        let session = &mut trial.session;
-        session.note("ended_because", reason.into());
-        session.note("stale_updates_dropped", self.gate.stale().into());
-        if let Some(a) = trial.absent_since.take() {
-            trial.absences.push([a, trial.last_t]);
+        if self.in_trial() {
+            self.apply(SourceEvent::End(Some(reason.to_string())), out);
         }
-        session.note("robot_program_absent_s", serde_json::json!(trial.absences));
-        out.push(Event::Command(ServerMsg::stop_outside_trial(
-            trial.last_t,
-            reason,
-            session.goals_reached(),
-        )));
-        let kept = self
-            .keeper
-            .keep(&trial.file, session.trial_file("live guppy"));
-        self.keeper.retry();
-        if let Some(w) = kept.warning() {
-            out.push(Event::Log(w));
-        }
-        out.push(Event::Log(format!(
-            "trial ended ({reason}): {} frames, {} goals reached{}",
-            session.frames(),
-            session.goals_reached(),
-            kept.written()
-                .map_or_else(String::new, |f| format!(", written to {}", f.display()))
-        )));
-        out.push(Event::Ended(TrialOutcome::of(&kept, session)));
+        self.trial = None;
     }
 
     /// Trials that could not be written anywhere (held in memory).
     pub fn unsaved(&mut self) -> Vec<PathBuf> {
-        self.keeper.retry();
-        self.keeper
-            .unsaved()
-            .into_iter()
-            .map(Path::to_path_buf)
-            .collect()
+        self.host.unsaved()
     }
 
     fn refuse(&mut self, why: String, out: &mut Vec<Event>) {
-        if self.trial.is_some() {
+        if self.in_trial() {
             self.finish(&format!("the tracker's state became unusable: {why}"), out);
         }
         if self.refusal.as_deref() != Some(why.as_str()) {
             out.push(Event::Log(format!(
                 "refused, the robot stays stopped: {why}"
             )));
-            out.push(Event::Command(ServerMsg::stop_outside_trial(0.0, &why, 0)));
+            out.push(Event::Command(Command::stop_outside_trial(0.0, &why, 0)));
             self.refusal = Some(why);
         }
-    }
-
-    /// Starts a trial; returns why not.
-    fn start(
-        &mut self,
-        e: &Experiment,
-        skeleton: SkeletonDescriptor,
-        stem: Option<&str>,
-        origin: f64,
-        pilot: &mut PilotMaker<'_>,
-        out: &mut Vec<Event>,
-    ) -> Option<String> {
-        let pilot = match pilot() {
-            Ok(p) => p,
-            Err(err) => return Some(format!("the policy cannot be made: {err}")),
-        };
-        if let Err(err) = check_provenance(&self.out, pilot.as_ref()) {
-            return Some(err.to_string());
-        }
-        let mut session = match Session::new(self.live.clone(), self.task.clone(), pilot, "lab") {
-            Ok(s) => s,
-            Err(err) => return Some(err.to_string()),
-        };
-        session.set_origin(origin);
-        session.note("tracker", "BioTracker v4 (observer component)".into());
-        session.note("tracker_target_fps", f64::from(e.target_fps).into());
-        if e.target_fps != self.expected.fps {
-            session.note("accepted_other_fps", true.into());
-        }
-        session.note(
-            "entity_ids",
-            serde_json::json!({ "robot": self.ids.robot, "fish": self.ids.fish }),
-        );
-        if let Some(c) = &e.recording_config {
-            session.note("recording_base_path", c.base_path.clone().into());
-        }
-        let dir = self.out.join(StudyLayout::arm_dir_name(
-            &StudyLayout::safe_name(&session.policy()),
-            &Arm::Real,
-        ));
-        let file = match stem {
-            Some(stem) => free_named(&dir, stem),
-            None => next_free(&dir, &mut self.n),
-        };
-        out.push(Event::Log(format!(
-            "trial started: policy {}, file {}",
-            session.policy(),
-            file.display()
-        )));
-        out.push(Event::Started(file.clone()));
-        // The descriptors the trial's file needs are held from now on.
-        if !self.keeper.reserve() {
-            out.push(Event::Log(
-                "no file descriptors spare as the trial starts; its file may fall back".into(),
-            ));
-        }
-        self.trial = Some(Trial {
-            session,
-            skeleton,
-            file,
-            last_t: 0.0,
-            absent_since: None,
-            absences: Vec::new(),
-        });
-        None
     }
 
     fn frame(&mut self, e: &Experiment, t: f64, out: &mut Vec<Event>) {
         let Some(trial) = &mut self.trial else {
             return;
         };
-        let msg = frame_of(e, &trial.skeleton, &self.ids, t);
+        let frame = frame_of(e, &trial.skeleton, &self.ids, t);
         trial.last_t = t;
         match (self.robot_connected, trial.absent_since) {
             (false, None) => trial.absent_since = Some(t),
@@ -337,33 +351,10 @@ impl Observer {
             }
             _ => {}
         }
-        out.extend(
-            trial
-                .session
-                .on_message(msg)
-                .into_iter()
-                .map(Event::Command),
-        );
-        if trial.session.checkpoint_due() {
-            let f = trial.session.checkpoint_file("live guppy");
-            if let Some(e) = self.keeper.checkpoint(&trial.file, f) {
-                out.push(Event::Log(format!("checkpoint not written: {e}")));
-            }
-        }
-        if trial.session.is_done() {
-            self.finish("the protocol's control time is over", out);
+        self.apply(SourceEvent::Frame(frame), out);
+        if self.trial.is_none() {
+            // The host ended it (the protocol's time is over): wait for the next recording.
+            self.gate.close();
         }
     }
-}
-
-/// `<dir>/<stem>.hdf5`, or `<stem>_2.hdf5`, `_3`, ... when taken.
-fn free_named(dir: &Path, stem: &str) -> PathBuf {
-    let first = dir.join(format!("{stem}.hdf5"));
-    if !first.exists() {
-        return first;
-    }
-    (2u64..)
-        .map(|k| dir.join(format!("{stem}_{k}.hdf5")))
-        .find(|p| !p.exists())
-        .unwrap_or(first)
 }

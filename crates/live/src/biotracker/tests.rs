@@ -4,10 +4,11 @@
 use super::frames::Expected;
 use super::schema::{Arena, Experiment, Feature, RecordingState, SkeletonDescriptor, SkeletonNode};
 use super::*;
-use crate::protocol::{ClientMsg, FishPose, Pose, ServerMsg};
-use crate::server::TrialOutcome;
+use crate::host::TrialOutcome;
 use crate::session::{LiveConfig, Session};
+use crate::track::{Command, FishPose, Frame, Pose};
 use fishprobe_io::ScratchDir;
+use fishprobe_io::TrialKind;
 use fishprobe_sim::{Controller, GoalSeeker, TaskParams};
 
 const FPS: f32 = 25.0;
@@ -75,7 +76,10 @@ fn tracked(state: RecordingState, k: u32) -> Experiment {
     update(state, k, vec![feature(3, f), feature(7, r)])
 }
 
-fn observer(out: &std::path::Path) -> Observer {
+/// Makes the test's pilot.
+type Pilot = fn() -> Result<Box<dyn Controller>, crate::LiveError>;
+
+fn observer(out: &std::path::Path) -> Observer<Pilot> {
     Observer::new(
         live(),
         TaskParams::default(),
@@ -87,6 +91,7 @@ fn observer(out: &std::path::Path) -> Observer {
         expected(),
         true,
         Some(out.join("fallback")),
+        goal_seeker as Pilot,
     )
     .expect("valid settings")
 }
@@ -95,10 +100,10 @@ fn goal_seeker() -> Result<Box<dyn Controller>, crate::LiveError> {
     Ok(Box::new(GoalSeeker))
 }
 
-fn run(obs: &mut Observer, updates: impl IntoIterator<Item = Experiment>) -> Vec<Event> {
+fn run(obs: &mut Observer<Pilot>, updates: impl IntoIterator<Item = Experiment>) -> Vec<Event> {
     let mut out = Vec::new();
     for e in updates {
-        obs.on_update(&e, &mut goal_seeker, &mut out);
+        obs.on_update(&e, &mut out);
     }
     out
 }
@@ -117,7 +122,7 @@ fn stops(events: &[Event]) -> Vec<(f64, String)> {
     events
         .iter()
         .filter_map(|e| match e {
-            Event::Command(ServerMsg::Command {
+            Event::Command(Command {
                 t,
                 stop: true,
                 reason,
@@ -154,12 +159,17 @@ fn the_observer_makes_the_trial_the_bridge_makes_of_the_same_frames() {
     let got = fishprobe_io::read_trial(&file).expect("a readable trial file");
 
     // The bridge, fed the same frames as JSON would give them.
-    let mut bridge =
-        Session::new(live(), TaskParams::default(), Box::new(GoalSeeker), "lab").expect("valid");
+    let mut bridge = Session::new(
+        live(),
+        TaskParams::default(),
+        Box::new(GoalSeeker),
+        TrialKind::Real,
+    )
+    .expect("valid");
     let mut commands = Vec::new();
     for &k in &kept {
         let (r, f) = poses(k);
-        commands.extend(bridge.on_message(ClientMsg::Frame {
+        commands.extend(bridge.on_frame(&Frame {
             t: f64::from(k) / f64::from(FPS),
             robot: Some(r),
             fish: vec![FishPose {
@@ -238,7 +248,6 @@ fn the_robot_stops_at_the_first_frame_a_tracking_gap_reaches_the_stale_time() {
         let (_, f) = poses(k);
         obs.on_update(
             &update(RecordingState::Recording, k, vec![feature(3, f)]),
-            &mut goal_seeker,
             &mut out,
         );
         if stopped_at.is_none() && !stops(&out).is_empty() {
@@ -418,7 +427,8 @@ fn settings_come_from_the_config_entry_and_mistakes_are_named() {
         s.ids(),
         expected(),
         true,
-        None
+        None,
+        goal_seeker as Pilot,
     )
     .is_err());
 }
