@@ -78,7 +78,9 @@ pub(crate) fn driven_by_other(own: &str, theirs: &str) -> String {
 /// arm's, or whose control phase differs from the arm's median by more than
 /// `tolerance_s`, is not one more trial of that protocol. The arm is its largest group
 /// (ties: the group with fishprobe's task record, then the one whose first file comes
-/// first); an arm of foreign recordings alone is one protocol and is kept whole.
+/// first); an arm of foreign recordings alone is one protocol and is kept whole, whatever
+/// their lengths: a recording without fishprobe's task record has no control phase whose
+/// length the protocol fixes.
 pub(crate) fn one_protocol<'a>(
     what: &str,
     trials: Vec<&'a TrialData>,
@@ -134,7 +136,7 @@ pub(crate) fn one_protocol<'a>(
     };
     let (kept, long_or_short): (Vec<&TrialData>, Vec<&TrialData>) = arm
         .into_iter()
-        .partition(|t| (t.protocol.control_s - median).abs() <= tolerance_s);
+        .partition(|t| !norm.has_task || (t.protocol.control_s - median).abs() <= tolerance_s);
     let n = kept.len();
     let arm_is = |p: &TrialProtocol| {
         let mut norm = norm.clone();
@@ -303,8 +305,12 @@ mod tests {
         ] {
             assert!(skipped[1].reason.contains(needle), "{needle}: {skipped:?}");
         }
-        // An arm of foreign recordings alone is one protocol.
-        let only = [at("r1.hdf5", foreign.clone()), at("r2.hdf5", foreign)];
+        // An arm of foreign recordings alone is one protocol, whatever their lengths.
+        let longer = TrialProtocol {
+            control_s: 720.0,
+            ..foreign.clone()
+        };
+        let only = [at("r1.hdf5", foreign), at("r2.hdf5", longer)];
         let mut none = Vec::new();
         assert_eq!(
             one_protocol("Zone__Real", only.iter().collect(), 2.0, &mut none).len(),

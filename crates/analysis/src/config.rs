@@ -55,7 +55,8 @@ fishprobe_sim::documented_params! {
         /// A reality-arm trial whose control phase is longer or shorter than the arm's
         /// (median) by more than this is left out and named: goals count over the whole
         /// control phase, so a trial ended early is not one more trial of the protocol
-        /// (choice: 2 s, a command period of slack either way).
+        /// (choice: 2 s, a command period of slack either way). An arm of foreign
+        /// recordings (no task record) has no fixed control length and is not checked.
         pub control_length_tolerance_s: f64 = 2.0; "s",
     }
 }
