@@ -68,21 +68,26 @@ pub fn run(a: ModelsArgs) -> Result<()> {
             })
             .collect::<Result<_>>()?
     };
-    let specs: Vec<ModelSpec> = named.iter().map(|(_, s)| s.clone()).collect();
     let measurements = if a.measure {
         super::check_minutes("--minutes", a.minutes)?;
         if a.episodes == 0 || a.episodes > 10_000 {
             anyhow::bail!("--episodes must lie in [1, 10000], got {}", a.episodes);
         }
-        let jobs: Vec<(&ModelSpec, Condition)> = specs
+        // Each measurement under the name the model is listed by (a population's own name,
+        // not its spec's kind).
+        let jobs: Vec<(&str, &ModelSpec, Condition)> = named
             .iter()
-            .filter(|s| s.name() != "Stationary")
-            .flat_map(|s| [(s, Condition::Solitary), (s, Condition::RandomRobot)])
+            .filter(|(_, s)| s.name() != "Stationary")
+            .flat_map(|(n, s)| {
+                [Condition::Solitary, Condition::RandomRobot].map(|c| (n.as_str(), s, c))
+            })
             .collect();
         jobs.par_iter()
-            .map(|(s, c)| {
-                measure(s, *c, a.episodes, a.minutes, a.seed)
-                    .with_context(|| format!("measuring {}", s.name()))
+            .map(|(n, s, c)| {
+                let mut m = measure(s, *c, a.episodes, a.minutes, a.seed)
+                    .with_context(|| format!("measuring {n}"))?;
+                m.model = n.to_string();
+                Ok(m)
             })
             .collect::<Result<Vec<_>>>()?
     } else {
