@@ -189,6 +189,36 @@ pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, Le
     )?))
 }
 
+/// A robot pilot for live trials, from a `--policy` argument (as [`controller`]): loaded and
+/// checked once, before any tracker connects, so that each trial runs a copy of it
+/// (`boxed_clone`). Refused, by name: a policy whose weights are not finite (it would only
+/// ever stop the robot), one trained with other observation blocks than `obs` (what the
+/// live settings give), and one trained to act at another rate than `command_hz` (its
+/// frames are the simulator's, at the frame rate it records; one from before fishprobe
+/// recorded it: the tracking rate, 25 Hz).
+pub fn pilot(
+    arg: &str,
+    obs: &ObservationParams,
+    command_hz: f64,
+) -> Result<Box<dyn Controller>, LearnError> {
+    let c = controller(arg, false)?;
+    fishprobe_sim::check_controller_observation(c.as_ref(), obs)
+        .map_err(|e| LearnError::Policy(format!("the policy's observation: {e}")))?;
+    let default_hz = fishprobe_sim::EnvConfig::default().frame_rate_hz;
+    if let Some(hz) = fishprobe_sim::controller_actions_per_second(c.as_ref(), default_hz) {
+        if (hz - command_hz).abs() > 1e-6 * hz {
+            return Err(LearnError::Policy(format!(
+                "the policy {arg} was trained to act every {} frames at {} Hz, {hz} times a \
+                 second; the bridge commands {command_hz} times a second: set command_hz = \
+                 {hz} in the bridge's settings",
+                c.trained_frames_per_action().unwrap_or_default(),
+                c.trained_frame_rate_hz().unwrap_or(default_hz),
+            )));
+        }
+    }
+    Ok(c)
+}
+
 /// `c` under another short name (a study's name for its model; the directory name of the
 /// study layout), describing itself as before.
 pub fn named(c: Box<dyn Controller>, name: String) -> Box<dyn Controller> {

@@ -62,6 +62,16 @@ pub const MAX_COMMAND_HZ: f64 = 100.0;
 pub const MAX_MESSAGE_BYTES: usize = 1 << 24;
 
 impl LiveConfig {
+    /// The observation the policy gets from the tracker's frames under these settings (the
+    /// environment's, with the centroid's and headings' blocks as set here).
+    pub fn observation(&self) -> fishprobe_sim::ObservationParams {
+        fishprobe_sim::ObservationParams {
+            centroid_bins: self.centroid_bins,
+            heading_bins: self.heading_bins,
+            ..fishprobe_sim::ObservationParams::default()
+        }
+    }
+
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let day = f64::from(check::MAX_DURATION_S);

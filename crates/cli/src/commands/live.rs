@@ -3,16 +3,14 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
-use fishprobe_learn::controller;
 use fishprobe_live::host::TrialOutcome;
 use fishprobe_live::lab::{run_trial, LabConfig};
 use fishprobe_live::protocol::{to_line, ClientMsg, FishPose, Pose, PROTOCOL_VERSION};
 use fishprobe_live::server::{is_loopback, serve, BridgeGuard, ServeOptions};
 use fishprobe_live::session::LiveConfig;
-use fishprobe_sim::Controller;
 use std::io::{BufReader, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use super::emit;
@@ -145,49 +143,6 @@ pub struct LabArgs {
     heading_bins: bool,
 }
 
-pub(super) fn pilot_factory(
-    policy: &str,
-    live: &LiveConfig,
-) -> Result<impl FnMut() -> Result<Box<dyn Controller>, fishprobe_live::LiveError>> {
-    // Refuses a policy with non-finite weights (it would only ever stop the robot).
-    let c = controller(policy, false).with_context(|| format!("loading policy {policy}"))?;
-    let obs = fishprobe_sim::ObservationParams {
-        centroid_bins: live.centroid_bins,
-        heading_bins: live.heading_bins,
-        ..fishprobe_sim::ObservationParams::default()
-    };
-    // A policy trained with other blocks than the bridge's settings give is refused by name.
-    fishprobe_sim::check_controller_observation(c.as_ref(), &obs)
-        .map_err(anyhow::Error::msg)
-        .context("the policy's observation")?;
-    // A policy trained to act more often than once a second is run at its rate: its frames
-    // are the simulator's, at the frame rate it records (one from before fishprobe recorded
-    // it: the tracking rate of SPEC §2, 25 Hz).
-    let default_hz = fishprobe_sim::EnvConfig::default().frame_rate_hz;
-    if let Some(hz) = fishprobe_sim::controller_actions_per_second(c.as_ref(), default_hz) {
-        if (hz - live.command_hz).abs() > 1e-6 * hz {
-            bail!(
-                "the policy {policy} was trained to act every {} frames at {} Hz, {hz} times \
-                 a second; the bridge commands {} times a second: set command_hz = {hz} in the \
-                 bridge's settings",
-                c.trained_frames_per_action().unwrap_or_default(),
-                c.trained_frame_rate_hz().unwrap_or(default_hz),
-                live.command_hz
-            );
-        }
-    }
-    Ok(move || Ok(c.boxed_clone()))
-}
-
-pub(super) fn live_config(path: Option<&Path>) -> Result<LiveConfig> {
-    let cfg: LiveConfig = match path {
-        Some(p) => super::read_toml(p, "settings")?,
-        None => LiveConfig::default(),
-    };
-    cfg.validate()?;
-    Ok(cfg)
-}
-
 fn report(o: &TrialOutcome) {
     if let Some(w) = &o.warning {
         say!("warning: {w}");
@@ -219,7 +174,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         );
     }
     let opts = ServeOptions {
-        live: live_config(a.config.as_deref())?,
+        live: super::live_settings(a.config.as_deref())?,
         task: task_with(a.group_goal),
         out: a.out.clone(),
         token: a.token.clone(),
@@ -227,7 +182,7 @@ fn serve_cmd(a: ServeArgs) -> Result<()> {
         fish_label: "live guppy".into(),
         guard: BridgeGuard::default(),
     };
-    let mut make = pilot_factory(&a.policy, &opts.live)?;
+    let mut make = super::pilot(&a.policy, &opts.live)?;
     // One bridge per output directory (taken once the inputs are known to be good).
     let _lock = super::lock_out(&a.out, "live serve")?;
     let listener =
@@ -374,7 +329,7 @@ pub fn run_lab(a: LabArgs) -> Result<()> {
                 fish_label: "virtual guppy".into(),
                 guard: BridgeGuard::default(),
             };
-            let mut make = pilot_factory(&a.policy, &opts.live)?;
+            let mut make = super::pilot(&a.policy, &opts.live)?;
             _lock = Some(super::lock_out(&a.out, "lab")?);
             let h = std::thread::spawn(move || serve(&listener, &opts, &mut make, |_| {}));
             (addr, Some(h))

@@ -322,6 +322,32 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 /// The longest line of a settings file that a TOML error quotes (characters).
 const TOML_LINE_SHOWN: usize = 200;
 
+/// The live settings of the three live commands (`live serve`, `live biotracker`, `lab`):
+/// a TOML file of [`LiveConfig`] fields, or the paper's protocol; checked.
+pub(crate) fn live_settings(
+    path: Option<&std::path::Path>,
+) -> anyhow::Result<fishprobe_live::session::LiveConfig> {
+    let cfg: fishprobe_live::session::LiveConfig = match path {
+        Some(p) => read_toml(p, "settings")?,
+        None => fishprobe_live::session::LiveConfig::default(),
+    };
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// The pilot of the live commands: the policy loaded and checked against the live settings
+/// once ([`fishprobe_learn::pilot`]), a copy for each trial.
+pub(crate) fn pilot(
+    policy: &str,
+    live: &fishprobe_live::session::LiveConfig,
+) -> anyhow::Result<
+    impl FnMut() -> Result<Box<dyn fishprobe_sim::Controller>, fishprobe_live::LiveError>,
+> {
+    let c = fishprobe_learn::pilot(policy, &live.observation(), live.command_hz)
+        .with_context(|| format!("loading policy {policy}"))?;
+    Ok(move || Ok(c.boxed_clone()))
+}
+
 /// `text` parsed as TOML into `T`. The parser's error quotes the offending line whole, with a
 /// caret under the column; for a line longer than [`TOML_LINE_SHOWN`] characters (a minified
 /// or binary file given as settings) only its line, column and the parser's message are

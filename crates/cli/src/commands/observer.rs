@@ -39,10 +39,10 @@ pub(super) struct BiotrackerArgs {
 /// the fish ids) and the policy, which must fit them.
 fn load(s: &ObserverSettings) -> Result<Prepared, LiveError> {
     let settings = |e: anyhow::Error| LiveError::Settings(format!("{e:#}"));
-    let mut live = super::live::live_config(s.config.as_deref()).map_err(settings)?;
+    let mut live = super::live_settings(s.config.as_deref()).map_err(settings)?;
     live.fish_count = u32::try_from(s.fish_ids.len()).unwrap_or(u32::MAX);
     live.validate()?;
-    let mut make = super::live::pilot_factory(&s.policy, &live).map_err(settings)?;
+    let mut make = super::pilot(&s.policy, &live).map_err(settings)?;
     let default_hz = fishprobe_sim::EnvConfig::default().frame_rate_hz;
     let trained_fps = make()
         .ok()
