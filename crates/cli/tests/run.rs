@@ -105,6 +105,26 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
     );
     assert!(results(&a) == before, "a rerun changed the results");
 
+    // Steps recorded by an older fishprobe (markers without this version's schema) are
+    // recomputed once, and the run says so; the results come out as before.
+    let done = a.join(".fishprobe/done");
+    for e in std::fs::read_dir(&done).unwrap() {
+        let p = e.unwrap().path();
+        let mut m: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+        m.as_object_mut().unwrap().remove("schema");
+        std::fs::write(&p, m.to_string()).unwrap();
+    }
+    let o = fishprobe(&["run", "--preset", "smoke", "--out", a.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("50 steps, 0 complete")
+            && stderr(&o).contains("50 recorded by an older fishprobe"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(results(&a) == before, "recomputing changed the results");
+
     // Outputs that no longer match their markers (a trial lost, a stranger added, a trial
     // swapped for another, as when two processes wrote one study) are
     // redone, and the results come out as before.
@@ -261,6 +281,35 @@ fn a_smoke_study_runs_end_to_end_resumes_after_kill_9_and_reruns_to_nothing() {
         results(&b),
         before,
         "a resumed study differs from an uninterrupted one"
+    );
+
+    // A setting the trainings read, added to the finished study's file: the policies are
+    // trained again with it (and everything after them runs again), not passed off as new.
+    let file = base.join("centroid.toml");
+    std::fs::write(&file, "centroid_bins = true\n").unwrap();
+    let o = fishprobe(&[
+        "run",
+        "--preset",
+        "smoke",
+        "--config",
+        file.to_str().unwrap(),
+        "--out",
+        b.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("50 steps, 0 complete"),
+        "{}",
+        stderr(&o)
+    );
+    let params: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(b.join("policies/Zone/params.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        params.pointer("/env/observation/centroid_bins"),
+        Some(&serde_json::Value::Bool(true)),
+        "{params}"
     );
 }
 

@@ -100,8 +100,9 @@ pub struct EpisodeResult {
     pub file: PathBuf,
 }
 
-/// An evaluation: which episodes, how long, where to.
-#[derive(Debug, Clone)]
+/// An evaluation: which episodes, how long, where to. Serialised (without `out`), it is
+/// everything the episodes depend on besides the controller.
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct Evaluation {
     /// Fish model.
     pub model: ModelSpec,
@@ -116,6 +117,7 @@ pub struct Evaluation {
     /// Fixed start poses (approach assay) instead of random ones.
     pub start: Option<StartPoses>,
     /// Output directory; files are `<prefix>_<k>.hdf5`.
+    #[serde(skip)]
     pub out: PathBuf,
     /// File name prefix.
     pub prefix: String,

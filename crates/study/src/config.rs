@@ -148,6 +148,13 @@ fn paper_models() -> Vec<NamedModel> {
         .collect()
 }
 
+/// Settings of a study that no step reads: changed, they rerun nothing (`study.json` records
+/// them), with why.
+pub const PRESENTATION_ONLY: &[(&str, &str)] = &[(
+    "preset",
+    "the name of the preset the budgets came from; the budgets themselves are settings",
+)];
+
 impl StudyConfig {
     /// A preset: `paper` (the published protocol, with PPO's `paper` preset: sixteen times the
     /// published steps at 2 epochs per batch, γ = 0.99, bounded log-s.d.; an expensive fish's
@@ -714,8 +721,7 @@ mod tests {
         // The quick preset's resampling and the study's trials stay.
         let quick = fishprobe_analysis::AnalysisConfig::quick();
         assert_eq!((a.permutations, a.sim_trials), (quick.permutations, 18));
-        // A study with a table hashes it into its analysis step; one without keeps the old
-        // inputs (so existing studies resume).
+        // The quick preset has no table of its own.
         assert_eq!(StudyConfig::preset("quick").unwrap().analysis.len(), 0);
         for (json, want) in [
             (

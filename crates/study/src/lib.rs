@@ -28,9 +28,10 @@
 //! **Parallel.** Independent steps run concurrently, up to `jobs` at once, each on its own
 //! thread pool.
 //!
-//! The engine in rooms: [`plan`] (what each step does, needs, writes and depends on: one
-//! `impl StepKind`), `store` (markers, staged outputs, the stale sweep), `scheduler` (local
-//! runs), [`slurm`] (SLURM job arrays), `steps` (the work of each kind); errors are typed
+//! The engine in rooms: [`plan`] (the step kinds, their ids and outputs, and the wiring of
+//! dependencies), [`steps`] (one file per kind: the typed inputs it reads, hashed whole, and
+//! its work, which gets nothing else), `store` (markers, staged outputs, the stale sweep),
+//! `scheduler` (local runs), [`slurm`] (SLURM job arrays); errors are typed
 //! ([`StudyError`], [`StepError`]). The directory's names come from
 //! [`fishprobe_io::StudyLayout`].
 
@@ -42,13 +43,14 @@ mod manifest;
 pub mod plan;
 mod scheduler;
 pub mod slurm;
-mod steps;
+pub mod steps;
 mod store;
 
 pub use config::{Budget, NamedModel, StudyConfig, StudyFile};
 pub use error::{StepError, StudyError};
 pub use plan::{Step, StepKind};
 pub use scheduler::Event;
+pub use steps::{StepInputs, MARKER_SCHEMA};
 
 use fishprobe_io::{Arm, StudyLayout};
 use std::path::PathBuf;

@@ -1,7 +1,8 @@
 //! The plan: the steps of a study, what each does, needs, writes and depends on.
 
-use crate::Study;
-use fishprobe_io::{Arm, StudyLayout};
+use crate::steps::{StepInputs, MARKER_SCHEMA};
+use crate::{Study, StudyError};
+use fishprobe_io::Arm;
 use std::path::PathBuf;
 
 /// One unit of work.
@@ -64,7 +65,9 @@ pub struct Step {
     pub kind: StepKind,
     /// Steps it needs (indices).
     pub deps: Vec<usize>,
-    /// Hash of its inputs (settings and the dependencies' hashes).
+    /// What it reads ([`StepKind::inputs`]): the only settings its work is given.
+    pub inputs: StepInputs,
+    /// Hash of its inputs, the marker schema and the dependencies' hashes.
     pub hash: u64,
 }
 
@@ -82,104 +85,6 @@ impl StepKind {
             StepKind::Reality { p } => format!("reality-{}", study.name(*p)),
             StepKind::Analyze => "analyze".into(),
             StepKind::Report => "report".into(),
-        }
-    }
-
-    /// The settings this step depends on, as JSON (hashed into its marker). A step that runs
-    /// a policy trained elsewhere also depends on that file's identity (its path and SHA-256);
-    /// for fishprobe's own policies the inputs are as they always were, so existing studies
-    /// resume.
-    pub fn inputs(&self, study: &Study) -> serde_json::Value {
-        let mut v = self.own_inputs(study);
-        let runs = match self {
-            StepKind::Eval { p, .. } | StepKind::Approach { p, k: 0 } | StepKind::Reality { p } => {
-                Some(*p)
-            }
-            StepKind::Stability { m, k: 0 } => Some(*m),
-            _ => None,
-        };
-        // Groups: only a study with groups records them, so pair studies resume.
-        let c = &study.cfg;
-        if (c.fish_count, c.group_goal) != (1, fishprobe_sim::GroupGoal::Any) {
-            v["groups"] =
-                serde_json::json!({"fish_count": c.fish_count, "group_goal": c.group_goal});
-        }
-        // The `[task]` table, resolved: only a study whose task differs from the default
-        // records it, so other studies resume (and writing out a default value changes
-        // nothing).
-        let default_task = fishprobe_sim::TaskParams {
-            group_goal: c.group_goal,
-            ..fishprobe_sim::TaskParams::default()
-        };
-        if study.env.task != default_task {
-            v["task"] = serde_json::to_value(&study.env.task).unwrap_or_default();
-        }
-        if let Some(ext) = runs.and_then(|p| study.external_policy(p)) {
-            v["external_policy"] = serde_json::json!({
-                "policy": ext,
-                "sha256": crate::external_policy_sha256(ext),
-            });
-        }
-        v
-    }
-
-    fn own_inputs(&self, study: &Study) -> serde_json::Value {
-        let c = &study.cfg;
-        let model = |i: usize| serde_json::json!({"name": study.name(i), "spec": c.models[i].spec});
-        match self {
-            StepKind::FitConvnet => {
-                serde_json::json!({"fit_convnet": study.convnet_data, "seed": c.seed,
-                    "epochs": c.convnet_max_epochs})
-            }
-            // The resolved PPO settings, not the preset's name: a preset whose values change
-            // (the `paper` preset's epochs went from 100 to 10) must not pass for the old one.
-            // And the trainer's revision: a fixed trainer retrains what the broken one made.
-            StepKind::Train { m, k } => {
-                serde_json::json!({"train": model(*m), "k": k, "seed": c.seed,
-                    "ppo": c.ppo(&c.models[*m].spec),
-                    "trainer": fishprobe_learn::TRAINER_REVISION})
-            }
-            StepKind::Eval { p, m } => {
-                serde_json::json!({"eval": [study.name(*p), model(*m)], "seed": c.seed,
-                "episodes": study.eval_episodes(*p, *m), "minutes": c.episode_minutes})
-            }
-            // Same seed and episodes as the model's own evaluation, so that policy and
-            // baselines face the same fish starts.
-            StepKind::Baseline { m } => {
-                serde_json::json!({"baseline": model(*m), "controllers": fishprobe_sim::SCRIPTED,
-                "fetch": fishprobe_sim::FetchParams::default(), "seed": c.seed,
-                "episodes": study.eval_episodes(*m, *m), "minutes": c.episode_minutes})
-            }
-            // Every seed meets the same episodes; seed 0's inputs are as they always were.
-            StepKind::Approach { p, k } => {
-                let mut v = serde_json::json!({"approach": study.name(*p), "seed": c.seed,
-                "episodes": c.approach_episodes, "minutes": c.approach_minutes});
-                if *k > 0 {
-                    v["k"] = serde_json::json!(k);
-                }
-                v
-            }
-            StepKind::Stability { m, k } => {
-                serde_json::json!({"stability": model(*m), "k": k, "seed": c.seed,
-                "episodes": c.stability_episodes, "minutes": c.episode_minutes})
-            }
-            StepKind::Reality { p } => match &study.real {
-                Some(r) => {
-                    serde_json::json!({"real": r.join(StudyLayout::arm_dir_name(study.name(*p), &Arm::Real))})
-                }
-                None => serde_json::json!({"virtual": study.name(*p), "seed": c.seed,
-                    "trials": c.virtual_trials, "minutes": c.virtual_minutes}),
-            },
-            // The `[analysis]` table only when a study file has one, so existing studies resume.
-            StepKind::Analyze => {
-                let mut v = serde_json::json!({"analyze": c.analysis_quick, "seed": c.seed,
-                    "sim_trials": c.sim_trials});
-                if !c.analysis.is_empty() {
-                    v["analysis"] = serde_json::Value::Object(c.analysis.clone());
-                }
-                v
-            }
-            StepKind::Report => serde_json::json!({"report": 1}),
         }
     }
 
@@ -217,13 +122,22 @@ impl Study {
         kind.output(self)
     }
 
-    /// The plan, in an order where every step comes after its dependencies.
-    pub fn plan(&self) -> Vec<Step> {
+    /// The plan, in an order where every step comes after its dependencies. Each step's hash
+    /// is that of everything it reads and of the steps it uses: this function only wires the
+    /// dependencies.
+    pub fn plan(&self) -> Result<Vec<Step>, StudyError> {
         let n = self.cfg.models.len();
         let seeds = self.cfg.extra_seeds + 1;
         let mut steps: Vec<Step> = Vec::new();
-        let add = |kind: StepKind, deps: Vec<usize>, steps: &mut Vec<Step>| -> usize {
-            let mut bytes = serde_json::to_vec(&kind.inputs(self)).unwrap_or_default();
+        let add = |kind: StepKind,
+                   deps: Vec<usize>,
+                   steps: &mut Vec<Step>|
+         -> Result<usize, StudyError> {
+            let inputs = kind.inputs(self)?;
+            let mut bytes = MARKER_SCHEMA.to_le_bytes().to_vec();
+            bytes.extend(serde_json::to_vec(&inputs).map_err(|e| {
+                StudyError::Input(format!("the inputs of step {}: {e}", kind.id(self)))
+            })?);
             for d in &deps {
                 bytes.extend_from_slice(&steps[*d].hash.to_le_bytes());
             }
@@ -232,14 +146,15 @@ impl Study {
                 id,
                 kind,
                 deps,
+                inputs,
                 hash: fnv(&bytes),
             });
-            steps.len() - 1
+            Ok(steps.len() - 1)
         };
-        let fit = self
-            .convnet_data
-            .is_some()
-            .then(|| add(StepKind::FitConvnet, vec![], &mut steps));
+        let fit = match self.convnet_data {
+            Some(_) => Some(add(StepKind::FitConvnet, vec![], &mut steps)?),
+            None => None,
+        };
         // Steps that simulate a refitted ConvNet need its weights.
         let needs_fit = |m: usize| -> Vec<usize> {
             match (&self.cfg.models[m].spec, fit) {
@@ -254,7 +169,7 @@ impl Study {
                 if k == 0 && self.external_policy(m).is_some() {
                     continue;
                 }
-                *slot = Some(add(StepKind::Train { m, k }, needs_fit(m), &mut steps));
+                *slot = Some(add(StepKind::Train { m, k }, needs_fit(m), &mut steps)?);
             }
         }
         let mut for_analysis = Vec::new();
@@ -263,31 +178,31 @@ impl Study {
             for m in 0..n {
                 let mut deps = policy.clone();
                 deps.extend(needs_fit(m));
-                for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps));
+                for_analysis.push(add(StepKind::Eval { p, m }, deps, &mut steps)?);
             }
-            for_analysis.push(add(StepKind::Baseline { m: p }, needs_fit(p), &mut steps));
+            for_analysis.push(add(StepKind::Baseline { m: p }, needs_fit(p), &mut steps)?);
             for_analysis.push(add(
                 StepKind::Approach { p, k: 0 },
                 policy.clone(),
                 &mut steps,
-            ));
-            for_analysis.push(add(StepKind::Reality { p }, policy, &mut steps));
+            )?);
+            for_analysis.push(add(StepKind::Reality { p }, policy, &mut steps)?);
         }
         for (m, row) in train.iter().enumerate() {
             for (k, t) in row.iter().enumerate() {
                 let deps: Vec<usize> = t.iter().copied().collect();
                 if k > 0 {
                     let approach = StepKind::Approach { p: m, k };
-                    for_analysis.push(add(approach, deps.clone(), &mut steps));
+                    for_analysis.push(add(approach, deps.clone(), &mut steps)?);
                 }
-                for_analysis.push(add(StepKind::Stability { m, k }, deps, &mut steps));
+                for_analysis.push(add(StepKind::Stability { m, k }, deps, &mut steps)?);
             }
         }
-        let analyze = add(StepKind::Analyze, for_analysis, &mut steps);
+        let analyze = add(StepKind::Analyze, for_analysis, &mut steps)?;
         let mut report_deps = vec![analyze];
         report_deps.extend(train.iter().filter_map(|row| row[0]));
-        add(StepKind::Report, report_deps, &mut steps);
-        steps
+        add(StepKind::Report, report_deps, &mut steps)?;
+        Ok(steps)
     }
 }
 
@@ -295,22 +210,34 @@ impl Study {
 mod tests {
     use super::*;
     use crate::StudyConfig;
+    use std::collections::{BTreeMap, BTreeSet};
+
+    fn plan_of(cfg: StudyConfig) -> Vec<Step> {
+        Study::new("/tmp/x".into(), cfg, None)
+            .unwrap()
+            .plan()
+            .unwrap()
+    }
+
+    fn json(i: &StepInputs) -> serde_json::Value {
+        serde_json::to_value(i).unwrap()
+    }
 
     #[test]
     fn the_plan_orders_dependencies_and_a_changed_setting_changes_only_its_downstream() {
         let cfg = StudyConfig::preset("smoke").unwrap();
         let s = Study::new("/tmp/x".into(), cfg.clone(), None).unwrap();
-        let plan = s.plan();
+        let plan = s.plan().unwrap();
         // 4 models x 2 seeds trainings, 16 evals, 4 baselines, 4 x 2 approach, 4 reality, 8
         // stability, analyze, report.
         assert_eq!(plan.len(), 8 + 16 + 4 + 8 + 4 + 8 + 2);
-        // Seed 0's assay keeps the id and inputs it always had (existing studies resume); a
-        // stability seed's assay runs its own policy on the same episodes.
+        // A stability seed's assay runs its own policy on the same episodes as seed 0's.
         let ids: Vec<&str> = plan.iter().map(|st| st.id.as_str()).collect();
         assert!(ids.contains(&"approach-Zone") && ids.contains(&"approach-Zone-1"));
-        let zero = StepKind::Approach { p: 0, k: 0 }.inputs(&s);
-        assert!(zero.get("k").is_none());
-        assert_eq!(StepKind::Approach { p: 0, k: 1 }.inputs(&s)["k"], 1);
+        let zero = json(&StepKind::Approach { p: 0, k: 0 }.inputs(&s).unwrap());
+        let one = json(&StepKind::Approach { p: 0, k: 1 }.inputs(&s).unwrap());
+        assert_eq!(zero["evaluation"], one["evaluation"]);
+        assert_eq!(one["policy"]["trained"]["k"], 1);
         assert_eq!(
             s.output(&StepKind::Approach { p: 1, k: 1 }),
             PathBuf::from(format!("/tmp/x/approach_stability/{}/seed1", s.name(1)))
@@ -320,7 +247,7 @@ mod tests {
         }
         let mut cfg2 = cfg;
         cfg2.stability_episodes += 1;
-        let plan2 = Study::new("/tmp/x".into(), cfg2, None).unwrap().plan();
+        let plan2 = plan_of(cfg2);
         let changed: Vec<&str> = plan
             .iter()
             .zip(&plan2)
@@ -339,9 +266,8 @@ mod tests {
 
     #[test]
     fn training_hashes_follow_the_resolved_ppo_settings_not_the_preset_name() {
-        let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
         let paper = StudyConfig::preset("paper").unwrap();
-        let base = plan(paper.clone());
+        let base = plan_of(paper.clone());
         // Setting the epochs the preset already has, and the expensive fish's budget the preset
         // already gives them, changes nothing.
         let mut same = paper.clone();
@@ -350,12 +276,9 @@ mod tests {
             train_steps: 832_300,
             ppo_epochs: 10,
         });
-        for (a, b) in base.iter().zip(&plan(same)) {
+        for (a, b) in base.iter().zip(&plan_of(same)) {
             assert_eq!(a.hash, b.hash, "{}", a.id);
         }
-        // The published epochs, by override or by preset, change the training and all that
-        // follows it, and nothing else; the override keeps the `paper` preset's log-s.d. bound
-        // and the preset does not, so the two trainings differ.
         // The discount: the preset's own changes nothing, another changes every training and
         // what follows it; the settings record it only when it is set.
         let mut own_gamma = paper.clone();
@@ -364,17 +287,23 @@ mod tests {
         published_gamma.ppo_gamma = Some(0.9453);
         for (a, (b, c)) in base
             .iter()
-            .zip(plan(own_gamma).iter().zip(&plan(published_gamma)))
+            .zip(plan_of(own_gamma).iter().zip(&plan_of(published_gamma)))
         {
             assert_eq!(a.hash, b.hash, "{}", a.id);
             let downstream = !a.id.starts_with("fit-convnet") && !a.id.starts_with("baseline-");
             assert_eq!(a.hash != c.hash, downstream, "{}", a.id);
         }
         assert!(!serde_json::to_string(&paper).unwrap().contains("ppo_gamma"));
+        // The published epochs, by override or by preset, change the training and all that
+        // follows it, and nothing else; the override keeps the `paper` preset's log-s.d. bound
+        // and the preset does not, so the two trainings differ.
         let mut hundred = paper.clone();
         hundred.ppo_epochs = Some(100);
         let published = StudyConfig::preset("published").unwrap();
-        for (a, (b, c)) in base.iter().zip(plan(hundred).iter().zip(&plan(published))) {
+        for (a, (b, c)) in base
+            .iter()
+            .zip(plan_of(hundred).iter().zip(&plan_of(published)))
+        {
             // Baselines run no policy: the PPO settings do not touch them.
             let downstream = !a.id.starts_with("fit-convnet") && !a.id.starts_with("baseline-");
             assert_eq!(a.hash != b.hash, downstream, "{}", a.id);
@@ -383,48 +312,210 @@ mod tests {
                 assert_ne!(b.hash, c.hash, "{}", a.id);
             }
         }
-        // A marker written by fishprobe 0.1.0, when the `paper` preset meant 100 epochs and the
-        // hash held only the preset's name, no longer passes for a `paper` training.
-        let follow = base.iter().find(|s| s.id == "train-Follow-0").unwrap();
-        assert_ne!(format!("{:016x}", follow.hash), "7b2a1ef96103b6b1");
-        // The trainer's revision is hashed too: policies of a broken trainer are retrained.
+        // The trainer's revision is read, so hashed: policies of a broken trainer are
+        // retrained.
         let s = Study::new("/tmp/x".into(), paper, None).unwrap();
-        let train = StepKind::Train { m: 0, k: 0 }.inputs(&s);
+        let train = json(&StepKind::Train { m: 0, k: 0 }.inputs(&s).unwrap());
         assert_eq!(train["trainer"], fishprobe_learn::TRAINER_REVISION);
-        assert!(StepKind::Baseline { m: 0 }
-            .inputs(&s)
-            .get("trainer")
-            .is_none());
+        let baseline = json(&StepKind::Baseline { m: 0 }.inputs(&s).unwrap());
+        assert!(baseline.get("trainer").is_none());
     }
 
     #[test]
-    fn a_task_table_changes_every_step_and_its_absence_none() {
-        let plan = |cfg: StudyConfig| Study::new("/tmp/x".into(), cfg, None).unwrap().plan();
+    fn a_task_table_changes_every_step_and_a_default_written_out_none() {
         let quick = StudyConfig::preset("quick").unwrap();
-        let base = plan(quick.clone());
-        // A task other than the default is hashed: every step is redone with it (trainings
-        // and trials use the task; the rest follows them); studies without one resume.
+        let base = plan_of(quick.clone());
+        // Trainings and trials use the task; the rest follows them.
         let mut mixed = quick;
         mixed
             .task
             .insert("training_start".into(), serde_json::json!("mixed"));
-        let with = plan(mixed);
+        let with = plan_of(mixed);
         assert_eq!(base.len(), with.len());
         for (a, b) in base.iter().zip(&with) {
             assert_ne!(a.hash, b.hash, "{}", a.id);
         }
-        let s = Study::new("/tmp/x".into(), StudyConfig::preset("quick").unwrap(), None).unwrap();
-        assert!(StepKind::Train { m: 0, k: 0 }
-            .inputs(&s)
-            .get("task")
-            .is_none());
-        // A default written out is no change.
         let mut explicit = StudyConfig::preset("quick").unwrap();
         explicit
             .task
             .insert("training_start".into(), serde_json::json!("random"));
-        for (a, b) in base.iter().zip(&plan(explicit)) {
+        for (a, b) in base.iter().zip(&plan_of(explicit)) {
             assert_eq!(a.hash, b.hash, "{}", a.id);
         }
+    }
+
+    /// The steps a changed configuration runs (again): those whose hash changed and those
+    /// new to the plan.
+    fn reruns(before: &[Step], after: &[Step]) -> BTreeSet<String> {
+        let old: BTreeMap<&str, u64> = before.iter().map(|s| (s.id.as_str(), s.hash)).collect();
+        after
+            .iter()
+            .filter(|s| old.get(s.id.as_str()) != Some(&s.hash))
+            .map(|s| s.id.clone())
+            .collect()
+    }
+
+    /// The steps that read a changed setting themselves: those whose own inputs changed (not
+    /// only a dependency's) and those new to the plan.
+    fn readers(before: &[Step], after: &[Step]) -> BTreeSet<String> {
+        let old: BTreeMap<&str, serde_json::Value> = before
+            .iter()
+            .map(|s| (s.id.as_str(), json(&s.inputs)))
+            .collect();
+        after
+            .iter()
+            .filter(|s| old.get(s.id.as_str()) != Some(&json(&s.inputs)))
+            .map(|s| s.id.clone())
+            .collect()
+    }
+
+    /// Every setting of a study (a smoke study with M_ConvNet refitted, so that every kind of
+    /// step is planned), changed one at a time: each reruns the steps that read it, or is one
+    /// of the presentation-only settings. A setting added to the study configuration without
+    /// a line here fails the test.
+    #[test]
+    fn every_setting_reruns_the_steps_that_read_it() {
+        use serde_json::json;
+        let root = std::env::temp_dir().join(format!("fishprobe-flip-{}", std::process::id()));
+        let data = root.join("data");
+        for sub in ["train", "validation"] {
+            std::fs::create_dir_all(data.join(sub)).unwrap();
+        }
+        let smoke = StudyConfig::preset("smoke").unwrap();
+        let plan = |cfg: serde_json::Value| {
+            let cfg: StudyConfig = serde_json::from_value(cfg).unwrap();
+            Study::with_convnet_data(root.join("study"), cfg, None, Some(data.clone()))
+                .unwrap()
+                .plan()
+                .unwrap()
+        };
+        let base_json = serde_json::to_value(&smoke).unwrap();
+        let base = plan(base_json.clone());
+        let models = base_json["models"].clone();
+        let mut other_models = models.clone();
+        other_models[0]["spec"] = models[1]["spec"].clone();
+        // (setting, a changed value, steps that read it, by id prefix: their own inputs
+        // change, and they and everything after them rerun)
+        let cases: Vec<(&str, serde_json::Value, &[&str])> = vec![
+            (
+                "seed",
+                json!(7),
+                &[
+                    "fit-convnet",
+                    "train-",
+                    "eval-",
+                    "baseline-",
+                    "approach-",
+                    "stability-",
+                    "reality-",
+                    "analyze",
+                ],
+            ),
+            (
+                "models",
+                other_models,
+                &["train-Follow", "eval-Follow__Follow", "baseline-Follow"],
+            ),
+            ("ppo_preset", json!("quick"), &["train-"]),
+            ("train_steps", json!(2048), &["train-"]),
+            ("ppo_epochs", json!(3), &["train-"]),
+            ("ppo_gamma", json!(0.9), &["train-"]),
+            (
+                "expensive_fish_budget",
+                json!({"train_steps": 2048, "ppo_epochs": 3}),
+                &["train-ConvNet"],
+            ),
+            (
+                "extra_seeds",
+                json!(2),
+                &["train-Zone-2", "stability-Zone-2", "approach-Zone-2"],
+            ),
+            (
+                "episode_minutes",
+                json!(3.0),
+                &["eval-", "baseline-", "stability-"],
+            ),
+            (
+                "sim_trials",
+                json!(5),
+                &["eval-Zone__Zone", "baseline-Zone", "analyze"],
+            ),
+            (
+                "cross_episodes",
+                json!(5),
+                &["eval-Zone__Follow", "eval-Zone__Zone"],
+            ),
+            ("approach_episodes", json!(3), &["approach-"]),
+            ("approach_minutes", json!(1.5), &["approach-"]),
+            ("stability_episodes", json!(4), &["stability-"]),
+            ("virtual_trials", json!(4), &["reality-"]),
+            ("virtual_minutes", json!(3.0), &["reality-"]),
+            ("analysis_quick", json!(false), &["analyze"]),
+            ("convnet_max_epochs", json!(2), &["fit-convnet"]),
+            (
+                "policies",
+                json!({"Zone": "scripted:goal-seeker"}),
+                &["eval-Zone__", "approach-Zone", "reality-Zone"],
+            ),
+            (
+                "fish_count",
+                json!(2),
+                &["train-", "eval-", "baseline-", "stability-", "reality-"],
+            ),
+            (
+                "group_goal",
+                json!("centroid"),
+                &["train-", "eval-", "stability-", "reality-"],
+            ),
+            (
+                "centroid_bins",
+                json!(true),
+                &["train-", "eval-", "approach-", "stability-", "reality-"],
+            ),
+            (
+                "analysis",
+                json!({"competence_threshold": 0.5}),
+                &["analyze"],
+            ),
+            (
+                "task",
+                json!({"training_start": "mixed"}),
+                &["train-", "eval-", "reality-"],
+            ),
+        ];
+        let presentation: Vec<&str> = crate::config::PRESENTATION_ONLY
+            .iter()
+            .map(|(k, _)| *k)
+            .collect();
+        let mut covered: BTreeSet<&str> = cases.iter().map(|c| c.0).collect();
+        covered.extend(&presentation);
+        // Every field the configuration can hold (optional ones written out when set).
+        let mut all = base_json.as_object().unwrap().clone();
+        all.insert("ppo_gamma".into(), json!(0.9));
+        for key in all.keys() {
+            assert!(covered.contains(key.as_str()), "no flip case for `{key}`");
+        }
+        for (key, value, expected) in &cases {
+            let mut cfg = base_json.clone();
+            cfg[*key] = value.clone();
+            let after = plan(cfg);
+            let read = readers(&base, &after);
+            for prefix in *expected {
+                assert!(
+                    read.iter().any(|id| id.starts_with(prefix)),
+                    "`{key}` changed, but no `{prefix}` step reads it: {read:?}"
+                );
+            }
+            // Whatever reads it reruns, and what follows (the report follows everything).
+            let changed = reruns(&base, &after);
+            assert!(read.is_subset(&changed), "{key}");
+            assert!(changed.contains("report"), "{key}: {changed:?}");
+        }
+        for key in presentation {
+            let mut cfg = base_json.clone();
+            cfg[key] = json!("renamed");
+            assert!(reruns(&base, &plan(cfg)).is_empty(), "{key}");
+        }
+        let _ = std::fs::remove_dir_all(&root);
     }
 }

@@ -15,6 +15,9 @@ pub enum Event {
         total: usize,
         /// Complete and valid from an earlier run.
         complete: usize,
+        /// Recorded by an older fishprobe, whose completion markers held something else:
+        /// recomputed once.
+        older: usize,
     },
     /// A step started.
     Started(String),
@@ -29,7 +32,7 @@ impl Study {
     /// Runs the one step `id` (its dependencies must be complete): what a SLURM array task
     /// does. A complete step is left alone.
     pub fn run_one(&self, id: &str) -> Result<(), StudyError> {
-        let steps = self.plan();
+        let steps = self.plan()?;
         let s = steps
             .iter()
             .find(|s| s.id == id)
@@ -60,6 +63,7 @@ impl Study {
         on_event(Event::Planned {
             total: steps.len(),
             complete: done.iter().filter(|d| **d).count(),
+            older: steps.iter().filter(|s| self.marked_by_older(s)).count(),
         });
         let jobs = jobs.max(1);
         let threads = (std::thread::available_parallelism().map_or(1, |n| n.get()) / jobs).max(1);

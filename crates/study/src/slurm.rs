@@ -132,6 +132,7 @@ impl Study {
         on_event(Event::Planned {
             total: steps.len(),
             complete: steps.len() - train.len() - eval.len() - 2,
+            older: steps.iter().filter(|s| self.marked_by_older(s)).count(),
         });
         let mut jobs = Vec::new();
         let train_job = if train.is_empty() {

@@ -4,6 +4,7 @@
 
 use crate::error::{StepError, StudyError};
 use crate::plan::{Step, StepKind};
+use crate::steps::MARKER_SCHEMA;
 use crate::{manifest, Study};
 use fishprobe_io::StudyLayout;
 use std::path::{Path, PathBuf};
@@ -47,19 +48,30 @@ impl Study {
         else {
             return false;
         };
+        let schema_ok = marker["schema"].as_u64() == Some(u64::from(MARKER_SCHEMA));
         let hash_ok = marker["hash"].as_str() == Some(format!("{:016x}", s.hash).as_str());
-        hash_ok
+        schema_ok
+            && hash_ok
             && output_valid(self, s)
             && manifest::matches(&marker, &manifest::manifest(&self.output(&s.kind)))
+    }
+
+    /// Whether a step's marker was written by an older fishprobe, whose markers held
+    /// something else (another [`MARKER_SCHEMA`]): such a step is recomputed once.
+    pub fn marked_by_older(&self, s: &Step) -> bool {
+        fishprobe_io::read_small_text(&self.marker(s))
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .is_some_and(|m| m["schema"].as_u64() != Some(u64::from(MARKER_SCHEMA)))
     }
 
     pub(crate) fn mark(&self, s: &Step, secs: f64) -> Result<(), StudyError> {
         let p = self.marker(s);
         let outputs = manifest::manifest(&self.output(&s.kind));
-        let text =
-            serde_json::json!({"step": s.id, "hash": format!("{:016x}", s.hash), "seconds": secs,
-            "inputs": s.kind.inputs(self), "outputs": outputs})
-            .to_string();
+        let text = serde_json::json!({"schema": MARKER_SCHEMA, "step": s.id,
+            "hash": format!("{:016x}", s.hash), "seconds": secs, "inputs": s.inputs,
+            "outputs": outputs})
+        .to_string();
         if let Some(d) = p.parent() {
             std::fs::create_dir_all(d).map_err(|e| StudyError::Io {
                 path: d.to_path_buf(),
@@ -75,7 +87,7 @@ impl Study {
     /// Writes `study.json`, the log directory, and moves stale outputs aside: what every run
     /// does before its first step.
     pub fn prepare(&self) -> Result<Vec<Step>, StudyError> {
-        let steps = self.plan();
+        let steps = self.plan()?;
         let l = self.layout();
         std::fs::create_dir_all(l.logs()).map_err(|e| StudyError::Io {
             path: l.logs(),

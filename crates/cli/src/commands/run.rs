@@ -102,10 +102,21 @@ pub fn run(a: RunArgs) -> Result<()> {
     let on_event = |e: Event| {
         let mut r = running.lock().unwrap_or_else(|p| p.into_inner());
         let line = match &e {
-            Event::Planned { total, complete } => {
+            Event::Planned {
+                total,
+                complete,
+                older,
+            } => {
                 bar.set_length(*total as u64);
                 bar.set_position(*complete as u64);
-                format!("{total} steps, {complete} complete from an earlier run")
+                let mut line = format!("{total} steps, {complete} complete from an earlier run");
+                if *older > 0 {
+                    line.push_str(&format!(
+                        "; {older} recorded by an older fishprobe, whose records held less of \
+                         what each step reads, are recomputed once"
+                    ));
+                }
+                line
             }
             Event::Started(id) => {
                 r.insert(id.clone());

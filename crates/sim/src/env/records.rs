@@ -45,7 +45,7 @@ pub struct Trajectory {
 }
 
 /// Explicit start poses (x, y, heading) instead of random ones, e.g. for the approach assay.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct StartPoses {
     /// Robot pose.
     pub robot: [f32; 3],
