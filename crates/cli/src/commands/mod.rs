@@ -323,7 +323,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 const TOML_LINE_SHOWN: usize = 200;
 
 /// The live settings of the three live commands (`live serve`, `live biotracker`, `lab`):
-/// a TOML file of [`LiveConfig`] fields, or the paper's protocol; checked.
+/// a TOML file of [`LiveConfig`](fishprobe_live::session::LiveConfig) fields, or the paper's protocol; checked.
 pub(crate) fn live_settings(
     path: Option<&std::path::Path>,
 ) -> anyhow::Result<fishprobe_live::session::LiveConfig> {
