@@ -34,6 +34,14 @@ pub enum IoError {
         /// The limit.
         limit: u64,
     },
+    /// An HDF5 file of neither trial layout ([`crate::read_any_trial`]): why, as each.
+    #[error("{robofish}; as a legacy file: {legacy}")]
+    NeitherLayout {
+        /// Why it is not robofish.io.
+        robofish: Box<IoError>,
+        /// Why it is not the lab's pre-2020 layout.
+        legacy: Box<IoError>,
+    },
     /// The file is not HDF5.
     #[error("{}: not an HDF5 file (no HDF5 signature)", path.display())]
     NotHdf5 {

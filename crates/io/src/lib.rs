@@ -24,6 +24,7 @@
 
 #![warn(missing_docs)]
 
+pub mod any;
 pub mod attr;
 pub mod backend;
 pub mod error;
@@ -37,6 +38,7 @@ pub mod run;
 pub mod scratch;
 pub mod trial;
 
+pub use any::{read_any_trial, read_any_trial_layout, TrialLayout};
 pub use attr::Attr;
 pub use error::IoError;
 pub use layout::{Arm, StudyLayout};

@@ -102,9 +102,13 @@ fn every_pair_file_reads_and_legacy_matches_its_conversion() {
             assert_eq!(e.frames(), 8990, "{}", f.display());
             assert_eq!(e.category, Category::Fish);
         }
-        // Reading a legacy file as robofish.io says what it is.
+        // Reading a legacy file as robofish.io says what it is; the one reader of both
+        // layouts tells them apart.
         let err = read_trial(f).unwrap_err().to_string();
         assert!(err.contains("import-legacy"), "{err}");
+        let (any, layout) = fishprobe_io::read_any_trial_layout(f).unwrap();
+        assert_eq!(layout, fishprobe_io::TrialLayout::Legacy);
+        assert_eq!(any.entities.len(), t.entities.len());
     }
     let mut in_train = 0;
     for c in &converted {

@@ -30,15 +30,6 @@ pub enum LearnError {
     /// A training run's directory that cannot be resumed or written.
     #[error("{0}")]
     Run(String),
-    /// A recording that is neither a robofish.io trial file nor of the legacy layout: why, as
-    /// each.
-    #[error("{robofish}; as a legacy file: {legacy}")]
-    NotATrial {
-        /// Why it is not robofish.io.
-        robofish: fishprobe_io::IoError,
-        /// Why it is not the legacy layout.
-        legacy: fishprobe_io::IoError,
-    },
     /// A PPO update's loss went non-finite (the trainer reports it as divergence).
     #[error("non-finite loss (surrogate {surrogate}, KL {kl}, value {value})")]
     NonFiniteLoss {

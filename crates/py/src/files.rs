@@ -12,13 +12,9 @@ pub(crate) fn read_trial<'py>(
     trial_dict(py, &read_any_trial(&path)?)
 }
 
-/// A trial file in robofish.io 1.0 or, failing that, the lab's pre-2020 layout (the first
-/// format's error when neither reads).
+/// A trial file in robofish.io 1.0 or the lab's pre-2020 layout.
 fn read_any_trial(path: &std::path::Path) -> PyResult<TrialFile> {
-    match fishprobe_io::read_trial(path) {
-        Ok(t) => Ok(t),
-        Err(first) => fishprobe_io::read_legacy(path).map_err(|_| io_err(first)),
-    }
+    fishprobe_io::read_any_trial(path).map_err(io_err)
 }
 
 /// The support scores of the fish's views in a trial file against `model`'s training support, from the start of closed-loop control, one entry per fish and tracked frame:

@@ -4,7 +4,8 @@
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use fishprobe_analysis::offline::{compare_offline, read_recordings, OfflineConfig};
-use fishprobe_learn::bc::{list_files, read_any};
+use fishprobe_io::read_any_trial;
+use fishprobe_learn::bc::list_files;
 use fishprobe_models::ModelSpec;
 use fishprobe_report::offline::offline_figures;
 use std::path::PathBuf;
@@ -85,7 +86,7 @@ pub fn run(a: CompareOfflineArgs) -> Result<()> {
         );
     }
     let res = super::with_jobs(a.jobs, || -> Result<_> {
-        let (real, skipped) = read_recordings(&files, read_any, &cfg);
+        let (real, skipped) = read_recordings(&files, read_any_trial, &cfg);
         for (f, why) in &skipped {
             say!("warning: skipped {f}: {why}");
         }

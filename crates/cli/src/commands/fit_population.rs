@@ -7,7 +7,8 @@ use fishprobe_analysis::offline::{
     compare_offline, read_recordings, recording_values, simulate_model, OfflineConfig, Recording,
     RecordingValues,
 };
-use fishprobe_learn::bc::{list_files, pairs_or_shared, read_any};
+use fishprobe_io::read_any_trial;
+use fishprobe_learn::bc::{list_files, pairs_or_shared};
 use fishprobe_learn::population::{fit, start, FitConfig, FitState, Progress};
 use fishprobe_models::{ModelSpec, PopulationParams};
 use serde_json::json;
@@ -59,7 +60,7 @@ fn recordings(
     cfg: &OfflineConfig,
 ) -> Result<Vec<(String, Recording)>> {
     let files = list_files(dirs);
-    let (real, skipped) = read_recordings(&files, read_any, cfg);
+    let (real, skipped) = read_recordings(&files, read_any_trial, cfg);
     for (f, why) in &skipped {
         say!("warning: skipped {f}: {why}");
     }

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use clap::Args;
-use fishprobe_io::{read_legacy, read_trial, IoError, TrialFile};
+use fishprobe_io::{IoError, TrialFile};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::fmt::Write;
@@ -21,15 +21,9 @@ pub struct InspectArgs {
     json: bool,
 }
 
-/// Reads robofish.io, falling back to the legacy layout when the file says it is one.
+/// Reads either layout, with the layout's name.
 fn read_any(path: &Path) -> Result<(TrialFile, &'static str), IoError> {
-    match read_trial(path) {
-        Ok(t) => Ok((t, "robofish.io 1.0")),
-        Err(e) if e.to_string().contains("import-legacy") => {
-            Ok((read_legacy(path)?, "legacy (pre-2020)"))
-        }
-        Err(e) => Err(e),
-    }
+    fishprobe_io::read_any_trial_layout(path).map(|(t, l)| (t, l.label()))
 }
 
 /// What `inspect` reports of one file (`--json` prints it; fields in alphabetical order).

@@ -220,7 +220,7 @@ fn exit_if_signalled() -> Result<()> {
 }
 
 fn replay_cmd(a: ReplayArgs) -> Result<()> {
-    let t = fishprobe_learn::bc::read_any(&a.file).map_err(anyhow::Error::msg)?;
+    let t = fishprobe_io::read_any_trial(&a.file)?;
     let robot = t.robot().context("the file has no robot")?;
     let fish = t.fish().next().context("the file has no fish")?;
     let rh = robot.headings_from_motion(0.1);

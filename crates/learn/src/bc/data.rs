@@ -3,7 +3,7 @@
 
 use super::CloneConfig;
 use crate::error::LearnError;
-use fishprobe_io::{read_legacy, read_trial, Attr, TrialFile};
+use fishprobe_io::Attr;
 use fishprobe_models::convnet::{encode_view, ConvNetArch, CHANNELS};
 use fishprobe_sim::{wrap_angle, AgentState, Tank, TankParams};
 use rayon::prelude::*;
@@ -38,16 +38,6 @@ impl PairDataset {
     /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.y.is_empty()
-    }
-}
-
-/// Reads robofish.io, or else the legacy layout.
-pub fn read_any(path: &Path) -> Result<TrialFile, crate::LearnError> {
-    match read_trial(path) {
-        Ok(t) => Ok(t),
-        Err(robofish) => {
-            read_legacy(path).map_err(|legacy| crate::LearnError::NotATrial { robofish, legacy })
-        }
     }
 }
 
@@ -123,7 +113,7 @@ fn add_file(
     cfg: &CloneConfig,
     d: &mut PairDataset,
 ) -> Result<(), String> {
-    let t = read_any(path).map_err(|e| e.to_string())?;
+    let t = fishprobe_io::read_any_trial(path).map_err(|e| e.to_string())?;
     if (t.world_size_cm[0] - 100.0).abs() > 0.5 || (t.world_size_cm[1] - 100.0).abs() > 0.5 {
         return Err(format!(
             "world size {} x {} cm, not the 100 x 100 cm tank",
