@@ -156,37 +156,103 @@ impl Controller for PolicyController {
     }
 }
 
-/// A controller from a `--policy` argument: a policy directory (`fishprobe train`'s output),
-/// `onnx:PATH` (an ONNX file of the policy contract, `docs/onnx-models.md`; its one
-/// deterministic output), or a scripted baseline (`scripted:goal-seeker`,
-/// `scripted:fetch-and-lead`). `stochastic` samples a policy directory's Gaussian instead of
-/// taking its mean; for an ONNX file or a scripted controller, which give one action per
-/// observation, it is refused rather than silently ignored.
+/// A `--policy` argument, parsed once: where a robot policy comes from. The one parser of
+/// policy strings (the CLI's flags, study files, the Python package).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PolicyArg {
+    /// A policy directory (`fishprobe train`'s output).
+    Dir(std::path::PathBuf),
+    /// `onnx:PATH`: an ONNX file of the policy contract (`docs/onnx-models.md`).
+    Onnx(std::path::PathBuf),
+    /// `scripted:NAME`: a scripted baseline (`scripted:goal-seeker`, ...).
+    Scripted(String),
+}
+
+impl PolicyArg {
+    /// The prefix of an ONNX policy.
+    pub const ONNX: &'static str = "onnx:";
+    /// The prefix of a scripted controller.
+    pub const SCRIPTED: &'static str = "scripted:";
+
+    /// Parses a policy string.
+    pub fn parse(arg: &str) -> Self {
+        if let Some(name) = arg.strip_prefix(Self::SCRIPTED) {
+            PolicyArg::Scripted(name.to_string())
+        } else if let Some(path) = arg.strip_prefix(Self::ONNX) {
+            PolicyArg::Onnx(path.into())
+        } else {
+            PolicyArg::Dir(arg.into())
+        }
+    }
+
+    /// A relative path taken relative to `dir` (a study file's folder); scripted
+    /// controllers and absolute paths stay as they are.
+    pub fn relative_to(self, dir: &Path) -> Self {
+        match self {
+            PolicyArg::Dir(p) if p.is_relative() => PolicyArg::Dir(dir.join(p)),
+            PolicyArg::Onnx(p) if p.is_relative() => PolicyArg::Onnx(dir.join(p)),
+            other => other,
+        }
+    }
+
+    /// Whether it gives one action per observation (ONNX, scripted) rather than a
+    /// distribution to sample.
+    pub fn is_deterministic(&self) -> bool {
+        !matches!(self, PolicyArg::Dir(_))
+    }
+
+    /// The SHA-256 of the file whose weights decide the actions (the ONNX file; a directory's
+    /// `policy.safetensors`); `None` for a scripted controller.
+    pub fn sha256(&self) -> Result<Option<String>, LearnError> {
+        match self {
+            PolicyArg::Scripted(_) => Ok(None),
+            PolicyArg::Onnx(p) => Ok(Some(fishprobe_models::onnx_sha256(p)?)),
+            PolicyArg::Dir(d) => {
+                let w = crate::run::RunLayout::new(d).policy();
+                fishprobe_models::weights_sha256(&w)
+                    .map(Some)
+                    .map_err(|e| LearnError::Policy(format!("{}: {e}", w.display())))
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for PolicyArg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            PolicyArg::Dir(p) => write!(f, "{}", p.display()),
+            PolicyArg::Onnx(p) => write!(f, "{}{}", Self::ONNX, p.display()),
+            PolicyArg::Scripted(n) => write!(f, "{}{n}", Self::SCRIPTED),
+        }
+    }
+}
+
+/// A controller from a `--policy` argument ([`PolicyArg`]): a policy directory, an ONNX file
+/// (its one deterministic output) or a scripted baseline. `stochastic` samples a policy
+/// directory's Gaussian instead of taking its mean; for an ONNX file or a scripted
+/// controller, which give one action per observation, it is refused rather than silently
+/// ignored.
 pub fn controller(arg: &str, stochastic: bool) -> Result<Box<dyn Controller>, LearnError> {
-    if stochastic && (arg.starts_with("scripted:") || arg.starts_with("onnx:")) {
+    let policy = PolicyArg::parse(arg);
+    if stochastic && policy.is_deterministic() {
         return Err(LearnError::Policy(format!(
             "stochastic actions sample a policy directory's Gaussian; `{arg}` gives one \
              action per observation (an ONNX file holds only the mean action: sample from the \
              policy directory it was exported from, or run it without sampling)"
         )));
     }
-    if let Some(name) = arg.strip_prefix("scripted:") {
-        return fishprobe_sim::scripted(name).ok_or_else(|| {
+    match policy {
+        PolicyArg::Scripted(name) => fishprobe_sim::scripted(&name).ok_or_else(|| {
             LearnError::Policy(format!(
                 "unknown scripted controller `{arg}`: use {}",
                 fishprobe_sim::SCRIPTED_ALL
-                    .map(|n| format!("scripted:{n}"))
+                    .map(|n| format!("{}{n}", PolicyArg::SCRIPTED))
                     .join(", ")
             ))
-        });
+        }),
+        PolicyArg::Onnx(path) => Ok(Box::new(fishprobe_onnx::OnnxPolicy::load(&path)?)),
+        PolicyArg::Dir(dir) => Ok(Box::new(PolicyController::load(&dir, stochastic)?)),
     }
-    if let Some(path) = arg.strip_prefix("onnx:") {
-        return Ok(Box::new(fishprobe_onnx::OnnxPolicy::load(Path::new(path))?));
-    }
-    Ok(Box::new(PolicyController::load(
-        Path::new(arg),
-        stochastic,
-    )?))
 }
 
 /// A robot pilot for live trials, from a `--policy` argument (as [`controller`]): loaded and
@@ -450,5 +516,41 @@ mod tests {
             assert!(e.to_string().contains("about.frames_per_action"), "{e}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
+
+#[cfg(test)]
+mod policy_arg_tests {
+    use super::PolicyArg;
+    use std::path::Path;
+
+    #[test]
+    fn policy_strings_parse_and_print_back() {
+        for (arg, parsed) in [
+            ("runs/zone", PolicyArg::Dir("runs/zone".into())),
+            ("onnx:p.onnx", PolicyArg::Onnx("p.onnx".into())),
+            (
+                "scripted:goal-seeker",
+                PolicyArg::Scripted("goal-seeker".into()),
+            ),
+        ] {
+            assert_eq!(PolicyArg::parse(arg), parsed);
+            assert_eq!(parsed.to_string(), arg);
+        }
+        let d = Path::new("/study");
+        assert_eq!(
+            PolicyArg::parse("onnx:p.onnx").relative_to(d).to_string(),
+            "onnx:/study/p.onnx"
+        );
+        assert_eq!(
+            PolicyArg::parse("/abs/run").relative_to(d).to_string(),
+            "/abs/run"
+        );
+        assert_eq!(
+            PolicyArg::parse("scripted:goal-seeker")
+                .relative_to(d)
+                .to_string(),
+            "scripted:goal-seeker"
+        );
     }
 }

@@ -41,7 +41,7 @@ pub mod trainer;
 pub mod yardstick;
 
 pub use config::PpoConfig;
-pub use controller::{controller, named, pilot, PolicyController};
+pub use controller::{controller, named, pilot, PolicyArg, PolicyController};
 pub use error::LearnError;
 pub use evaluate::{
     approach_assay, evaluate, evaluate_with_model, goals_mean_sd, run_episode, EpisodeResult,

@@ -14,7 +14,10 @@ impl Policy {
     #[new]
     #[pyo3(signature = (path, stochastic=false, seed=0))]
     fn new(path: &str, stochastic: bool, seed: u64) -> PyResult<Self> {
-        if path.starts_with("scripted:") {
+        if matches!(
+            fishprobe_learn::PolicyArg::parse(path),
+            fishprobe_learn::PolicyArg::Scripted(_)
+        ) {
             return Err(PyValueError::new_err(format!(
                 "{path}: scripted controllers use privileged state, not observations; \
                  Policy runs a trained policy (a directory or onnx:PATH)"

@@ -463,14 +463,9 @@ impl StudyFile {
         dir: &std::path::Path,
     ) -> Result<StudyConfig, StudyError> {
         for p in &mut self.policies {
-            let (prefix, path) = match p.policy.strip_prefix("onnx:") {
-                Some(rest) => ("onnx:", rest),
-                None => ("", p.policy.as_str()),
-            };
-            let path = std::path::Path::new(path);
-            if path.is_relative() {
-                p.policy = format!("{prefix}{}", dir.join(path).display());
-            }
+            p.policy = fishprobe_learn::PolicyArg::parse(&p.policy)
+                .relative_to(dir)
+                .to_string();
         }
         // ONNX candidate models: the path relative to the study file, and the file's SHA-256
         // recorded (so every trial traces its fish to the exact file, and a file replaced

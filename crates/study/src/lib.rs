@@ -202,14 +202,10 @@ impl Study {
 /// The SHA-256 of a policy trained elsewhere (`onnx:PATH`: the file; a directory: its
 /// `policy.safetensors`), so that a changed file invalidates every step that ran it.
 pub(crate) fn external_policy_sha256(arg: &str) -> String {
-    let sha = match arg.strip_prefix("onnx:") {
-        Some(p) => fishprobe_models::onnx_sha256(&PathBuf::from(p)).map_err(|e| e.to_string()),
-        None => {
-            fishprobe_models::weights_sha256(&fishprobe_learn::run::RunLayout::new(arg).policy())
-                .map_err(|e| e.to_string())
-        }
-    };
-    sha.unwrap_or_else(|e| format!("unreadable: {e}"))
+    match fishprobe_learn::PolicyArg::parse(arg).sha256() {
+        Ok(sha) => sha.unwrap_or_else(|| "scripted".into()),
+        Err(e) => format!("unreadable: {e}"),
+    }
 }
 
 #[cfg(test)]
