@@ -13,8 +13,8 @@ use crate::track::{Command, FishPose, Pose};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::params::{check, ConfigError};
 use fishprobe_sim::{
-    apply_motion, stream, wrap_angle, AgentState, FishMind, FishModel, FishView, Robot,
-    RobotParams, SimRng, Tank, TankParams,
+    step_fish, stream, wrap_angle, AgentState, FishMind, FishModel, FishView, Robot, RobotParams,
+    SimRng, Tank, TankParams,
 };
 use rand::RngExt;
 use rand_distr::{Distribution, StandardNormal};
@@ -195,7 +195,6 @@ struct VirtualTank<'a> {
     stopped: bool,
     fish: Vec<AgentState>,
     minds: Vec<FishMind>,
-    motions: Vec<fishprobe_sim::FishMotion>,
     rng_fish: Vec<SimRng>,
     rng_track: SimRng,
     dropout_left: Vec<f32>,
@@ -249,7 +248,6 @@ impl<'a> VirtualTank<'a> {
             stopped: false,
             fish,
             minds,
-            motions: vec![fishprobe_sim::FishMotion::default(); n_fish],
             rng_fish,
             rng_track,
             dropout_left: vec![0.0; n_fish],
@@ -258,7 +256,7 @@ impl<'a> VirtualTank<'a> {
 
     /// One frame on, to time `t`: the robot (unless stopped) and, from `release_s` on, the
     /// fish, every fish deciding from the same snapshot before any moves.
-    fn advance(&mut self, t: f64, release_s: f64) {
+    fn advance(&mut self, t: f64, release_s: f64) -> Result<(), LiveError> {
         let dt = self.dt;
         if !self.stopped {
             self.robot.advance(&self.robot_params, &self.tank, dt);
@@ -275,22 +273,24 @@ impl<'a> VirtualTank<'a> {
                 );
                 view.individual = self.minds[i].individual;
             }
-            let width = self.model.inference_width();
-            if width > 0 {
+            if self.model.inference_width() > 0 {
                 self.model.infer_batch(&self.views, &mut self.inferred);
             }
-            for (i, m) in self.motions.iter_mut().enumerate() {
-                *m = self.model.decide(
-                    &self.views[i],
-                    &self.inferred[i * width..(i + 1) * width],
-                    &mut self.minds[i],
-                    &mut self.rng_fish[i],
-                );
-            }
-            for (f, m) in self.fish.iter_mut().zip(&self.motions) {
-                apply_motion(&self.tank, f, *m, dt);
-            }
+            let frame = ((t - release_s) / f64::from(dt)).round() as u32;
+            step_fish(
+                self.model.as_ref(),
+                &self.views,
+                &self.inferred,
+                &mut self.minds,
+                &mut self.rng_fish,
+                &mut self.fish,
+                &self.tank,
+                dt,
+                frame,
+            )
+            .map_err(|e| LiveError::Settings(format!("lab.fish_model: {e}")))?;
         }
+        Ok(())
     }
 
     /// The tracker's frame at time `t`: every pose with noise, fish in a dropout without one
@@ -400,7 +400,7 @@ pub fn run_trial(addr: SocketAddr, cfg: &LabConfig, seed: u64) -> Result<LabTria
     for k in 0..total + 50 {
         let t = k as f64 / f64::from(cfg.tracking_hz);
         if k > 0 {
-            lab.advance(t, terms.release_s);
+            lab.advance(t, terms.release_s)?;
         }
         let frame = lab.track(t, &mut out);
         if conn.write_all(to_line(&frame).as_bytes()).is_err() {

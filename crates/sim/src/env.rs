@@ -7,7 +7,7 @@
 
 use crate::agent::AgentState;
 use crate::error::SimError;
-use crate::fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_FISH};
+use crate::fish::{FishMind, FishModel, FishView, MAX_FISH};
 use crate::geometry::{Tank, TankParams};
 use crate::observation::{ObservationEncoder, ObservationParams, Scene};
 use crate::params::{check, ConfigError};
@@ -345,25 +345,22 @@ impl TankEnv {
         if contact {
             self.acc.robot_wall_contacts += 1;
         }
-        let width = self.model.inference_width();
         let inferred = inferred.unwrap_or(&self.inferred);
-        for i in 0..self.fish.len() {
-            let slice = &inferred[i * width..(i + 1) * width];
-            let m: FishMotion = self.model.decide(
-                &self.views[i],
-                slice,
-                &mut self.minds[i],
-                &mut self.fish_rngs[i],
-            );
-            if !(m.heading.is_finite() && m.speed.is_finite()) {
+        match crate::fish::step_fish(
+            self.model.as_ref(),
+            &self.views,
+            inferred,
+            &mut self.minds,
+            &mut self.fish_rngs,
+            &mut self.fish,
+            &self.tank,
+            self.dt,
+            self.frame,
+        ) {
+            Ok(contacts) => self.acc.fish_wall_contacts += contacts,
+            Err(e) => {
                 self.live = false;
-                return Err(SimError::NonFiniteModelOutput {
-                    model: self.model.name().to_string(),
-                    frame: self.frame,
-                });
-            }
-            if apply_motion(&self.tank, &mut self.fish[i], m, self.dt) {
-                self.acc.fish_wall_contacts += 1;
+                return Err(e);
             }
         }
         self.frame += 1;

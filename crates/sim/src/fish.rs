@@ -219,6 +219,45 @@ pub trait FishModel: Send + Sync + std::fmt::Debug {
     ) -> FishMotion;
 }
 
+/// The fish's part of one frame, the one place it is written (the environment, the sandbox,
+/// the virtual lab): each fish decides from its view (all built from the same snapshot
+/// before this call) and its slice of the batched inference `inferred`, then moves. A motion
+/// that is not finite is refused with [`crate::SimError::NonFiniteModelOutput`] (at `frame`)
+/// before that fish moves. Returns the wall contacts.
+#[allow(clippy::too_many_arguments)]
+pub fn step_fish(
+    model: &dyn FishModel,
+    views: &[FishView],
+    inferred: &[f32],
+    minds: &mut [FishMind],
+    rngs: &mut [SimRng],
+    fish: &mut [AgentState],
+    tank: &Tank,
+    dt: f32,
+    frame: u32,
+) -> Result<u32, crate::SimError> {
+    let width = model.inference_width();
+    let mut contacts = 0;
+    for (i, f) in fish.iter_mut().enumerate() {
+        let m = model.decide(
+            &views[i],
+            &inferred[i * width..(i + 1) * width],
+            &mut minds[i],
+            &mut rngs[i],
+        );
+        if !(m.heading.is_finite() && m.speed.is_finite()) {
+            return Err(crate::SimError::NonFiniteModelOutput {
+                model: model.name().to_string(),
+                frame,
+            });
+        }
+        if apply_motion(tank, f, m, dt) {
+            contacts += 1;
+        }
+    }
+    Ok(contacts)
+}
+
 /// Moves an agent by a fish motion, keeping it inside the tank. Returns whether the move was
 /// clipped (a wall contact).
 #[inline]

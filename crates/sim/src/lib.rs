@@ -60,7 +60,9 @@ pub use env::{
     TankEnv, Trajectory, Transition,
 };
 pub use error::SimError;
-pub use fish::{apply_motion, FishMind, FishModel, FishMotion, FishView, MAX_FISH, MAX_OTHERS};
+pub use fish::{
+    apply_motion, step_fish, FishMind, FishModel, FishMotion, FishView, MAX_FISH, MAX_OTHERS,
+};
 pub use geometry::{wrap_angle, Tank, TankParams};
 pub use group::{group_order, robot_to_group, GroupOrder};
 pub use individual::{Individual, LATENT_DIM};

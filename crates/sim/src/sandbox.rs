@@ -3,7 +3,7 @@
 
 use crate::agent::AgentState;
 use crate::error::SimError;
-use crate::fish::{apply_motion, FishMind, FishModel, FishView};
+use crate::fish::{FishMind, FishModel, FishView};
 use crate::geometry::Tank;
 use crate::rng::{stream, SimRng};
 use std::sync::Arc;
@@ -95,23 +95,17 @@ impl Sandbox {
         if width > 0 {
             self.model.infer_batch(&self.views, &mut self.inferred);
         }
-        for i in 0..self.fish.len() {
-            let m = self.model.decide(
-                &self.views[i],
-                &self.inferred[i * width..(i + 1) * width],
-                &mut self.minds[i],
-                &mut self.rngs[i],
-            );
-            if !(m.heading.is_finite() && m.speed.is_finite()) {
-                return Err(SimError::NonFiniteModelOutput {
-                    model: self.model.name().to_string(),
-                    frame: self.frame,
-                });
-            }
-            if apply_motion(&self.tank, &mut self.fish[i], m, self.dt) {
-                self.wall_contacts += 1;
-            }
-        }
+        self.wall_contacts += crate::fish::step_fish(
+            self.model.as_ref(),
+            &self.views,
+            &self.inferred,
+            &mut self.minds,
+            &mut self.rngs,
+            &mut self.fish,
+            &self.tank,
+            self.dt,
+            self.frame,
+        )?;
         self.frame += 1;
         Ok(())
     }
