@@ -23,7 +23,7 @@ fn rng(seed: u64, label: &str) -> SimRng {
 fn load_all(jobs: BTreeMap<PathBuf, bool>, cfg: &AnalysisConfig) -> Loaded {
     jobs.into_par_iter()
         .map(|(p, metrics)| {
-            let r = load_trial(&p, cfg, metrics);
+            let r = load_trial(&p, cfg, metrics).map_err(|e| e.to_string());
             (p, r)
         })
         .collect()

@@ -298,6 +298,30 @@ const _: () = assert!(
     "pair metrics come first in METRIC_TABLE"
 );
 
+/// The index of the metric `id` in a trial's metrics ([`METRIC_TABLE`]'s order). Used in a
+/// constant (as [`IID`]), an id no metric has is a compile-time error: there is no fallback.
+pub const fn metric_index(id: &str) -> usize {
+    let want = id.as_bytes();
+    let mut i = 0;
+    while i < METRIC_TABLE.len() {
+        let have = METRIC_TABLE[i].id.as_bytes();
+        if have.len() == want.len() {
+            let mut j = 0;
+            while j < have.len() && have[j] == want[j] {
+                j += 1;
+            }
+            if j == have.len() {
+                return i;
+            }
+        }
+        i += 1;
+    }
+    panic!("no metric has this id")
+}
+
+/// The inter-individual distance's index in a trial's metrics (the report's IID figure).
+pub const IID: usize = metric_index("iid");
+
 /// The pair metrics' ids, in the order of a trial's metrics.
 pub const METRICS: [&str; PAIR_METRIC_COUNT] = ids(false);
 
@@ -338,6 +362,15 @@ pub fn count_word(n: usize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn metrics_are_found_by_id() {
+        assert_eq!(METRIC_TABLE[IID].id, "iid");
+        for (i, m) in METRIC_TABLE.iter().enumerate() {
+            assert_eq!(metric_index(m.id), i);
+        }
+        assert!(std::panic::catch_unwind(|| metric_index("no-such-metric")).is_err());
+    }
 
     #[test]
     fn the_lists_are_the_tables_and_ids_are_unique() {

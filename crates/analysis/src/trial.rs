@@ -182,9 +182,9 @@ pub fn load_trial(
     path: &Path,
     cfg: &AnalysisConfig,
     with_metrics: bool,
-) -> Result<TrialData, String> {
-    let t = read_trial(path).map_err(|e| e.to_string())?;
-    let (robot, fish) = agents(&t)?;
+) -> Result<TrialData, crate::AnalysisError> {
+    let t = read_trial(path)?;
+    let (robot, fish) = agents(&t).map_err(crate::AnalysisError::Data)?;
     let frames = fish
         .iter()
         .map(|f| f.frames())

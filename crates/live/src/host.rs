@@ -233,7 +233,7 @@ impl<P: PilotMaker> TrialHost<P> {
     }
 
     /// Begins a trial (a running one must have ended); why not, if it cannot.
-    pub fn begin(&mut self, start: TrialStart) -> Result<Started, String> {
+    fn begin(&mut self, start: TrialStart) -> Result<Started, String> {
         if self.running.is_some() {
             return Err("a trial is running".into());
         }

@@ -6,7 +6,7 @@
 
 use crate::config::ReportConfig;
 use crate::error::ReportError;
-use fishprobe_analysis::{load_trial, AnalysisConfig, Results, StudyFiles, METRICS};
+use fishprobe_analysis::{load_trial, AnalysisConfig, Results, StudyFiles};
 use fishprobe_io::layout::StudyLayout;
 use fishprobe_io::{read_trial, TrialFile};
 use rayon::prelude::*;
@@ -313,26 +313,28 @@ fn load_trials(study: &StudyFiles, cfg: &ReportConfig, acfg: &AnalysisConfig, d:
     let loaded: Vec<(String, bool, PathBuf, Result<TrialNumbers, String>)> = jobs
         .into_par_iter()
         .map(|(p, real, f)| {
-            let r = load_trial(&f, acfg, true).map(|t| {
-                let iid = t
-                    .metrics
-                    .as_ref()
-                    .and_then(|m| m.get(METRICS.iter().position(|&x| x == "iid").unwrap_or(0)))
-                    .cloned()
-                    .unwrap_or_default();
-                let mut hist = vec![0.0; iid_bins];
-                for v in &iid {
-                    let b = (v / f64::from(cfg.iid_bin_cm)) as usize;
-                    if let Some(h) = hist.get_mut(b) {
-                        *h += 1.0;
+            let r = load_trial(&f, acfg, true)
+                .map_err(|e| e.to_string())
+                .map(|t| {
+                    let iid = t
+                        .metrics
+                        .as_ref()
+                        .and_then(|m| m.get(fishprobe_analysis::metric::IID))
+                        .cloned()
+                        .unwrap_or_default();
+                    let mut hist = vec![0.0; iid_bins];
+                    for v in &iid {
+                        let b = (v / f64::from(cfg.iid_bin_cm)) as usize;
+                        if let Some(h) = hist.get_mut(b) {
+                            *h += 1.0;
+                        }
                     }
-                }
-                TrialNumbers {
-                    goals_per_minute: t.goals_per_minute,
-                    iid_hist: hist,
-                    iid_frames: iid.len(),
-                }
-            });
+                    TrialNumbers {
+                        goals_per_minute: t.goals_per_minute,
+                        iid_hist: hist,
+                        iid_frames: iid.len(),
+                    }
+                });
             (p, real, f, r)
         })
         .collect();
