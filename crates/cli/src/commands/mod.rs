@@ -407,6 +407,5 @@ pub(crate) fn analysis_settings(
             )
         })?;
     cfg.with_overrides(&overrides)
-        .map_err(anyhow::Error::msg)
         .with_context(|| format!("analysis settings {}", path.display()))
 }

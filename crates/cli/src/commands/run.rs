@@ -61,7 +61,6 @@ pub fn run(a: RunArgs) -> Result<()> {
             let f: StudyFile = super::read_toml(p, "study file")?;
             let dir = p.parent().unwrap_or_else(|| std::path::Path::new("."));
             f.apply_in(&a.preset, dir)
-                .map_err(anyhow::Error::msg)
                 .with_context(|| format!("study file {}", p.display()))?
         }
         None => StudyConfig::preset(&a.preset).with_context(|| {
