@@ -3,11 +3,13 @@
 //! stationary fish for the approach assay. Each is a [`FishModel`] built from a [`ModelSpec`],
 //! the serialisable choice of model plus its documented parameters.
 //!
-//! **Adding a model** is one file and one line: the file holds the model (a [`FishModel`]), its
-//! `…Params` (declared with `fishprobe_sim::documented_params!`) and `impl ModelParams for
-//! …Params` (name, one-line summary, checks, construction); the line adds `Name(NameParams),`
-//! to the `model_registry!` list in this file, which generates [`ModelSpec`] and every lookup
-//! (`by_name`, `NAMES`, `summary`, `field_docs`, `validate`, `build`).
+//! **Adding a model** is one file and one line: the file (`src/name.rs`) holds the model (a
+//! [`FishModel`]), its `…Params` (declared with `fishprobe_sim::documented_params!`) and
+//! `impl ModelParams for …Params` (name, one-line summary, checks, construction); the line
+//! adds `name::Name(NameParams),` to the `model_registry!` list in this file, which declares
+//! the module and generates [`ModelSpec`] and every lookup (`by_name`, `NAMES`, `summary`,
+//! `field_docs`, `validate`, `build`). Everything else that lists models (`fishprobe models`,
+//! the settings reference, the Python package) reads the registry.
 //!
 //! ```
 //! use fishprobe_models::ModelSpec;
@@ -24,30 +26,21 @@
 
 #![warn(missing_docs)]
 
+// The models' own modules are declared by their line in `model_registry!` below.
 pub mod collective;
-pub mod convnet;
 pub mod disagreement;
-pub mod follow;
-pub mod force;
-pub mod guppy;
 pub mod measure;
-pub mod onnx;
-pub mod population;
-pub mod python;
-pub mod stationary;
 pub mod support;
-pub mod zone;
 
-pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, ConvNetParams, WeightsError};
+pub use convnet::{ConvNet, ConvNetArch, ConvNetFish, WeightsError};
 pub use fishprobe_onnx::sha256_hex;
-pub use follow::{Follow, FollowParams};
-pub use force::{Force, ForceParams, NoiseConvention};
-pub use guppy::{Guppy, GuppyParams};
-pub use onnx::{OnnxFish, OnnxParams};
-pub use population::{PopulationParams, Trait};
-pub use python::PythonParams;
-pub use stationary::{Stationary, StationaryParams};
-pub use zone::{Zone, ZoneConvention, ZoneParams};
+pub use follow::Follow;
+pub use force::{Force, NoiseConvention};
+pub use guppy::Guppy;
+pub use onnx::OnnxFish;
+pub use population::Trait;
+pub use stationary::Stationary;
+pub use zone::{Zone, ZoneConvention};
 
 use fishprobe_sim::params::{ConfigError, DocumentedParams, FieldDoc};
 use fishprobe_sim::FishModel;
@@ -157,10 +150,13 @@ pub trait ModelParams: DocumentedParams + Clone {
 /// defaults and are listed in `NAMES`); models read from a file follow a `;`.
 macro_rules! model_registry {
     (
-        $( $(#[$doc:meta])* $variant:ident($params:ty), )*
+        $( $(#[$doc:meta])* $module:ident :: $variant:ident($params:ident), )*
         ;
-        $( $(#[$fdoc:meta])* $fvariant:ident($fparams:ty), )*
+        $( $(#[$fdoc:meta])* $fmodule:ident :: $fvariant:ident($fparams:ident), )*
     ) => {
+        $( pub mod $module; pub use $module::$params; )*
+        $( pub mod $fmodule; pub use $fmodule::$fparams; )*
+
         /// A fish model and its parameters, as written in config files: `{"model": "Zone", ...}`.
         #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
         #[serde(tag = "model")]
@@ -342,25 +338,25 @@ impl ModelSpec {
 
 model_registry! {
     /// M_Follow.
-    Follow(FollowParams),
+    follow::Follow(FollowParams),
     /// M_Zone.
-    Zone(ZoneParams),
+    zone::Zone(ZoneParams),
     /// M_Force.
-    Force(ForceParams),
+    force::Force(ForceParams),
     /// A fish that never moves (approach assay).
-    Stationary(StationaryParams),
+    stationary::Stationary(StationaryParams),
     /// M_ConvNet: behavioural cloning of live guppy pairs.
-    ConvNet(ConvNetParams),
+    convnet::ConvNet(ConvNetParams),
     /// The virtual guppy of the virtual lab (not a candidate model).
-    Guppy(GuppyParams),
+    guppy::Guppy(GuppyParams),
     ; // Models read from a file (no defaults; not in NAMES):
     /// A candidate model brought as an ONNX file (`onnx:PATH`).
-    Onnx(OnnxParams),
+    onnx::Onnx(OnnxParams),
     /// A fish model written in Python (run by the Python package only).
-    Python(PythonParams),
+    python::Python(PythonParams),
     /// A population of a model's individuals (`population:FILE`, or a shipped population's
     /// name).
-    Population(PopulationParams),
+    population::Population(PopulationParams),
 }
 
 impl ModelSpec {

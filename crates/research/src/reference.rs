@@ -8,9 +8,20 @@ use std::fmt::Write;
 /// One section: its heading, where it is used, and its fields with their defaults.
 fn section<T: DocumentedParams>(out: &mut String, title: &str, used: &str) {
     let defaults = serde_json::to_value(T::default()).unwrap_or(serde_json::Value::Null);
+    rows(out, title, used, T::field_docs(), &defaults);
+}
+
+/// A section: its title, where it is used, and a row per field with its default.
+fn rows(
+    out: &mut String,
+    title: &str,
+    used: &str,
+    docs: &[fishprobe_sim::params::FieldDoc],
+    defaults: &serde_json::Value,
+) {
     let _ = writeln!(out, "### {title}\n\n{used}\n");
     out.push_str("| field | default | unit | meaning |\n|---|---|---|---|\n");
-    for f in T::field_docs() {
+    for f in docs {
         let d = match defaults.get(f.name) {
             Some(serde_json::Value::Object(_)) => "(section below)".to_string(),
             Some(v) => format!("`{}`", compact(v)),
@@ -75,25 +86,24 @@ pub fn reference() -> String {
     );
     section::<s::ObservationParams>(&mut o, "`env.observation`", "The policy's observation.");
     o.push_str("## Fish models (`fish` section, study files' `spec`)\n\n");
-    section::<m::FollowParams>(&mut o, "`model = \"Follow\"`", "M_Follow.");
-    section::<m::ZoneParams>(&mut o, "`model = \"Zone\"`", "M_Zone (Couzin et al. 2002).");
-    section::<m::ForceParams>(
-        &mut o,
-        "`model = \"Force\"`",
-        "M_Force (Klamser et al. 2021).",
-    );
-    section::<m::ConvNetParams>(&mut o, "`model = \"ConvNet\"`", "M_ConvNet.");
+    // Every built-in model of the registry, with its defaults and its one-line summary.
+    for name in m::ModelSpec::NAMES {
+        if let Ok(spec) = m::ModelSpec::by_name(name) {
+            let defaults = serde_json::to_value(&spec).unwrap_or(serde_json::Value::Null);
+            rows(
+                &mut o,
+                &format!("`model = \"{name}\"`"),
+                spec.summary(),
+                spec.field_docs(),
+                &defaults,
+            );
+        }
+    }
     section::<m::OnnxParams>(
         &mut o,
         "`model = \"Onnx\"`",
         "A model brought as an ONNX file (docs/onnx-models.md).",
     );
-    section::<m::StationaryParams>(
-        &mut o,
-        "`model = \"Stationary\"`",
-        "The approach assay's fish.",
-    );
-    section::<m::GuppyParams>(&mut o, "`model = \"Guppy\"`", "The virtual lab's guppy.");
     section::<m::PopulationParams>(
         &mut o,
         "`model = \"Population\"`",
@@ -358,16 +368,8 @@ mod tests {
         sections.push(plain::<fishprobe_live::session::LiveConfig>("live", |p| {
             p.validate().is_ok()
         }));
-        for model in [
-            "Follow",
-            "Zone",
-            "Force",
-            "Guppy",
-            "Stationary",
-            "ConvNet",
-            "Onnx",
-            "Population",
-        ] {
+        let models = ModelSpec::NAMES.iter().chain(&["Onnx", "Population"]);
+        for &model in models {
             // An ONNX model names its file (validation does not open it); a population its
             // source (read when it is built).
             let spec = match model {
