@@ -364,3 +364,49 @@ fn the_architecture_picture_matches_the_manifests() {
         "the picture names crates that do not exist"
     );
 }
+
+/// The counts of metrics the prose names ("the nine per-frame metrics", "six group metrics")
+/// are the metric table's: a metric added to the table fails this test until the docs say so.
+#[test]
+fn the_docs_count_the_metrics_the_table_holds() {
+    let pairs = fishprobe_analysis::count_word(fishprobe_analysis::METRICS.len());
+    let groups = fishprobe_analysis::count_word(fishprobe_analysis::GROUP_METRICS.len());
+    let words = [
+        "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven",
+        "twelve",
+    ];
+    let mut wrong = Vec::new();
+    for file in user_docs() {
+        // Lines are joined: a phrase may wrap.
+        let text = std::fs::read_to_string(&file)
+            .unwrap()
+            .split_whitespace()
+            .collect::<Vec<_>>()
+            .join(" ")
+            .to_lowercase();
+        let tokens: Vec<&str> = text.split(' ').collect();
+        for (i, w) in tokens.iter().enumerate() {
+            let w = w.trim_start_matches(['(', '*', '"']);
+            if !words.contains(&w) {
+                continue;
+            }
+            let next = |k: usize| tokens.get(i + k).copied().unwrap_or("");
+            let want = match (next(1), next(2)) {
+                ("group", m) if m.starts_with("metric") => &groups,
+                ("pair" | "per-frame", m) if m.starts_with("metric") => &pairs,
+                ("per-frame", "behaviour") if next(3).starts_with("metric") => &pairs,
+                (m, _) if m.starts_with("metric") => &pairs,
+                _ => continue,
+            };
+            if w != want {
+                wrong.push(format!(
+                    "{}: \"{w} {} {}\" (the table holds {pairs} pair and {groups} group metrics)",
+                    file.display(),
+                    next(1),
+                    next(2)
+                ));
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
