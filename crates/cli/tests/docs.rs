@@ -372,8 +372,7 @@ fn the_docs_count_the_metrics_the_table_holds() {
     let pairs = fishprobe_analysis::count_word(fishprobe_analysis::METRICS.len());
     let groups = fishprobe_analysis::count_word(fishprobe_analysis::GROUP_METRICS.len());
     let words = [
-        "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven",
-        "twelve",
+        "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven", "twelve",
     ];
     let mut wrong = Vec::new();
     for file in user_docs() {

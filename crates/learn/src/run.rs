@@ -4,21 +4,113 @@
 //! `fishprobe train`, the Python package) what a folder means for the run it asks for: start,
 //! resume, restart or refuse, with one message per outcome.
 //!
+//! Every caller trains through one function, [`train_to_end`]: open the folder (start,
+//! resume or restart, as its [`Begin`] says), iterate with the caller's progress
+//! ([`TrainHooks`]), finish.
+//!
 //! ```no_run
-//! use fishprobe_learn::run::{open, OnOther, Opening};
+//! use fishprobe_learn::run::{train_to_end, Begin, OnOther};
 //! # fn spec() -> fishprobe_learn::RunSpec { unimplemented!() }
 //! let dir = std::path::Path::new("runs/zone");
-//! let spec = spec();
-//! let mut t = match open(dir, &spec, OnOther::Refuse)? {
-//!     Opening::Resume => fishprobe_learn::Trainer::resume(dir, "0.1.0")?,
-//!     Opening::Start | Opening::Restarted { .. } => fishprobe_learn::Trainer::create(dir, spec)?,
-//! };
+//! let (trainer, policy) =
+//!     train_to_end(dir, Begin::StartOrResume(spec(), OnOther::Refuse), "0.1.0", &mut ())?;
 //! # Ok::<(), fishprobe_learn::LearnError>(())
 //! ```
 
-use crate::{LearnError, RunSpec};
+use crate::{IterationStats, LearnError, RunSpec, Trainer};
 pub use fishprobe_io::{RunLayout, RunRecord};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// What [`train_to_end`] is asked to do with a folder.
+#[derive(Debug)]
+pub enum Begin {
+    /// This run: resumed when the folder holds it, started when it holds none; a folder of
+    /// another run as [`OnOther`] says (the study's steps, fidelity, the OOD loop).
+    StartOrResume(RunSpec, OnOther),
+    /// A new run: a folder that already holds this very run is refused, the message ending
+    /// with how to continue it; one of another run is refused (`fishprobe train`, Python).
+    Start(RunSpec, &'static str),
+    /// The run the folder holds, continued as its record says (`train --resume`, Python's
+    /// `resume=True`).
+    Resume,
+}
+
+/// How [`train_to_end`] opened the run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Opened {
+    /// Started in a folder without a run.
+    Started,
+    /// Continued from its last checkpoint (a finished run is done at once).
+    Resumed,
+    /// Another run was there and is deleted ([`OnOther::Restart`]); this one started.
+    Restarted {
+        /// What differed.
+        was: String,
+    },
+}
+
+/// What a caller adds to [`train_to_end`]; every method has the plain default, and `()`
+/// takes them all.
+pub trait TrainHooks {
+    /// Creates the new run (default: [`Trainer::create`]; a caller with a yardstick to measure
+    /// first, or a fish model only it can build, brings its own).
+    fn create(&mut self, dir: &Path, spec: RunSpec) -> Result<Trainer, LearnError> {
+        Trainer::create(dir, spec)
+    }
+    /// Reopens the recorded run (default: [`Trainer::resume`] under `build`).
+    fn resume(&mut self, dir: &Path, build: &str) -> Result<Trainer, LearnError> {
+        Trainer::resume(dir, build)
+    }
+    /// Once the run is open, before it trains on (notes for the user, a progress bar).
+    fn opened(&mut self, _t: &Trainer, _how: &Opened) -> Result<(), LearnError> {
+        Ok(())
+    }
+    /// After each iteration (progress, a log line, a Python callback); an error stops the
+    /// training, which resumes from its last checkpoint.
+    fn iterated(&mut self, _t: &Trainer, _s: &IterationStats) -> Result<(), LearnError> {
+        Ok(())
+    }
+}
+
+impl TrainHooks for () {}
+
+/// Trains a run to its end: opens `dir` as `begin` says, iterates until the run's budget is
+/// spent, telling `hooks`, and writes the policy. The one way every caller trains (the
+/// study, `fishprobe train`, Python, fidelity, the OOD loop). Returns the trainer and the
+/// policy file.
+pub fn train_to_end(
+    dir: &Path,
+    begin: Begin,
+    build: &str,
+    hooks: &mut dyn TrainHooks,
+) -> Result<(Trainer, PathBuf), LearnError> {
+    let (mut t, how) = match begin {
+        Begin::Resume => (hooks.resume(dir, build)?, Opened::Resumed),
+        Begin::Start(spec, hint) => match open(dir, &spec, OnOther::Refuse)? {
+            Opening::Resume => {
+                return Err(LearnError::Run(format!(
+                    "{}: already holds a training run of these settings: {hint}",
+                    dir.display()
+                )))
+            }
+            Opening::Start | Opening::Restarted { .. } => {
+                (hooks.create(dir, spec)?, Opened::Started)
+            }
+        },
+        Begin::StartOrResume(spec, on_other) => match open(dir, &spec, on_other)? {
+            Opening::Resume => (hooks.resume(dir, build)?, Opened::Resumed),
+            Opening::Start => (hooks.create(dir, spec)?, Opened::Started),
+            Opening::Restarted { was } => (hooks.create(dir, spec)?, Opened::Restarted { was }),
+        },
+    };
+    hooks.opened(&t, &how)?;
+    while !t.done() {
+        let s = t.iterate()?;
+        hooks.iterated(&t, &s)?;
+    }
+    let policy = t.finish()?;
+    Ok((t, policy))
+}
 
 /// What [`open`] does with a folder that holds another run (other settings, or begun by
 /// another trainer revision).
@@ -203,5 +295,87 @@ mod tests {
             );
         }
         assert!(dir.join("params.json").exists());
+    }
+
+    /// Counts what train_to_end tells its hooks.
+    #[derive(Default)]
+    struct Count {
+        opened: Vec<Opened>,
+        iterations: usize,
+    }
+
+    impl TrainHooks for Count {
+        fn opened(&mut self, _t: &Trainer, how: &Opened) -> Result<(), LearnError> {
+            self.opened.push(how.clone());
+            Ok(())
+        }
+        fn iterated(&mut self, _t: &Trainer, _s: &IterationStats) -> Result<(), LearnError> {
+            self.iterations += 1;
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn train_to_end_starts_resumes_and_refuses_as_asked() {
+        let d = fishprobe_io::ScratchDir::for_test("run-train-to-end");
+        let dir = d.join("run");
+        let mut small = spec(3);
+        small.ppo.total_timesteps = small.ppo.train_batch_size as u64;
+        let mut c = Count::default();
+        let (t, policy) = train_to_end(
+            &dir,
+            Begin::Start(small.clone(), "resume it"),
+            "test",
+            &mut c,
+        )
+        .expect("trains");
+        assert!(t.done() && policy.is_file());
+        assert_eq!(
+            (c.opened.as_slice(), c.iterations),
+            (&[Opened::Started][..], 1)
+        );
+        // The same run again as new: refused with how to continue it.
+        let Err(e) = train_to_end(
+            &dir,
+            Begin::Start(small.clone(), "resume it"),
+            "test",
+            &mut (),
+        ) else {
+            panic!("a second start of the same run was taken");
+        };
+        let e = e.to_string();
+        assert!(
+            e.ends_with("already holds a training run of these settings: resume it"),
+            "{e}"
+        );
+        // Started or resumed: a finished run is done at once.
+        let mut c = Count::default();
+        train_to_end(
+            &dir,
+            Begin::StartOrResume(small, OnOther::Refuse),
+            "test",
+            &mut c,
+        )
+        .expect("resumes");
+        assert_eq!(
+            (c.opened.as_slice(), c.iterations),
+            (&[Opened::Resumed][..], 0)
+        );
+        // Another run under the study's rule: deleted and started.
+        let mut c = Count::default();
+        let mut other = spec(4);
+        other.ppo.total_timesteps = other.ppo.train_batch_size as u64;
+        train_to_end(
+            &dir,
+            Begin::StartOrResume(other, OnOther::Restart),
+            "test",
+            &mut c,
+        )
+        .expect("restarts");
+        assert!(
+            matches!(c.opened[0], Opened::Restarted { .. }),
+            "{:?}",
+            c.opened
+        );
     }
 }

@@ -22,8 +22,9 @@ static ALLOC: fishprobe_onnx::CappedAlloc = fishprobe_onnx::CappedAlloc;
 
 use fish::PyFish;
 use fishprobe_io::{IoError, TrialFile};
+use fishprobe_learn::run::{train_to_end, Begin, TrainHooks};
 use fishprobe_learn::yardstick::OodYardstickConfig;
-use fishprobe_learn::{LearnError, PpoConfig, RunSpec, Trainer};
+use fishprobe_learn::{IterationStats, LearnError, PpoConfig, RunSpec, Trainer};
 use fishprobe_models::{ModelError, ModelSpec, PythonParams};
 use fishprobe_sim::{
     AgentState, ControlInput, Controller, Env as _, EnvConfig, FishModel, InputSupport, Objective,
@@ -151,7 +152,16 @@ fn train(
     };
     let _lock = fishprobe_io::DirLock::acquire(&out, "fishprobe.train")
         .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-    let mut trainer = if resuming() {
+    let mut hooks = PyTrain {
+        model: resolved.model.clone(),
+        measure: None,
+        callback: callback
+            .filter(|c| !c.is_none())
+            .map(|c| c.clone().unbind()),
+        python: resolved.python.clone(),
+        raised: None,
+    };
+    let begin = if resuming() {
         let recorded = Trainer::recorded_spec(&out).map_err(learn_err)?;
         if recorded.model.name() != resolved.spec.name()
             || (resolved.python.is_some() && recorded.model != resolved.spec)
@@ -164,52 +174,80 @@ fn train(
                 resolved.spec.origin()
             )));
         }
-        let model = match resolved.python {
-            Some(_) => resolved.model.clone(),
-            None => recorded.model.build().map_err(model_err)?,
-        };
+        if resolved.python.is_none() {
+            hooks.model = recorded.model.build().map_err(model_err)?;
+        }
         // `steps` raises a resumed run's budget (a finished run trains on), as `train
         // --resume --steps` does.
         if let Some(steps) = steps {
             Trainer::raise_budget(&out, steps).map_err(learn_err)?;
         }
-        Trainer::resume_with_model(&out, model, PY_BUILD).map_err(learn_err)?
+        Begin::Resume
     } else {
         // (Checked above unless the run's params.json vanished since.)
         let (spec, measure) = match fresh.take() {
             Some(s) => s,
             None => fresh_spec()?,
         };
-        use fishprobe_learn::run::{open, OnOther, Opening};
-        if open(&out, &spec, OnOther::Refuse).map_err(learn_err)? == Opening::Resume {
-            return Err(PyValueError::new_err(format!(
-                "{}: already holds a training run of these settings: pass resume=True to \
-                 continue it",
-                out.display()
-            )));
-        }
-        let model = resolved.model.clone();
-        let measure = measure.as_ref().map(|(p, c)| (p.as_str(), c));
-        py.detach(|| fishprobe_learn::yardstick::start_run(&out, spec, model, measure))
-            .map_err(learn_err)?
-            .0
+        hooks.measure = measure;
+        Begin::Start(spec, "pass resume=True to continue it")
     };
-    while !trainer.done() {
-        let t = &mut trainer;
-        let r = py.detach(|| t.iterate());
-        resolved.check()?;
-        let stats = r.map_err(learn_err)?;
-        if let Some(cb) = callback.filter(|c| !c.is_none()) {
-            let text = serde_json::to_string(&stats)
-                .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
-            let d = py.import("json")?.call_method1("loads", (text,))?;
-            cb.call1((d,))?;
-        }
-        // Ctrl+C between iterations: the run resumes from its last checkpoint.
-        py.check_signals()?;
+    // Python is released while training; the hooks take it back for the callback.
+    let trained = py.detach(|| train_to_end(&out, begin, PY_BUILD, &mut hooks));
+    resolved.check()?;
+    if let Some(e) = hooks.raised.take() {
+        return Err(e);
     }
-    let path = trainer.finish().map_err(learn_err)?;
+    let (_, path) = trained.map_err(learn_err)?;
     Ok(path.display().to_string())
+}
+
+/// What Python's `train` adds to training: its fish model (a Python fish only it can build),
+/// a new run's yardstick, and the callback with each iteration's statistics; Ctrl+C between
+/// iterations stops the run, which resumes from its last checkpoint.
+struct PyTrain {
+    model: Arc<dyn FishModel>,
+    measure: Option<(String, OodYardstickConfig)>,
+    callback: Option<Py<PyAny>>,
+    python: Option<Arc<PyFish>>,
+    /// What Python raised in the callback or on a signal (training stops at once).
+    raised: Option<PyErr>,
+}
+
+impl TrainHooks for PyTrain {
+    fn create(&mut self, dir: &std::path::Path, spec: RunSpec) -> Result<Trainer, LearnError> {
+        let measure = self.measure.as_ref().map(|(p, c)| (p.as_str(), c));
+        fishprobe_learn::yardstick::start_run(dir, spec, self.model.clone(), measure)
+            .map(|(t, _)| t)
+    }
+
+    fn resume(&mut self, dir: &std::path::Path, build: &str) -> Result<Trainer, LearnError> {
+        Trainer::resume_with_model(dir, self.model.clone(), build)
+    }
+
+    fn iterated(&mut self, _t: &Trainer, s: &IterationStats) -> Result<(), LearnError> {
+        // A Python fish that raised stops the run; `train` raises what it raised.
+        if let Some(e) = self.python.as_ref().and_then(|f| f.take_error()) {
+            self.raised = Some(e);
+            return Err(LearnError::Run("the Python fish model raised".into()));
+        }
+        let r = Python::attach(|py| -> PyResult<()> {
+            if let Some(cb) = &self.callback {
+                let text =
+                    serde_json::to_string(s).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+                let d = py.import("json")?.call_method1("loads", (text,))?;
+                cb.call1(py, (d,))?;
+            }
+            py.check_signals()
+        });
+        match r {
+            Ok(()) => Ok(()),
+            Err(e) => {
+                self.raised = Some(e);
+                Err(LearnError::Run("stopped from Python".into()))
+            }
+        }
+    }
 }
 
 /// Runs `policy` on the evaluation task against `model`, one trial file per episode and

@@ -309,19 +309,29 @@ fn train_cell(
     );
     // A cell stopped before it finished resumes its training only if that training is this
     // cell's: resumed with other settings, it would be scored as this reading.
-    use fishprobe_learn::run::{open, OnOther, Opening};
-    let mut t = match open(train_dir, &run_spec, OnOther::Refuse)? {
-        Opening::Resume => Trainer::resume(train_dir, by.build)?,
-        Opening::Start | Opening::Restarted { .. } => Trainer::create(train_dir, run_spec)?,
-    };
-    while !t.done() {
-        let s = t.iterate()?;
-        by.note(&format!(
-            "  {} / {model}: iteration {} steps {} goals/episode {:.2}",
-            r.name, s.iteration, s.timesteps, s.goals_per_episode
-        ));
+    use fishprobe_learn::run::{train_to_end, Begin, OnOther, TrainHooks};
+    struct Note<'a>(&'a dyn Fn(&str));
+    impl TrainHooks for Note<'_> {
+        fn iterated(
+            &mut self,
+            _t: &Trainer,
+            s: &fishprobe_learn::IterationStats,
+        ) -> Result<(), fishprobe_learn::LearnError> {
+            (self.0)(&format!(
+                "iteration {} steps {} goals/episode {:.2}",
+                s.iteration, s.timesteps, s.goals_per_episode
+            ));
+            Ok(())
+        }
     }
-    t.finish()?;
+    let cell = format!("  {} / {model}: ", r.name);
+    let note = |line: &str| by.note(&format!("{cell}{line}"));
+    let (t, _) = train_to_end(
+        train_dir,
+        Begin::StartOrResume(run_spec, OnOther::Refuse),
+        by.build,
+        &mut Note(&note),
+    )?;
     Ok(t)
 }
 

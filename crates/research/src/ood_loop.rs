@@ -19,7 +19,7 @@ use crate::{ResearchError, Result, Runner};
 use fishprobe_analysis::ood::{metric_gap, pooled_metrics, quantile, score_trials, share_at_least};
 use fishprobe_analysis::{load_trial, AnalysisConfig};
 use fishprobe_learn::bc::{fit_convnet, CloneConfig, FitProgress, FitRequest};
-use fishprobe_learn::{Evaluation, PpoConfig, RunSpec, Trainer};
+use fishprobe_learn::{Evaluation, PpoConfig, RunSpec};
 use fishprobe_models::ModelSpec;
 use fishprobe_sim::{EnvConfig, Objective, OodScore};
 use std::path::{Path, PathBuf};
@@ -143,25 +143,21 @@ fn train(
     env.task.objective = objective;
     env.task.ood_score = cfg.ood_score;
     let spec = RunSpec::new(model.clone(), ppo, env, seed, cfg.ppo_preset.clone(), build);
-    use fishprobe_learn::run::{open, OnOther, Opening, RunLayout};
-    let opening = open(dir, &spec, OnOther::Refuse).map_err(|e| {
+    use fishprobe_learn::run::{open, train_to_end, Begin, OnOther};
+    // Another fishprobe's run in the folder is named as such before any work.
+    open(dir, &spec, OnOther::Refuse).map_err(|e| {
         ResearchError::within(
             "the loop was begun by another fishprobe; use another output directory",
             e,
         )
     })?;
-    if opening == Opening::Resume && RunLayout::new(dir).policy().exists() {
-        // Trained in an earlier run of the loop.
-        return Ok(dir.display().to_string());
-    }
-    let mut t = match opening {
-        Opening::Resume => Trainer::resume(dir, build)?,
-        Opening::Start | Opening::Restarted { .. } => Trainer::create(dir, spec)?,
-    };
-    while !t.done() {
-        t.iterate()?;
-    }
-    t.finish()?;
+    // A run trained in an earlier run of the loop is done at once.
+    train_to_end(
+        dir,
+        Begin::StartOrResume(spec, OnOther::Refuse),
+        build,
+        &mut (),
+    )?;
     Ok(dir.display().to_string())
 }
 

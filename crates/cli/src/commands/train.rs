@@ -2,8 +2,9 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use fishprobe_learn::run::{train_to_end, Begin, Opened, TrainHooks};
 use fishprobe_learn::yardstick::{self, OodYardstickConfig};
-use fishprobe_learn::{PpoConfig, RunSpec, Trainer};
+use fishprobe_learn::{IterationStats, LearnError, PpoConfig, RunSpec, Trainer};
 use fishprobe_sim::FishModel;
 use fishprobe_sim::Objective;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -93,8 +94,11 @@ struct Fresh {
     spec: RunSpec,
     model: Arc<dyn FishModel>,
     /// The yardstick policy and how to measure it (`--ood-yardstick`).
-    yardstick: Option<(String, OodYardstickConfig)>,
+    yardstick: Option<Yardstick>,
 }
+
+/// A yardstick policy and how to measure it.
+type Yardstick = (String, OodYardstickConfig);
 
 /// The new run the flags ask for: settings, model, task, PPO, all checked and the fish built,
 /// so that a refused `train` refuses before it creates (and locks) its run directory.
@@ -183,40 +187,6 @@ fn fresh_run(a: &TrainArgs) -> Result<Fresh> {
     })
 }
 
-/// Starts the new run `f` in `out` (locked by the caller): measures its yardstick, if any,
-/// then writes the run's files.
-fn start(out: &Path, f: Fresh) -> Result<Trainer> {
-    let yardstick = f.yardstick.as_ref().map(|(p, c)| (p.as_str(), c));
-    if let Some((policy, config)) = yardstick {
-        Trainer::ensure_new(out)?;
-        say!(
-            "yardstick: running {} episodes of {policy} ...",
-            config.episodes
-        );
-    }
-    let (trainer, measured) = super::with_jobs(None, || {
-        yardstick::start_run(out, f.spec, f.model, yardstick)
-    })?
-    .with_context(|| format!("starting a run in {}", out.display()))?;
-    if let Some(y) = &measured {
-        let task = &trainer.spec().env.task;
-        say!(
-            "yardstick: {}'s {}th-percentile {} score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
-            y.policy,
-            (100.0 * y.config.quantile).round(),
-            match y.ood_score {
-                fishprobe_sim::OodScore::Support => "support",
-                fishprobe_sim::OodScore::Disagreement => "disagreement",
-            },
-            y.score,
-            task.ood_score_floor,
-            y.cap,
-            y.weight
-        );
-    }
-    Ok(trainer)
-}
-
 pub fn run(a: TrainArgs) -> Result<()> {
     let resuming =
         |a: &TrainArgs| a.resume && fishprobe_learn::run::RunLayout::new(&a.out).holds_run();
@@ -231,7 +201,12 @@ pub fn run(a: TrainArgs) -> Result<()> {
     };
     // One writer per run directory: a second `train` (or a `--resume`) into it is refused.
     let _lock = super::lock_out(&a.out, "train")?;
-    let mut trainer = if resuming(&a) {
+    let mut hooks = Progress {
+        args: &a,
+        fresh: None,
+        bar: None,
+    };
+    let begin = if resuming(&a) {
         if a.model.is_some()
             || a.settings.is_some()
             || a.ppo.is_some()
@@ -248,53 +223,23 @@ pub fn run(a: TrainArgs) -> Result<()> {
                 say!("raising the run's budget from {had} to {steps} steps (params.json)");
             }
         }
-        let t = Trainer::resume(&a.out, super::BUILD)
-            .with_context(|| format!("resuming {}", a.out.display()))?;
-        // The seed and the preset have defaults, so they are always "given": say only when
-        // the run's own differ from them.
-        let (seed, preset) = (t.spec().seed, &t.spec().preset);
-        if seed != a.seed || *preset != a.preset {
-            say!(
-                "note: resuming with the run's own seed {seed} and preset `{preset}` (params.json), \
-                 not --seed {} --preset {}",
-                a.seed,
-                a.preset
-            );
-        }
-        // Another build of the same trainer revision continues the run (the revision is what
-        // decides whether earlier updates are still right); say so, for the record.
-        let build = &t.spec().program_build;
-        if build != super::BUILD {
-            say!(
-                "note: the run was started by fishprobe {}; continuing it with {} (same trainer \
-                 revision, {})",
-                if build.is_empty() {
-                    "(build not recorded)"
-                } else {
-                    build
-                },
-                super::BUILD,
-                fishprobe_learn::TRAINER_REVISION
-            );
-        }
-        t
+        Begin::Resume
     } else {
         // (Checked above unless the run's params.json vanished since.)
         let f = match fresh.take() {
             Some(f) => f,
             None => fresh_run(&a)?,
         };
-        use fishprobe_learn::run::{open, OnOther, Opening};
-        if open(&a.out, &f.spec, OnOther::Refuse)? == Opening::Resume {
-            bail!(
-                "{}: already holds a training run of these settings: add --resume to continue it",
-                a.out.display()
-            );
-        }
-        start(&a.out, f)?
+        hooks.fresh = Some((f.model, f.yardstick));
+        Begin::Start(f.spec, "add --resume to continue it")
     };
-    super::with_jobs(a.jobs, || train_loop(&mut trainer))??;
-    let path = trainer.finish()?;
+    let trained = super::with_jobs(a.jobs, || {
+        train_to_end(&a.out, begin, super::BUILD, &mut hooks)
+    })?;
+    if let Some(bar) = &hooks.bar {
+        bar.finish_and_clear();
+    }
+    let (trainer, path) = trained.with_context(|| format!("training in {}", a.out.display()))?;
     emit(&format!(
         "trained {} policy for {} steps ({} iterations): {}\n",
         trainer.spec().model.label(),
@@ -302,6 +247,123 @@ pub fn run(a: TrainArgs) -> Result<()> {
         trainer.iteration(),
         path.display()
     ))
+}
+
+/// What `train` adds to training: a new run's fish and yardstick, notes on a resumed run,
+/// and the progress bar (a line per iteration without a terminal).
+struct Progress<'a> {
+    args: &'a TrainArgs,
+    /// A new run's fish model and yardstick.
+    fresh: Option<(Arc<dyn FishModel>, Option<Yardstick>)>,
+    bar: Option<ProgressBar>,
+}
+
+impl TrainHooks for Progress<'_> {
+    /// Measures the yardstick, if any, then writes the run's files.
+    fn create(&mut self, dir: &Path, spec: RunSpec) -> Result<Trainer, LearnError> {
+        let (model, yardstick) = match self.fresh.take() {
+            Some(f) => f,
+            None => (spec.model.build()?, None),
+        };
+        let yardstick = yardstick.as_ref().map(|(p, c)| (p.as_str(), c));
+        if let Some((policy, config)) = yardstick {
+            Trainer::ensure_new(dir)?;
+            say!(
+                "yardstick: running {} episodes of {policy} ...",
+                config.episodes
+            );
+        }
+        let (trainer, measured) = yardstick::start_run(dir, spec, model, yardstick)?;
+        if let Some(y) = &measured {
+            let task = &trainer.spec().env.task;
+            say!(
+                "yardstick: {}'s {}th-percentile {} score is {:.3}; the reward counts views from it (floor {:.3}, cap {:.3}, weight {:.2})",
+                y.policy,
+                (100.0 * y.config.quantile).round(),
+                match y.ood_score {
+                    fishprobe_sim::OodScore::Support => "support",
+                    fishprobe_sim::OodScore::Disagreement => "disagreement",
+                },
+                y.score,
+                task.ood_score_floor,
+                y.cap,
+                y.weight
+            );
+        }
+        Ok(trainer)
+    }
+
+    fn opened(&mut self, t: &Trainer, how: &Opened) -> Result<(), LearnError> {
+        if *how == Opened::Resumed {
+            let a = self.args;
+            // The seed and the preset have defaults, so they are always "given": say only
+            // when the run's own differ from them.
+            let (seed, preset) = (t.spec().seed, &t.spec().preset);
+            if seed != a.seed || *preset != a.preset {
+                say!(
+                    "note: resuming with the run's own seed {seed} and preset `{preset}` (params.json), \
+                     not --seed {} --preset {}",
+                    a.seed,
+                    a.preset
+                );
+            }
+            // Another build of the same trainer revision continues the run (the revision is
+            // what decides whether earlier updates are still right); say so, for the record.
+            let build = &t.spec().program_build;
+            if build != super::BUILD {
+                say!(
+                    "note: the run was started by fishprobe {}; continuing it with {} (same \
+                     trainer revision, {})",
+                    if build.is_empty() {
+                        "(build not recorded)"
+                    } else {
+                        build
+                    },
+                    super::BUILD,
+                    fishprobe_learn::TRAINER_REVISION
+                );
+            }
+        }
+        let total = t.spec().ppo.total_timesteps;
+        let bar = ProgressBar::new(total);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} steps  {msg}  ETA {eta}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        bar.set_position(t.timesteps().min(total));
+        self.bar = Some(bar);
+        Ok(())
+    }
+
+    fn iterated(&mut self, t: &Trainer, s: &IterationStats) -> Result<(), LearnError> {
+        let Some(bar) = &self.bar else { return Ok(()) };
+        let total = t.spec().ppo.total_timesteps;
+        bar.set_position(s.timesteps.min(total));
+        bar.set_message(format!(
+            "it {} | {} episodes | return {:.2} | goals/ep {:.2} | {:.0} steps/s",
+            s.iteration,
+            s.episodes_total,
+            s.episode_return_mean,
+            s.goals_per_episode,
+            s.steps_per_s
+        ));
+        if !bar.is_hidden() {
+            return Ok(());
+        }
+        // Without a terminal (CI, logs), a line per iteration instead of the bar.
+        say!(
+            "iteration {} steps {} return {:.3} goals/episode {:.3} kl {:.4} {:.0} steps/s",
+            s.iteration,
+            s.timesteps,
+            s.episode_return_mean,
+            s.goals_per_episode,
+            s.kl,
+            s.steps_per_s
+        );
+        Ok(())
+    }
 }
 
 /// `base` with the fields that the file at `path` sets replaced; unknown fields and values out
@@ -358,42 +420,4 @@ pub fn ppo_overrides(base: PpoConfig, path: &std::path::Path) -> Result<PpoConfi
     ppo.validate()
         .with_context(|| format!("in PPO settings file {}", path.display()))?;
     Ok(ppo)
-}
-
-fn train_loop(t: &mut Trainer) -> Result<()> {
-    let total = t.spec().ppo.total_timesteps;
-    let bar = ProgressBar::new(total);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} steps  {msg}  ETA {eta}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    bar.set_position(t.timesteps().min(total));
-    let mut episodes = 0;
-    while !t.done() {
-        let s = t.iterate()?;
-        episodes = s.episodes_total;
-        bar.set_position(s.timesteps.min(total));
-        bar.set_message(format!(
-            "it {} | {} episodes | return {:.2} | goals/ep {:.2} | {:.0} steps/s",
-            s.iteration, episodes, s.episode_return_mean, s.goals_per_episode, s.steps_per_s
-        ));
-        if !bar.is_hidden() {
-            continue;
-        }
-        // Without a terminal (CI, logs), a line per iteration instead of the bar.
-        say!(
-            "iteration {} steps {} return {:.3} goals/episode {:.3} kl {:.4} {:.0} steps/s",
-            s.iteration,
-            s.timesteps,
-            s.episode_return_mean,
-            s.goals_per_episode,
-            s.kl,
-            s.steps_per_s
-        );
-    }
-    bar.finish_and_clear();
-    let _ = episodes;
-    Ok(())
 }

@@ -47,7 +47,6 @@ pub(crate) fn inputs(study: &Study, m: usize, k: usize) -> Result<Inputs, StudyE
 /// Trains into the step's output: resumes a run of the same spec, starts a run of another
 /// spec (or another trainer revision's) over.
 pub(crate) fn run(i: &Inputs, cx: &mut Ctx) -> Result<(), StepError> {
-    let out = cx.out.as_path();
     let spec = RunSpec::new(
         i.spec.clone(),
         i.ppo.clone(),
@@ -56,27 +55,56 @@ pub(crate) fn run(i: &Inputs, cx: &mut Ctx) -> Result<(), StepError> {
         i.preset.clone(),
         cx.program_build.to_string(),
     );
-    use fishprobe_learn::run::{open, OnOther, Opening};
-    let mut t = match open(out, &spec, OnOther::Restart)? {
-        Opening::Resume => {
-            (cx.say)("resuming from the last checkpoint");
-            Trainer::resume(out, &spec.program_build)?
+    use fishprobe_learn::run::{train_to_end, Begin, OnOther};
+    let build = cx.program_build;
+    let out = cx.out.clone();
+    train_to_end(
+        &out,
+        Begin::StartOrResume(spec, OnOther::Restart),
+        build,
+        &mut StepLog(&mut *cx.say),
+    )?;
+    Ok(())
+}
+
+/// A training step's log: resumption and every iteration.
+struct StepLog<'a>(&'a mut dyn FnMut(&str));
+
+impl fishprobe_learn::run::TrainHooks for StepLog<'_> {
+    fn create(
+        &mut self,
+        dir: &std::path::Path,
+        spec: RunSpec,
+    ) -> Result<Trainer, fishprobe_learn::LearnError> {
+        // A folder without a run's record holds nothing to keep.
+        if dir.exists() {
+            std::fs::remove_dir_all(dir).map_err(|e| {
+                fishprobe_learn::LearnError::Run(format!("{}: removing: {e}", dir.display()))
+            })?;
         }
-        Opening::Start | Opening::Restarted { .. } => {
-            // A folder without a run's record holds nothing to keep.
-            if out.exists() {
-                std::fs::remove_dir_all(out).map_err(|e| StepError::io("removing", out, e))?;
-            }
-            Trainer::create(out, spec)?
+        Trainer::create(dir, spec)
+    }
+
+    fn opened(
+        &mut self,
+        _t: &Trainer,
+        how: &fishprobe_learn::run::Opened,
+    ) -> Result<(), fishprobe_learn::LearnError> {
+        if *how == fishprobe_learn::run::Opened::Resumed {
+            (self.0)("resuming from the last checkpoint");
         }
-    };
-    while !t.done() {
-        let s = t.iterate()?;
-        (cx.say)(&format!(
+        Ok(())
+    }
+
+    fn iterated(
+        &mut self,
+        _t: &Trainer,
+        s: &fishprobe_learn::IterationStats,
+    ) -> Result<(), fishprobe_learn::LearnError> {
+        (self.0)(&format!(
             "iteration {} steps {} return {:.3} goals/episode {:.3}",
             s.iteration, s.timesteps, s.episode_return_mean, s.goals_per_episode
         ));
+        Ok(())
     }
-    t.finish()?;
-    Ok(())
 }
