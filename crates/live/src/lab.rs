@@ -47,6 +47,12 @@ fishprobe_sim::documented_params! {
         /// recordings (`fishprobe fit-population --model Guppy`); `Guppy` is the virtual guppy
         /// with its hand-set individual traits only.
         pub fish_model: String = "GuppyPop".into(); "-",
+        /// Send the frames at the tracker's own pace (`tracking_hz` frames a second, a trial
+        /// taking its real 17 minutes) instead of as fast as the bridge answers, so a person
+        /// can watch a virtual trial as a live one unfolds (demonstrations, training an
+        /// operator). The trial is the same either way: it is a function of its seed. Choice:
+        /// off.
+        pub real_time: bool = false; "-",
     }
 }
 
@@ -397,10 +403,15 @@ pub fn run_trial(addr: SocketAddr, cfg: &LabConfig, seed: u64) -> Result<LabTria
     };
     let total =
         ((terms.habituation_s + terms.control_s) * f64::from(cfg.tracking_hz)).ceil() as u64 + 2;
+    let started = std::time::Instant::now();
     for k in 0..total + 50 {
         let t = k as f64 / f64::from(cfg.tracking_hz);
         if k > 0 {
             lab.advance(t, terms.release_s)?;
+        }
+        if cfg.real_time {
+            let due = started + Duration::from_secs_f64(t);
+            std::thread::sleep(due.saturating_duration_since(std::time::Instant::now()));
         }
         let frame = lab.track(t, &mut out);
         if conn.write_all(to_line(&frame).as_bytes()).is_err() {

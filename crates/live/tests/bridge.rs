@@ -133,6 +133,38 @@ fn a_virtual_trial_through_the_bridge_gives_a_valid_trial_file_with_goals() {
     );
 }
 
+/// At the tracker's pace a trial takes its real time, and is the same trial.
+#[test]
+fn a_virtual_trial_at_the_trackers_pace_takes_its_time_and_is_the_same() {
+    let brief = LiveConfig {
+        habituation_s: 1.0,
+        release_s: 0.5,
+        control_s: 1.0,
+        ..LiveConfig::default()
+    };
+    let mut files = Vec::new();
+    for real_time in [false, true] {
+        let out = tmp(&format!("pace-{real_time}"));
+        let (addr, h) = bridge(out.to_path_buf(), 1, brief.clone());
+        let lab = LabConfig {
+            real_time,
+            ..LabConfig::default()
+        };
+        let start = std::time::Instant::now();
+        let t = run_trial(addr, &lab, 9).unwrap();
+        let took = start.elapsed().as_secs_f64();
+        h.join().unwrap();
+        if real_time {
+            // 2 s of protocol, at 25 frames a second.
+            assert!(took >= 1.9, "a real-time trial took {took:.2} s");
+        }
+        let f = read_trial(std::path::Path::new(&t.file)).unwrap();
+        files.push((f.fish().next().unwrap().positions.clone(), t.goals_reached));
+        drop(out);
+    }
+    assert_eq!(files[0], files[1]);
+}
+
 #[test]
 fn dropouts_stop_the_robot_within_one_frame_of_the_timeout() {
     let out = tmp("dropouts");

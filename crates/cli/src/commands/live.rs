@@ -141,6 +141,11 @@ pub struct LabArgs {
     /// values, 252 with the centroid; in-process bridge only).
     #[arg(long)]
     heading_bins: bool,
+    /// Send frames at the tracker's pace (25 a second: a trial takes its real 17 minutes)
+    /// rather than as fast as the bridge answers, to watch a virtual trial unfold. The trial
+    /// is the same either way.
+    #[arg(long)]
+    real_time: bool,
 }
 
 fn report(o: &TrialOutcome) {
@@ -296,6 +301,7 @@ pub fn run_live(a: LiveArgs) -> Result<()> {
 pub fn run_lab(a: LabArgs) -> Result<()> {
     let lab = LabConfig {
         fish_model: a.fish_model.clone(),
+        real_time: a.real_time,
         ..LabConfig::default()
     };
     let mut live = LiveConfig::default();
