@@ -767,15 +767,14 @@ mod tests {
         }
     }
 
+    /// A session of the short protocol flown by the straight-ahead pilot.
+    fn straight(kind: TrialKind) -> Session {
+        Session::new(short(), TaskParams::default(), Box::new(Straight), kind).unwrap()
+    }
+
     #[test]
     fn phases_commands_and_goals_follow_the_time_stamps() {
-        let mut s = Session::new(
-            short(),
-            TaskParams::default(),
-            Box::new(Straight),
-            TrialKind::Virtual,
-        )
-        .unwrap();
+        let mut s = straight(TrialKind::Virtual);
         let mut scheduled = 0;
         for k in 0..300 {
             let t = 100.0 + f64::from(k) * 0.04;
@@ -819,13 +818,7 @@ mod tests {
 
     #[test]
     fn a_set_origin_makes_the_first_frame_delivered_the_frame_of_its_time() {
-        let mut s = Session::new(
-            short(),
-            TaskParams::default(),
-            Box::new(Straight),
-            TrialKind::Real,
-        )
-        .unwrap();
+        let mut s = straight(TrialKind::Real);
         s.set_origin(0.0);
         // The recording's frames 2, 3, 4 (0 and 1 never delivered).
         for k in 2..5 {
@@ -849,13 +842,7 @@ mod tests {
 
     #[test]
     fn lost_tracking_stops_within_one_frame_of_the_timeout_and_resumes() {
-        let mut s = Session::new(
-            short(),
-            TaskParams::default(),
-            Box::new(Straight),
-            TrialKind::Real,
-        )
-        .unwrap();
+        let mut s = straight(TrialKind::Real);
         let mut stop_at = None;
         let mut resumed = false;
         for k in 0..200 {
@@ -885,13 +872,7 @@ mod tests {
 
     #[test]
     fn malformed_input_and_time_going_backwards_stop_the_robot() {
-        let mut s = Session::new(
-            short(),
-            TaskParams::default(),
-            Box::new(Straight),
-            TrialKind::Real,
-        )
-        .unwrap();
+        let mut s = straight(TrialKind::Real);
         s.on_frame(&frame(1.0, Some((0.0, 0.0)), Some((1.0, 1.0))));
         let out = s.on_malformed("garbage");
         assert!(matches!(out[0], Command { stop: true, .. }));

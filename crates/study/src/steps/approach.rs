@@ -1,23 +1,13 @@
 //! The approach assay of a training run (SPEC §8): the robot in a corner, a motionless fish
 //! and the goal on either side.
 
-use super::{Ctx, PolicySource};
-use crate::error::{StepError, StudyError};
-use crate::store::staged;
+use super::episodes::Inputs;
+use super::PolicySource;
+use crate::error::StudyError;
 use crate::Study;
-use fishprobe_learn::Evaluation;
-use serde::Serialize;
 
-/// What the assay reads.
-#[derive(Debug, Clone, Serialize)]
-pub struct Inputs {
-    /// The policy assayed.
-    pub policy: PolicySource,
-    /// The assay's episodes: its own set-up, observed as the study's policies observe.
-    pub evaluation: Evaluation,
-}
-
-/// Every seed of a policy meets the same episodes.
+/// The assay's episodes (its own set-up, observed as the study's policies observe) with the
+/// policy assayed: every seed of a policy meets the same episodes, which run as any others.
 pub(crate) fn inputs(study: &Study, p: usize, k: usize) -> Result<Inputs, StudyError> {
     let c = &study.cfg;
     let mut e = fishprobe_learn::approach_assay(
@@ -32,16 +22,5 @@ pub(crate) fn inputs(study: &Study, p: usize, k: usize) -> Result<Inputs, StudyE
     Ok(Inputs {
         policy: PolicySource::of(study, p, k),
         evaluation: e,
-    })
-}
-
-pub(crate) fn run(i: &Inputs, cx: &mut Ctx) -> Result<(), StepError> {
-    staged(&cx.out, |tmp| {
-        let e = Evaluation {
-            out: tmp.to_path_buf(),
-            ..i.evaluation.clone()
-        };
-        fishprobe_learn::evaluate(i.policy.load(&cx.layout)?.as_ref(), &e)?;
-        Ok(())
     })
 }

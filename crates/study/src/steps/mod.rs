@@ -42,8 +42,8 @@ pub enum StepInputs {
     Eval(episodes::Inputs),
     /// The scripted baselines on a model's evaluation episodes.
     Baseline(baseline::Inputs),
-    /// The approach assay of a training run.
-    Approach(approach::Inputs),
+    /// The approach assay of a training run (its episodes: the assay's set-up).
+    Approach(episodes::Inputs),
     /// The stability episodes of a training run.
     Stability(episodes::Inputs),
     /// The reality arm of a policy.
@@ -188,9 +188,10 @@ pub(crate) fn run_step(study: &Study, s: &Step) -> Result<Vec<String>, StepError
     let r = match &s.inputs {
         StepInputs::FitConvnet(i) => fit_convnet::run(i, &mut cx),
         StepInputs::Train(i) => train::run(i, &mut cx),
-        StepInputs::Eval(i) | StepInputs::Stability(i) => episodes::run(i, &mut cx),
+        StepInputs::Eval(i) | StepInputs::Stability(i) | StepInputs::Approach(i) => {
+            episodes::run(i, &mut cx)
+        }
         StepInputs::Baseline(i) => baseline::run(i, &mut cx),
-        StepInputs::Approach(i) => approach::run(i, &mut cx),
         StepInputs::Reality(i) => reality::run(i, &mut cx),
         StepInputs::Analyze(i) => analyze::run(i, &study.root, &mut cx),
         StepInputs::Report(i) => report::run(i, &study.root, &mut cx),
