@@ -104,6 +104,12 @@ pub fn train_to_end(
         },
     };
     hooks.opened(&t, &how)?;
+    // A run that was finished before keeps its policy file as it is (another build would
+    // write other metadata, and so other bytes, into the same weights).
+    let written = RunLayout::new(dir).policy();
+    if t.done() && how == Opened::Resumed && written.is_file() {
+        return Ok((t, written));
+    }
     while !t.done() {
         let s = t.iterate()?;
         hooks.iterated(&t, &s)?;
@@ -348,7 +354,9 @@ mod tests {
             e.ends_with("already holds a training run of these settings: resume it"),
             "{e}"
         );
-        // Started or resumed: a finished run is done at once.
+        // Started or resumed: a finished run is done at once, its policy file untouched.
+        let before = std::fs::read(&policy).expect("policy");
+        std::fs::write(&policy, b"kept as it was").expect("write");
         let mut c = Count::default();
         train_to_end(
             &dir,
@@ -361,6 +369,8 @@ mod tests {
             (c.opened.as_slice(), c.iterations),
             (&[Opened::Resumed][..], 0)
         );
+        assert_eq!(std::fs::read(&policy).expect("policy"), b"kept as it was");
+        std::fs::write(&policy, before).expect("write");
         // Another run under the study's rule: deleted and started.
         let mut c = Count::default();
         let mut other = spec(4);
