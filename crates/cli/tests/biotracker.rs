@@ -7,8 +7,9 @@
 mod common;
 
 use common::tracker::{
-    config_json, connect, experiment, final_trial, free_addr, observer, one_trial_bridge,
-    record_trial, recorded_poses, robot_program, runtime, wait_exit, FakeCore, FPS, PROTOCOL,
+    config_json, configured, connect, experiment, final_trial, free_addr, observer,
+    one_trial_bridge, record_trial, recorded_poses, robot_program, runtime, wait_exit, Configured,
+    FakeCore, FPS, PROTOCOL,
 };
 use common::{fishprobe, fresh_dir as dir, stderr};
 use fishprobe_live::biotracker::grpc::{self, Client};
@@ -306,24 +307,18 @@ fn garbage_a_huge_message_and_a_flood_get_errors_or_drops_and_no_crash() {
 
 #[test]
 fn the_core_dying_mid_trial_stops_the_robot_and_keeps_the_trial_with_the_reason() {
-    let d = dir("biotracker-core-dies");
-    let protocol = d.join("protocol.toml");
-    std::fs::write(&protocol, PROTOCOL).unwrap();
-    let mut core = FakeCore::start();
-    let (address, sink) = (free_addr(), free_addr());
-    let log = d.join("observer.log");
-    let mut child = observer(address, core.addr, &log, false);
-    let out = d.join("trials");
-    let rt = runtime();
-    let mut client = rt.block_on(connect(address));
-    rt.block_on(client.call::<ComponentConfig, Empty>(
-        grpc::SET_CONFIG_PATH,
-        ComponentConfig {
-            config_json: config_json(&out, &protocol, sink, core.addr),
-            id: "fishprobe".into(),
-        },
-    ))
-    .unwrap();
+    let Configured {
+        d: _d,
+        mut core,
+        address: _address,
+        sink,
+        log,
+        mut child,
+        out,
+        rt,
+        mut client,
+        protocol: _protocol,
+    } = configured("biotracker-core-dies");
     let robot = robot_program(sink);
     let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
     let lost = [f32::NAN; 3];

@@ -9,8 +9,8 @@ mod common;
 
 use common::fresh_dir as dir;
 use common::tracker::{
-    config_json, connect, experiment, final_trial, free_addr, observer, observer_with, runtime,
-    timed_robot_program, wait_exit, FakeCore, FPS, PROTOCOL,
+    config_json, configured, connect, experiment, final_trial, free_addr, observer, observer_with,
+    runtime, timed_robot_program, wait_exit, Configured, FakeCore, FPS, PROTOCOL,
 };
 use fishprobe_live::biotracker::grpc;
 use fishprobe_live::biotracker::schema::{ComponentConfig, Empty, Experiment, RecordingState};
@@ -20,24 +20,18 @@ use std::time::{Duration, Instant};
 /// of life, so the robot is stopped within the stale time and its watchdog gets no ticks.
 #[test]
 fn a_stuck_frame_counter_stops_the_robot_within_the_stale_time_and_feeds_no_watchdog() {
-    let d = dir("failsafe-stuck");
-    let protocol = d.join("protocol.toml");
-    std::fs::write(&protocol, PROTOCOL).unwrap();
-    let core = FakeCore::start();
-    let (address, sink) = (free_addr(), free_addr());
-    let log = d.join("observer.log");
-    let mut child = observer(address, core.addr, &log, false);
-    let out = d.join("trials");
-    let rt = runtime();
-    let mut client = rt.block_on(connect(address));
-    rt.block_on(client.call::<ComponentConfig, Empty>(
-        grpc::SET_CONFIG_PATH,
-        ComponentConfig {
-            config_json: config_json(&out, &protocol, sink, core.addr),
-            id: "fishprobe".into(),
-        },
-    ))
-    .unwrap();
+    let Configured {
+        d: _d,
+        core: _core,
+        address: _address,
+        sink,
+        log: _log,
+        mut child,
+        out: _out,
+        rt,
+        mut client,
+        protocol: _protocol,
+    } = configured("failsafe-stuck");
     let robot = timed_robot_program(sink);
     let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
     let mut send = |e: Experiment| {
@@ -89,24 +83,18 @@ fn a_stuck_frame_counter_stops_the_robot_within_the_stale_time_and_feeds_no_watc
 /// trial ends, with the reason, instead of storing them as if they were.
 #[test]
 fn a_skeleton_change_mid_trial_ends_the_trial_with_the_reason() {
-    let d = dir("failsafe-skeleton");
-    let protocol = d.join("protocol.toml");
-    std::fs::write(&protocol, PROTOCOL).unwrap();
-    let core = FakeCore::start();
-    let (address, sink) = (free_addr(), free_addr());
-    let log = d.join("observer.log");
-    let mut child = observer(address, core.addr, &log, false);
-    let out = d.join("trials");
-    let rt = runtime();
-    let mut client = rt.block_on(connect(address));
-    rt.block_on(client.call::<ComponentConfig, Empty>(
-        grpc::SET_CONFIG_PATH,
-        ComponentConfig {
-            config_json: config_json(&out, &protocol, sink, core.addr),
-            id: "fishprobe".into(),
-        },
-    ))
-    .unwrap();
+    let Configured {
+        d: _d,
+        core: _core,
+        address: _address,
+        sink,
+        log,
+        mut child,
+        out,
+        rt,
+        mut client,
+        protocol: _protocol,
+    } = configured("failsafe-skeleton");
     let robot = timed_robot_program(sink);
     let (r, f) = ([-10.0f32, 0.0, 0.0], [10.0f32, 5.0, 1.0]);
     for k in 0..60u32 {

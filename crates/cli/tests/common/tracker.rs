@@ -324,3 +324,63 @@ pub fn final_trial(file: &Path, log: &Path, within: Duration) -> fishprobe_io::T
         std::thread::sleep(Duration::from_millis(20));
     }
 }
+
+/// An observer configured for a trial of [`PROTOCOL`] against a fake core, as most tests begin.
+pub struct Configured {
+    /// The test's directory.
+    pub d: super::Scratch,
+    /// The protocol file.
+    pub protocol: PathBuf,
+    /// The fake core.
+    pub core: FakeCore,
+    /// The observer's gRPC address.
+    pub address: SocketAddr,
+    /// The robot sink's address.
+    pub sink: SocketAddr,
+    /// The observer's log.
+    pub log: PathBuf,
+    /// The observer process.
+    pub child: Child,
+    /// Where trials are written.
+    pub out: PathBuf,
+    /// The test's runtime.
+    pub rt: tokio::runtime::Runtime,
+    /// A client, its configuration taken.
+    pub client: Client,
+}
+
+/// Starts an observer beside a fake core and configures it (trials into `trials/`).
+pub fn configured(tag: &str) -> Configured {
+    let d = super::fresh_dir(tag);
+    let protocol = d.join("protocol.toml");
+    std::fs::write(&protocol, PROTOCOL).unwrap();
+    let core = FakeCore::start();
+    let (address, sink) = (free_addr(), free_addr());
+    let log = d.join("observer.log");
+    let child = observer(address, core.addr, &log, false);
+    let out = d.join("trials");
+    let rt = runtime();
+    let mut client = rt.block_on(connect(address));
+    rt.block_on(
+        client.call::<fishprobe_live::biotracker::schema::ComponentConfig, Empty>(
+            grpc::SET_CONFIG_PATH,
+            fishprobe_live::biotracker::schema::ComponentConfig {
+                config_json: config_json(&out, &protocol, sink, core.addr),
+                id: "fishprobe".into(),
+            },
+        ),
+    )
+    .unwrap();
+    Configured {
+        d,
+        protocol,
+        core,
+        address,
+        sink,
+        log,
+        child,
+        out,
+        rt,
+        client,
+    }
+}

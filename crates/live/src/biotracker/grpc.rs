@@ -68,42 +68,41 @@ impl Methods {
     /// Adds the unary method `path`: a request of at most `max_message_bytes` (a larger one
     /// is answered with an error without being decoded) is decoded and handed to `handle`.
     #[must_use]
-    pub fn unary<M1, M2, F>(
-        mut self,
-        path: &'static str,
-        max_message_bytes: usize,
-        handle: F,
-    ) -> Self
+    pub fn unary<M1, M2, F>(self, path: &'static str, max_message_bytes: usize, handle: F) -> Self
     where
         M1: prost::Message + Default + Send + 'static,
         M2: prost::Message + Send + 'static,
         F: Fn(M1) -> Result<M2, Status> + Send + Sync + 'static,
     {
-        let handle = Arc::new(handle);
-        let route = move |req: http::Request<tonic::body::Body>| -> BoxFuture<_> {
-            let handle = Arc::clone(&handle);
-            Box::pin(async move {
-                let mut grpc =
-                    tonic::server::Grpc::new(tonic_prost::ProstCodec::<M2, M1>::default())
-                        .max_decoding_message_size(max_message_bytes);
-                Ok(grpc.unary(Unary(move |m| handle(m)), req).await)
-            })
-        };
-        self.routes.push((path, Arc::new(route)));
-        self
+        self.route(path, max_message_bytes, handle, false)
     }
-}
 
-impl Methods {
     /// Adds the unary method `path` whose `handle` may take long (it loads files): it runs on a
     /// blocking thread of its own, so the server answers the other methods meanwhile (the
     /// core's `update`s keep flowing while a `set_config` loads a policy).
     #[must_use]
     pub fn unary_blocking<M1, M2, F>(
+        self,
+        path: &'static str,
+        max_message_bytes: usize,
+        handle: F,
+    ) -> Self
+    where
+        M1: prost::Message + Default + Send + 'static,
+        M2: prost::Message + Send + 'static,
+        F: Fn(M1) -> Result<M2, Status> + Send + Sync + 'static,
+    {
+        self.route(path, max_message_bytes, handle, true)
+    }
+
+    /// The route of a unary method: decoded within the size limit, then handled in the
+    /// server's task or (`blocking`) on a blocking thread.
+    fn route<M1, M2, F>(
         mut self,
         path: &'static str,
         max_message_bytes: usize,
         handle: F,
+        blocking: bool,
     ) -> Self
     where
         M1: prost::Message + Default + Send + 'static,
@@ -117,7 +116,11 @@ impl Methods {
                 let mut grpc =
                     tonic::server::Grpc::new(tonic_prost::ProstCodec::<M2, M1>::default())
                         .max_decoding_message_size(max_message_bytes);
-                Ok(grpc.unary(Blocking(handle), req).await)
+                Ok(if blocking {
+                    grpc.unary(Blocking(handle), req).await
+                } else {
+                    grpc.unary(Unary(move |m| handle(m)), req).await
+                })
             })
         };
         self.routes.push((path, Arc::new(route)));
