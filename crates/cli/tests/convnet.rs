@@ -5,21 +5,10 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir as dir, stderr, stdout};
+use common::{fishprobe, fresh_dir as dir, pairs, stderr, stdout};
 use fishprobe_io::{write_trial, Category, Entity, TrialFile};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-/// The shared pair data (`None`: not configured, skip; configured but missing: fail).
-fn pairs() -> Option<PathBuf> {
-    let Some(d) = fishprobe_io::shared_data_dir() else {
-        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
-        return None;
-    };
-    let p = d.join("guppy-pairs/legacy");
-    assert!(p.join("train").is_dir(), "{} is missing", p.display());
-    Some(p)
-}
 
 fn first_file(dir: &Path) -> PathBuf {
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir)

@@ -6,19 +6,7 @@
 
 mod common;
 
-use common::{fishprobe, fresh_dir as dir, stderr, stdout};
-use std::path::PathBuf;
-
-/// The shared pair data (`None`: not configured, skip; configured but missing: fail).
-fn pairs() -> Option<PathBuf> {
-    let Some(d) = fishprobe_io::shared_data_dir() else {
-        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
-        return None;
-    };
-    let p = d.join("guppy-pairs/legacy");
-    assert!(p.join("train").is_dir(), "{} is missing", p.display());
-    Some(p)
-}
+use common::{fishprobe, fresh_dir as dir, pairs, stderr, stdout};
 
 /// Settings for a fit in seconds: one simulation per recording, two iterations, no
 /// correlations.

@@ -763,8 +763,9 @@ mod tests {
         assert_eq!(view(&[nan, ahead_near]), view(&[ahead_near]));
     }
 
-    #[test]
-    fn backward_matches_finite_differences() {
+    /// A small network for gradient checks (`latent_dim`, seeded), its output weights made
+    /// larger so that a check is not dominated by rounding, and a batch of two inputs.
+    fn tiny_net(latent_dim: usize, seed: u64) -> (ConvNetArch, ConvNet, usize, Vec<f32>) {
         let arch = ConvNetArch {
             bins: 12,
             conv_channels: 2,
@@ -772,11 +773,11 @@ mod tests {
             hidden: [5, 4],
             v_bins: 2,
             w_bins: 3,
+            latent_dim,
             ..ConvNetArch::default()
         };
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(3);
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed);
         let mut net = ConvNet::new(arch.clone(), &mut rng);
-        // Larger output weights so the check is not dominated by rounding.
         for p in net.mlp.params_mut() {
             *p *= 3.0;
         }
@@ -784,6 +785,12 @@ mod tests {
         let x: Vec<f32> = (0..batch * arch.view_len())
             .map(|i| ((i * 37 % 11) as f32 / 11.0) - 0.3)
             .collect();
+        (arch, net, batch, x)
+    }
+
+    #[test]
+    fn backward_matches_finite_differences() {
+        let (arch, mut net, batch, x) = tiny_net(0, 3);
         let targets = [1usize, 4];
         let loss = |n: &ConvNet| {
             let mut ws = ConvNetWorkspace::default();
@@ -833,25 +840,7 @@ mod tests {
 
     #[test]
     fn the_latent_gradient_matches_finite_differences_and_the_latent_matters() {
-        let arch = ConvNetArch {
-            bins: 12,
-            conv_channels: 2,
-            kernel: 3,
-            hidden: [5, 4],
-            v_bins: 2,
-            w_bins: 3,
-            latent_dim: 2,
-            ..ConvNetArch::default()
-        };
-        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
-        let mut net = ConvNet::new(arch.clone(), &mut rng);
-        for p in net.mlp.params_mut() {
-            *p *= 3.0;
-        }
-        let batch = 2;
-        let x: Vec<f32> = (0..batch * arch.view_len())
-            .map(|i| ((i * 37 % 11) as f32 / 11.0) - 0.3)
-            .collect();
+        let (arch, mut net, batch, x) = tiny_net(2, 5);
         let z = vec![0.4f32, -0.7, 1.1, 0.2];
         let targets = [2usize, 5];
         let loss = |z: &[f32]| {

@@ -120,4 +120,16 @@ pub fn bridge(out: &Path, port: u16, extra: &[&str]) -> Child {
     child
 }
 
+/// The shared pair recordings, `guppy-pairs/legacy` (`None`: the data is not configured, skip;
+/// configured but missing: fail).
+pub fn pairs() -> Option<std::path::PathBuf> {
+    let Some(d) = fishprobe_io::shared_data_dir() else {
+        eprintln!("skipping: FISHPROBE_DATA is not set and ../shared/data is absent");
+        return None;
+    };
+    let p = d.join("guppy-pairs/legacy");
+    assert!(p.join("train").is_dir(), "{} is missing", p.display());
+    Some(p)
+}
+
 pub mod tracker;
